@@ -1,0 +1,16 @@
+//! The wheel-legged robot as its controller sees it.
+//!
+//! `#![no_std]`, no `alloc`: every buffer has a size fixed at compile time, every fallible
+//! operation returns a `Result`, nothing panics on data. This crate is the single source of truth
+//! for what the robot *is* (its geometry, leg kinematics and action set): the simulator, the
+//! trainer and the firmware simulator all take these definitions from here.
+//!
+//! - [`robot`]: dimensions of the body, legs and wheels.
+//! - [`leg`]: 3-joint leg inverse and forward kinematics, and the reachable (clearance, track) set.
+//! - [`action`]: the 5-D discrete action and its step sizes.
+#![no_std]
+#![deny(unsafe_code)]
+
+pub mod action;
+pub mod leg;
+pub mod robot;

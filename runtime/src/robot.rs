@@ -1,0 +1,131 @@
+//! Dimensions of the robot: body, legs, wheels. All lengths in metres, angles in radians.
+//!
+//! Frames: the **body frame** has its origin at the body's geometric centre, x forward, y left,
+//! z up. The **leg plane** of a leg is the body's y-z plane through that leg's hip: every joint of a
+//! leg rotates about an axis parallel to the body x axis, so a leg moves only sideways and up/down.
+//! That is what makes height and track one coupled pair: all four legs act symmetrically.
+
+use nalgebra::Vector3;
+
+/// Which of the four legs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum LegId {
+    /// Front left.
+    FrontLeft,
+    /// Front right.
+    FrontRight,
+    /// Rear left.
+    RearLeft,
+    /// Rear right.
+    RearRight,
+}
+
+impl LegId {
+    /// All legs in node order (the order of CAN node ids and of every per-leg array).
+    pub const ALL: [LegId; 4] = [
+        LegId::FrontLeft,
+        LegId::FrontRight,
+        LegId::RearLeft,
+        LegId::RearRight,
+    ];
+
+    /// Index of the leg in [`LegId::ALL`].
+    pub const fn index(self) -> usize {
+        match self {
+            LegId::FrontLeft => 0,
+            LegId::FrontRight => 1,
+            LegId::RearLeft => 2,
+            LegId::RearRight => 3,
+        }
+    }
+
+    /// +1 for a front leg, -1 for a rear leg (sign of the hip's body x).
+    pub const fn fore_sign(self) -> f32 {
+        match self {
+            LegId::FrontLeft | LegId::FrontRight => 1.0,
+            LegId::RearLeft | LegId::RearRight => -1.0,
+        }
+    }
+
+    /// +1 for a left leg, -1 for a right leg (sign of the hip's body y). Right legs are the
+    /// mirror image of left legs.
+    pub const fn side_sign(self) -> f32 {
+        match self {
+            LegId::FrontLeft | LegId::RearLeft => 1.0,
+            LegId::FrontRight | LegId::RearRight => -1.0,
+        }
+    }
+}
+
+/// Everything about the robot's shape that kinematics and collision need.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RobotGeometry {
+    /// Body length along body x.
+    pub body_length_m: f32,
+    /// Body width along body y.
+    pub body_width_m: f32,
+    /// Body thickness along body z.
+    pub body_thickness_m: f32,
+    /// Body x of the front hips (rear hips at minus this).
+    pub hip_x_m: f32,
+    /// Body y of the left hips (right hips at minus this): the hips sit on the body's sides.
+    pub hip_y_m: f32,
+    /// Thigh length, hip joint to knee joint.
+    pub thigh_m: f32,
+    /// Shank length, knee joint to the wheel axle.
+    pub shank_m: f32,
+    /// Radius of the leg links as collision capsules.
+    pub link_radius_m: f32,
+    /// Wheel radius.
+    pub wheel_radius_m: f32,
+    /// Wheel width (along its axle, body y).
+    pub wheel_width_m: f32,
+    /// Hip joint range `[min, max]`: thigh angle below the outward horizontal.
+    pub hip_range_rad: [f32; 2],
+    /// Knee joint range `[min, max]`: shank angle relative to the thigh, 0 = straight leg.
+    pub knee_range_rad: [f32; 2],
+    /// Track (wheel centre to wheel centre across the body) limits `[min, max]`.
+    pub track_range_m: [f32; 2],
+    /// Clearance (ground to body underside) limits `[min, max]`.
+    pub clearance_range_m: [f32; 2],
+    /// Track of the default pose.
+    pub default_track_m: f32,
+    /// Clearance of the default pose.
+    pub default_clearance_m: f32,
+}
+
+/// The robot this project is built for (docs/robot.md explains every number).
+pub const WHEELLEG: RobotGeometry = RobotGeometry {
+    body_length_m: 0.50,
+    body_width_m: 0.16,
+    body_thickness_m: 0.08,
+    hip_x_m: 0.20,
+    hip_y_m: 0.08,
+    thigh_m: 0.11,
+    shank_m: 0.11,
+    link_radius_m: 0.012,
+    wheel_radius_m: 0.05,
+    wheel_width_m: 0.04,
+    hip_range_rad: [-1.2, 1.5],
+    knee_range_rad: [0.0, 2.8],
+    track_range_m: [0.16, 0.56],
+    clearance_range_m: [0.04, 0.24],
+    default_track_m: 0.36,
+    default_clearance_m: 0.12,
+};
+
+impl RobotGeometry {
+    /// Height of the body centre above the ground at a given clearance.
+    pub fn body_centre_height_m(&self, clearance_m: f32) -> f32 {
+        clearance_m + 0.5 * self.body_thickness_m
+    }
+
+    /// Hip joint position of a leg in the body frame.
+    pub fn hip_in_body(&self, leg: LegId) -> Vector3<f32> {
+        Vector3::new(
+            leg.fore_sign() * self.hip_x_m,
+            leg.side_sign() * self.hip_y_m,
+            0.0,
+        )
+    }
+}
