@@ -8,9 +8,13 @@
 //! - [`robot`]: dimensions of the body, legs and wheels.
 //! - [`leg`]: 3-joint leg inverse and forward kinematics, and the reachable (clearance, track) set.
 //! - [`action`]: the 5-D discrete action and its step sizes.
+//! - [`base`]: mecanum base kinematics, wheel speeds and odometry.
+//! - [`motion`]: one decision as a smooth setpoint stream at the control rate.
 #![no_std]
 #![deny(unsafe_code)]
 
 pub mod action;
+pub mod base;
 pub mod leg;
+pub mod motion;
 pub mod robot;
