@@ -8,6 +8,7 @@
 //! - [`robot`]: dimensions of the body, legs and wheels.
 //! - [`leg`]: 3-joint leg inverse and forward kinematics, and the reachable (clearance, track) set.
 //! - [`action`]: the 5-D discrete action and its step sizes.
+//! - [`model`]: the int8 policy network: weights file, loader, integer inference (scalar / AVX2).
 //! - [`base`]: mecanum base kinematics, wheel speeds and odometry.
 //! - [`motion`]: one decision as a smooth setpoint stream at the control rate.
 #![no_std]
@@ -16,5 +17,6 @@
 pub mod action;
 pub mod base;
 pub mod leg;
+pub mod model;
 pub mod motion;
 pub mod robot;

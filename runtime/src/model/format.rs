@@ -1,0 +1,137 @@
+//! The `.wlw` weights file: records as they are stored, and the envelope around them.
+//!
+//! A file is the postcard encoding of [`Envelope`]: the magic bytes, the format version, the
+//! payload (a length-prefixed byte string) and a CRC-32 of everything before it. The payload is
+//! the postcard encoding, field after field, of:
+//!
+//! 1. [`InputRecord`]: the height-map shape and its quantization;
+//! 2. a sequence of [`InputQuantRecord`] (one per state feature);
+//! 3. a sequence of [`ConvRecord`] (the conv stack, first layer first);
+//! 4. a sequence of [`DenseRecord`] (the hidden dense stack);
+//! 5. one [`DenseRecord`] (the action head);
+//! 6. an `Option<DenseRecord>` (the value head).
+//!
+//! A writer with an allocator serializes a struct with these six fields (sequences as `Vec`s,
+//! as the trainer does), which gives exactly those bytes; the runtime reads the six parts one after another
+//! so that it can check every sequence length against its capacity before storing anything.
+//! Tensors are byte strings borrowed from the file, never copied. The byte-level description for
+//! other readers is docs/weights-format.md.
+
+use serde::{Deserialize, Serialize};
+
+/// First four bytes of every weights file.
+pub const MAGIC: [u8; 4] = *b"WLWM";
+/// The format version this runtime reads and the trainer writes.
+pub const FORMAT_VERSION: u16 = 1;
+
+/// The outer layer of the file. Serialized with postcard: 4 raw magic bytes, the version as a
+/// varint, the payload as varint length + bytes, then the 4 CRC bytes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Envelope<'a> {
+    /// [`MAGIC`].
+    pub magic: [u8; 4],
+    /// [`FORMAT_VERSION`] for files this runtime reads.
+    pub version: u16,
+    /// The postcard-encoded model (see the module docs).
+    #[serde(borrow)]
+    pub payload: &'a [u8],
+    /// CRC-32 (see [`super::crc32`]) of every file byte before these four, little-endian.
+    pub crc32_le: [u8; 4],
+}
+
+/// Quantization of one activation tensor: real value = `scale * (q - zero_point)`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ActQuantRecord {
+    /// Real units per integer step (metres for inputs; the network's own units inside).
+    pub scale: f32,
+    /// The integer that stands for real 0.
+    pub zero_point: i8,
+}
+
+/// How one raw input in millimetres becomes an int8 activation, in integers only:
+/// `q = clamp(zero_point + requantize(value_mm, multiplier, shift), -128, 127)` where
+/// `requantize` is [`super::quant::requantize`] (multiply by `multiplier * 2^(shift - 31)`,
+/// rounded).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct InputQuantRecord {
+    /// Real metres per integer step (informational: lets readers dequantize).
+    pub scale_m: f32,
+    /// The integer that stands for 0 m.
+    pub zero_point: i8,
+    /// Fixed-point multiplier, in `[0, 2^31)` (`1 mm / scale_m` = `multiplier * 2^(shift-31)`).
+    pub multiplier: i32,
+    /// Power-of-two exponent of the multiplier, in `[-31, 30]`.
+    pub shift: i8,
+}
+
+/// The height-map input: shape and quantization.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct InputRecord {
+    /// Rows of the height map (robot x, forward).
+    pub rows: u16,
+    /// Columns of the height map (robot y, left).
+    pub cols: u16,
+    /// Millimetres to int8.
+    pub height: InputQuantRecord,
+}
+
+/// One 2-D convolution with a square kernel, optional ReLU, int8 in and out.
+///
+/// Weights are int8 in `[out][ky][kx][in]` order (OHWI, channels innermost, matching the
+/// runtime's HWC activations). `bias`, `multipliers` are little-endian i32 per output channel;
+/// `shifts` one i8 per output channel. Padding cells hold the input zero point (real 0).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ConvRecord<'a> {
+    /// Input channels.
+    pub in_channels: u16,
+    /// Output channels.
+    pub out_channels: u16,
+    /// Kernel side (square kernel).
+    pub kernel: u8,
+    /// Stride, both axes.
+    pub stride: u8,
+    /// Zero padding on every side.
+    pub padding: u8,
+    /// Whether ReLU is fused (the output is clamped below at the zero point).
+    pub relu: bool,
+    /// Output activation quantization.
+    pub output: ActQuantRecord,
+    /// `out * kernel * kernel * in` int8 weights, OHWI.
+    #[serde(borrow)]
+    pub weights: &'a [u8],
+    /// `out` little-endian i32 biases, in units of input scale * weight scale.
+    #[serde(borrow)]
+    pub bias: &'a [u8],
+    /// `out` little-endian i32 requantization multipliers.
+    #[serde(borrow)]
+    pub multipliers: &'a [u8],
+    /// `out` i8 requantization shifts.
+    #[serde(borrow)]
+    pub shifts: &'a [u8],
+}
+
+/// One fully connected layer, optional ReLU, int8 in and out. Weights are int8 `[out][in]`,
+/// row-major; bias, multipliers and shifts as in [`ConvRecord`].
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DenseRecord<'a> {
+    /// Input features.
+    pub in_features: u16,
+    /// Output features.
+    pub out_features: u16,
+    /// Whether ReLU is fused.
+    pub relu: bool,
+    /// Output activation quantization.
+    pub output: ActQuantRecord,
+    /// `out * in` int8 weights, row-major.
+    #[serde(borrow)]
+    pub weights: &'a [u8],
+    /// `out` little-endian i32 biases.
+    #[serde(borrow)]
+    pub bias: &'a [u8],
+    /// `out` little-endian i32 requantization multipliers.
+    #[serde(borrow)]
+    pub multipliers: &'a [u8],
+    /// `out` i8 requantization shifts.
+    #[serde(borrow)]
+    pub shifts: &'a [u8],
+}

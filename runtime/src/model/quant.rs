@@ -1,0 +1,74 @@
+//! Integer requantization, the only arithmetic between an int32 accumulator and an int8
+//! activation. No floating point: a real multiplier `m` is stored as `multiplier * 2^(shift-31)`
+//! with `multiplier` in `[2^30, 2^31)` (or 0), as in TFLite and CMSIS-NN.
+
+/// Smallest shift the runtime accepts (multipliers down to about 2^-62).
+pub const MIN_SHIFT: i8 = -31;
+/// Largest shift the runtime accepts (multipliers up to about 2^30).
+pub const MAX_SHIFT: i8 = 30;
+
+/// `round(value * multiplier * 2^(shift - 31))`, rounding halves towards +infinity.
+///
+/// One rounding step on the exact 64-bit product (TFLite's "single rounding" variant): the
+/// product of an i32 and a multiplier below 2^31 stays below 2^62 in magnitude, and the right
+/// shift `31 - shift` is in `1..=62` for shifts the loader accepts, so nothing overflows. Shifts
+/// outside `[MIN_SHIFT, MAX_SHIFT]` never reach here (the loader rejects them); they are clamped
+/// rather than trusted so that this function stays total.
+#[inline(always)]
+pub fn requantize(value: i32, multiplier: i32, shift: i8) -> i64 {
+    let right = 31 - i32::from(shift.clamp(MIN_SHIFT, MAX_SHIFT));
+    let product = i64::from(value) * i64::from(multiplier);
+    let half = 1i64 << (right - 1);
+    (product + half) >> right
+}
+
+/// Requantizes an accumulator to an int8 activation: adds the output zero point and clamps to
+/// int8, or to `[zero_point, 127]` when a ReLU is fused (real values below 0 become 0).
+#[inline(always)]
+pub fn to_int8(acc: i32, multiplier: i32, shift: i8, zero_point: i8, relu: bool) -> i8 {
+    let low = if relu { i64::from(zero_point) } else { -128 };
+    let value = requantize(acc, multiplier, shift) + i64::from(zero_point);
+    // Clamped into [-128, 127] just above, so the narrowing cannot truncate.
+    value.clamp(low, 127) as i8
+}
+
+/// Quantizes one raw input (a height or a state value in millimetres) to int8.
+#[inline]
+pub fn quantize_mm(value_mm: i32, multiplier: i32, shift: i8, zero_point: i8) -> i8 {
+    to_int8(value_mm, multiplier, shift, zero_point, false)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn requantize_rounds_half_up_and_scales() {
+        // multiplier 2^30, shift 0: times 0.5.
+        let half = 1 << 30;
+        assert_eq!(requantize(10, half, 0), 5);
+        assert_eq!(requantize(11, half, 0), 6, "5.5 rounds up");
+        assert_eq!(requantize(-11, half, 0), -5, "-5.5 rounds towards +inf");
+        // shift +2: times 2.
+        assert_eq!(requantize(7, half, 2), 14);
+        // extreme inputs do not overflow.
+        // (-2^31 * (2^31 - 1) + 1) / 2, floored: no overflow at the extremes.
+        assert_eq!(
+            requantize(i32::MIN, i32::MAX, MAX_SHIFT),
+            -(1i64 << 61) + (1i64 << 30)
+        );
+    }
+
+    #[test]
+    fn to_int8_clamps_and_applies_relu() {
+        let one = 1 << 30; // 0.5 at shift 0; use shift 1 for 1.0
+        assert_eq!(to_int8(1000, one, 1, 0, false), 127);
+        assert_eq!(to_int8(-1000, one, 1, 0, false), -128);
+        assert_eq!(
+            to_int8(-5, one, 1, -100, true),
+            -100,
+            "ReLU floor is the zero point"
+        );
+        assert_eq!(to_int8(5, one, 1, -100, true), -95);
+    }
+}
