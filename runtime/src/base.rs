@@ -8,7 +8,7 @@
 //! Sign conventions: body velocity is expressed in the body frame (x forward, y left, yaw
 //! counter-clockwise positive, see [`crate::robot`]); a wheel's angular speed is positive when
 //! the wheel rolls the robot forward, whichever side of the body it is on. Mapping that to a
-//! motor's own direction is the CAN node map's job .
+//! motor's own direction is the CAN node map's job ([`crate::can::node_map`]).
 //!
 //! With `r` the wheel radius and `k = hip_x + track / 2` (the lever arm of a roller force about the
 //! body centre for 45° rollers), the inverse map is

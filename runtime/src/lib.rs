@@ -11,11 +11,13 @@
 //! - [`model`]: the int8 policy network: weights file, loader, integer inference (scalar / AVX2).
 //! - [`base`]: mecanum base kinematics, wheel speeds and odometry.
 //! - [`motion`]: one decision as a smooth setpoint stream at the control rate.
+//! - [`can`]: ODrive CANSimple commands and feedback for the 16 motor axes.
 #![no_std]
 #![deny(unsafe_code)]
 
 pub mod action;
 pub mod base;
+pub mod can;
 pub mod leg;
 pub mod model;
 pub mod motion;

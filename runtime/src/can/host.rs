@@ -1,0 +1,658 @@
+//! The runtime's side of the bus: commands out through a bounded queue, feedback in through a
+//! tracker that knows what every axis last reported.
+//!
+//! Nothing here touches hardware. The control loop asks the [`Commander`] to put a tick's
+//! frames in a [`TxQueue`], drains the queue into whatever CAN driver it has (an MCU HAL, the
+//! in-process bus, SocketCAN), and hands every received frame to the [`FeedbackTracker`]. A
+//! frame the tracker cannot use is counted in [`BusStats`] and otherwise ignored: a noisy bus
+//! must never stop the controller, and a silent node must show up in [`Health`], not as a panic.
+
+use crate::base::WheelSpeeds;
+use crate::can::node_map::{Axis, AxisKind, Joint, NodeMap, AXIS_COUNT};
+use crate::can::protocol::{
+    decode, encode, AxisState, ControlMode, DecodeError, EncodeError, InputMode, Message,
+};
+use crate::leg::{JointAngles, LegConfig};
+use crate::motion::Setpoint;
+use crate::robot::{LegId, RobotGeometry};
+use embedded_can::Frame;
+use heapless::Deque;
+
+/// Frames one control tick sends: a position setpoint per joint, a velocity per wheel.
+pub const FRAMES_PER_SETPOINT: usize = AXIS_COUNT;
+
+/// Why frames could not be queued.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CanError {
+    /// Not enough room in the transmit queue; nothing was queued.
+    QueueFull,
+    /// A value could not be encoded; nothing was queued.
+    Encode(EncodeError),
+}
+
+impl From<EncodeError> for CanError {
+    fn from(e: EncodeError) -> Self {
+        CanError::Encode(e)
+    }
+}
+
+/// A bounded FIFO of frames waiting for the CAN driver; capacity `N` is fixed at compile time.
+pub struct TxQueue<F, const N: usize> {
+    frames: Deque<F, N>,
+}
+
+impl<F, const N: usize> Default for TxQueue<F, N> {
+    fn default() -> Self {
+        TxQueue {
+            frames: Deque::new(),
+        }
+    }
+}
+
+impl<F, const N: usize> TxQueue<F, N> {
+    /// An empty queue.
+    pub fn new() -> Self {
+        TxQueue::default()
+    }
+
+    /// Frames waiting.
+    pub fn len(&self) -> usize {
+        self.frames.len()
+    }
+
+    /// Whether no frame is waiting.
+    pub fn is_empty(&self) -> bool {
+        self.frames.is_empty()
+    }
+
+    /// Room left.
+    pub fn free(&self) -> usize {
+        N - self.frames.len()
+    }
+
+    /// The oldest frame, removed from the queue.
+    pub fn pop(&mut self) -> Option<F> {
+        self.frames.pop_front()
+    }
+
+    /// Appends one frame.
+    pub fn push(&mut self, frame: F) -> Result<(), CanError> {
+        self.frames
+            .push_back(frame)
+            .map_err(|_| CanError::QueueFull)
+    }
+
+    /// Appends all of `frames` or none of them, so a tick's commands never go out half-sent.
+    fn push_all<const M: usize>(&mut self, frames: heapless::Vec<F, M>) -> Result<(), CanError> {
+        if self.free() < frames.len() {
+            return Err(CanError::QueueFull);
+        }
+        for frame in frames {
+            self.push(frame)?;
+        }
+        Ok(())
+    }
+}
+
+/// Builds the frames for the robot's commands from the node map.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Commander {
+    /// Which node is which axis, and the unit conversions.
+    pub map: NodeMap,
+}
+
+impl Commander {
+    /// A commander for `map`.
+    pub fn new(map: NodeMap) -> Commander {
+        Commander { map }
+    }
+
+    fn frame<F: Frame>(&self, axis: Axis, message: Message) -> Result<F, CanError> {
+        Ok(encode(axis.node_id(), &message)?)
+    }
+
+    /// Queues one tick's setpoint: a Set_Input_Pos (with velocity feed-forward) for each of the
+    /// 12 joints, a Set_Input_Vel for each of the 4 wheels.
+    pub fn queue_setpoint<F: Frame, const N: usize>(
+        &self,
+        queue: &mut TxQueue<F, N>,
+        setpoint: &Setpoint,
+    ) -> Result<(), CanError> {
+        let mut frames: heapless::Vec<F, FRAMES_PER_SETPOINT> = heapless::Vec::new();
+        for axis in Axis::ALL {
+            let cal = self.map.get(axis);
+            let message = match axis {
+                Axis::Joint(_, joint) => {
+                    // All legs share the joint angles (left-leg convention); the mirrored
+                    // mounting of the right legs is in the calibration's direction.
+                    let (angle_rad, rate_radps) = match joint {
+                        Joint::Hip => (setpoint.joints.hip_rad, setpoint.joint_rates.hip_radps),
+                        Joint::Knee => (setpoint.joints.knee_rad, setpoint.joint_rates.knee_radps),
+                        Joint::WheelMount => (
+                            setpoint.joints.wheel_mount_rad,
+                            setpoint.joint_rates.wheel_mount_radps,
+                        ),
+                    };
+                    Message::SetInputPos {
+                        pos_turns: cal.to_motor_turns(angle_rad),
+                        vel_ff_turns_per_s: cal.to_motor_turns_per_s(rate_radps),
+                        torque_ff_nm: 0.0,
+                    }
+                }
+                Axis::Wheel(leg) => Message::SetInputVel {
+                    vel_turns_per_s: cal.to_motor_turns_per_s(setpoint.wheels.get(leg)),
+                    torque_ff_nm: 0.0,
+                },
+            };
+            frames
+                .push(self.frame(axis, message)?)
+                .map_err(|_| CanError::QueueFull)?;
+        }
+        queue.push_all(frames)
+    }
+
+    /// Queues the start-up sequence: position control for the joints, velocity control for the
+    /// wheels (both passthrough: the runtime already smooths its setpoints), then closed loop.
+    pub fn queue_startup<F: Frame, const N: usize>(
+        &self,
+        queue: &mut TxQueue<F, N>,
+    ) -> Result<(), CanError> {
+        let mut frames: heapless::Vec<F, { 2 * AXIS_COUNT }> = heapless::Vec::new();
+        for axis in Axis::ALL {
+            let control_mode = match axis.kind() {
+                AxisKind::Joint => ControlMode::Position,
+                AxisKind::Wheel => ControlMode::Velocity,
+            };
+            let mode = Message::SetControllerMode {
+                control_mode,
+                input_mode: InputMode::Passthrough,
+            };
+            frames
+                .push(self.frame(axis, mode)?)
+                .map_err(|_| CanError::QueueFull)?;
+        }
+        for axis in Axis::ALL {
+            let closed = Message::SetAxisState(AxisState::ClosedLoopControl);
+            frames
+                .push(self.frame(axis, closed)?)
+                .map_err(|_| CanError::QueueFull)?;
+        }
+        queue.push_all(frames)
+    }
+
+    /// Queues the same argument-less message (Estop, Clear_Errors) for every axis.
+    fn queue_broadcast<F: Frame, const N: usize>(
+        &self,
+        queue: &mut TxQueue<F, N>,
+        message: Message,
+    ) -> Result<(), CanError> {
+        let mut frames: heapless::Vec<F, AXIS_COUNT> = heapless::Vec::new();
+        for axis in Axis::ALL {
+            frames
+                .push(self.frame(axis, message)?)
+                .map_err(|_| CanError::QueueFull)?;
+        }
+        queue.push_all(frames)
+    }
+
+    /// Queues an Estop for every axis: all motors disarm (the legs then rest on their
+    /// gearboxes). For a controlled stop that keeps the legs powered, use
+    /// [`Commander::queue_safe_stop`].
+    pub fn queue_estop<F: Frame, const N: usize>(
+        &self,
+        queue: &mut TxQueue<F, N>,
+    ) -> Result<(), CanError> {
+        self.queue_broadcast(queue, Message::Estop)
+    }
+
+    /// Queues Clear_Errors for every axis.
+    pub fn queue_clear_errors<F: Frame, const N: usize>(
+        &self,
+        queue: &mut TxQueue<F, N>,
+    ) -> Result<(), CanError> {
+        self.queue_broadcast(queue, Message::ClearErrors)
+    }
+
+    /// Queues the safe stop: every wheel to 0 turns/s, every joint held where it was last
+    /// measured (zero feed-forward). Axes never heard from get no position command (there is
+    /// nothing safe to send them); their own watchdog idles them. Returns how many frames were
+    /// queued.
+    pub fn queue_safe_stop<F: Frame, const N: usize>(
+        &self,
+        queue: &mut TxQueue<F, N>,
+        feedback: &FeedbackTracker,
+    ) -> Result<usize, CanError> {
+        let mut frames: heapless::Vec<F, AXIS_COUNT> = heapless::Vec::new();
+        for axis in Axis::ALL {
+            let message = match axis.kind() {
+                AxisKind::Wheel => Message::SetInputVel {
+                    vel_turns_per_s: 0.0,
+                    torque_ff_nm: 0.0,
+                },
+                AxisKind::Joint => match feedback.axis(axis) {
+                    Some(AxisFeedback {
+                        estimate_at_us: Some(_),
+                        pos_turns,
+                        ..
+                    }) => Message::SetInputPos {
+                        pos_turns,
+                        vel_ff_turns_per_s: 0.0,
+                        torque_ff_nm: 0.0,
+                    },
+                    _ => continue,
+                },
+            };
+            frames
+                .push(self.frame(axis, message)?)
+                .map_err(|_| CanError::QueueFull)?;
+        }
+        let count = frames.len();
+        queue.push_all(frames)?;
+        Ok(count)
+    }
+}
+
+/// What one axis last reported.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct AxisFeedback {
+    /// Motor position from the last encoder estimate.
+    pub pos_turns: f32,
+    /// Motor velocity from the last encoder estimate.
+    pub vel_turns_per_s: f32,
+    /// When the last encoder estimate arrived.
+    pub estimate_at_us: Option<u64>,
+    /// State from the last heartbeat.
+    pub axis_state: Option<AxisState>,
+    /// Error bits from the last heartbeat.
+    pub axis_error: u32,
+    /// When the last heartbeat arrived.
+    pub heartbeat_at_us: Option<u64>,
+}
+
+impl AxisFeedback {
+    /// When anything was last heard from the axis.
+    pub fn last_seen_us(&self) -> Option<u64> {
+        match (self.estimate_at_us, self.heartbeat_at_us) {
+            (Some(a), Some(b)) => Some(a.max(b)),
+            (a, b) => a.or(b),
+        }
+    }
+}
+
+/// Counters of received traffic.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct BusStats {
+    /// Frames used (heartbeats and encoder estimates from mapped nodes).
+    pub accepted: u32,
+    /// Frames that do not decode as CANSimple (bad length, unknown command, bad value, ...).
+    pub malformed: u32,
+    /// Valid frames the host has no use for: from unmapped nodes, or commands and requests
+    /// (another master on the bus, or our own echo).
+    pub unexpected: u32,
+}
+
+/// What the tracker did with a frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Received {
+    /// Feedback from this axis was recorded.
+    Accepted(Axis),
+    /// The frame did not decode; counted in [`BusStats::malformed`].
+    Malformed(DecodeError),
+    /// The frame decoded but was not for us; counted in [`BusStats::unexpected`].
+    Unexpected,
+}
+
+/// A set of axes as a bit mask over [`Axis::ALL`] indices.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct AxisSet(pub u16);
+
+impl AxisSet {
+    /// Whether `axis` is in the set.
+    pub fn contains(&self, axis: Axis) -> bool {
+        self.0 & (1 << axis.index()) != 0
+    }
+
+    fn insert(&mut self, axis: Axis) {
+        self.0 |= 1 << axis.index();
+    }
+
+    /// Whether the set is empty.
+    pub fn is_empty(&self) -> bool {
+        self.0 == 0
+    }
+
+    /// The axes in the set, in node order.
+    pub fn iter(self) -> impl Iterator<Item = Axis> {
+        Axis::ALL.into_iter().filter(move |a| self.contains(*a))
+    }
+}
+
+/// The bus as the controller sees it at one instant.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct Health {
+    /// Axes not heard from within the timeout (or never).
+    pub silent: AxisSet,
+    /// Axes whose last heartbeat carried error bits.
+    pub errored: AxisSet,
+    /// Axes whose last heartbeat was not closed-loop control.
+    pub not_closed_loop: AxisSet,
+}
+
+impl Health {
+    /// Whether every axis is heard from, error-free and in closed loop.
+    pub fn is_ok(&self) -> bool {
+        self.silent.is_empty() && self.errored.is_empty() && self.not_closed_loop.is_empty()
+    }
+}
+
+/// Keeps the latest feedback of every axis; decodes frames without ever panicking.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FeedbackTracker {
+    map: NodeMap,
+    axes: [AxisFeedback; AXIS_COUNT],
+    stats: BusStats,
+}
+
+impl FeedbackTracker {
+    /// A tracker that has heard nothing yet.
+    pub fn new(map: NodeMap) -> FeedbackTracker {
+        FeedbackTracker {
+            map,
+            axes: [AxisFeedback::default(); AXIS_COUNT],
+            stats: BusStats::default(),
+        }
+    }
+
+    /// Traffic counters.
+    pub fn stats(&self) -> BusStats {
+        self.stats
+    }
+
+    /// Latest feedback of one axis.
+    pub fn axis(&self, axis: Axis) -> Option<AxisFeedback> {
+        self.axes.get(axis.index()).copied()
+    }
+
+    /// Records a received frame, received at `now_us`.
+    pub fn receive<F: Frame>(&mut self, frame: &F, now_us: u64) -> Received {
+        let (node, message) = match decode(frame) {
+            Ok(decoded) => decoded,
+            Err(e) => {
+                self.stats.malformed = self.stats.malformed.saturating_add(1);
+                return Received::Malformed(e);
+            }
+        };
+        let slot = Axis::from_node_id(node).and_then(|axis| {
+            let slot = self.axes.get_mut(axis.index())?;
+            Some((axis, slot))
+        });
+        let accepted = match (slot, message) {
+            (
+                Some((axis, slot)),
+                Message::EncoderEstimates {
+                    pos_turns,
+                    vel_turns_per_s,
+                },
+            ) => {
+                slot.pos_turns = pos_turns;
+                slot.vel_turns_per_s = vel_turns_per_s;
+                slot.estimate_at_us = Some(now_us);
+                Some(axis)
+            }
+            (
+                Some((axis, slot)),
+                Message::Heartbeat {
+                    axis_error,
+                    axis_state,
+                },
+            ) => {
+                slot.axis_error = axis_error;
+                slot.axis_state = Some(axis_state);
+                slot.heartbeat_at_us = Some(now_us);
+                Some(axis)
+            }
+            _ => None,
+        };
+        match accepted {
+            Some(axis) => {
+                self.stats.accepted = self.stats.accepted.saturating_add(1);
+                Received::Accepted(axis)
+            }
+            None => {
+                self.stats.unexpected = self.stats.unexpected.saturating_add(1);
+                Received::Unexpected
+            }
+        }
+    }
+
+    fn angle_rad(&self, axis: Axis) -> Option<f32> {
+        let fb = self.axis(axis)?;
+        fb.estimate_at_us?;
+        Some(self.map.get(axis).to_angle_rad(fb.pos_turns))
+    }
+
+    /// Measured joint angles of one leg (left-leg convention); `None` until all three joints
+    /// have reported.
+    pub fn leg_joints(&self, leg: LegId) -> Option<JointAngles> {
+        Some(JointAngles {
+            hip_rad: self.angle_rad(Axis::Joint(leg, Joint::Hip))?,
+            knee_rad: self.angle_rad(Axis::Joint(leg, Joint::Knee))?,
+            wheel_mount_rad: self.angle_rad(Axis::Joint(leg, Joint::WheelMount))?,
+        })
+    }
+
+    /// Measured leg configuration: forward kinematics of each leg, averaged over the four (the
+    /// command is symmetric, so the spread is a measure of tracking error, not of intent).
+    pub fn leg_config(&self, geometry: &RobotGeometry) -> Option<LegConfig> {
+        let (mut clearance_m, mut track_m) = (0.0, 0.0);
+        for leg in LegId::ALL {
+            let c = geometry.config_from_joints(self.leg_joints(leg)?);
+            clearance_m += 0.25 * c.clearance_m;
+            track_m += 0.25 * c.track_m;
+        }
+        Some(LegConfig {
+            clearance_m,
+            track_m,
+        })
+    }
+
+    /// Measured wheel speeds; `None` until every wheel has reported.
+    pub fn wheel_speeds(&self) -> Option<WheelSpeeds> {
+        let mut speeds = WheelSpeeds::ZERO;
+        for (leg, out) in LegId::ALL.into_iter().zip(speeds.radps.iter_mut()) {
+            let axis = Axis::Wheel(leg);
+            let fb = self.axis(axis)?;
+            fb.estimate_at_us?;
+            *out = self.map.get(axis).to_speed_radps(fb.vel_turns_per_s);
+        }
+        Some(speeds)
+    }
+
+    /// Which axes are silent (nothing for `timeout_us`), in error, or not in closed loop.
+    pub fn health(&self, now_us: u64, timeout_us: u64) -> Health {
+        let mut health = Health::default();
+        for (axis, fb) in Axis::ALL.into_iter().zip(self.axes.iter()) {
+            let fresh = fb
+                .last_seen_us()
+                .is_some_and(|t| now_us.saturating_sub(t) <= timeout_us);
+            if !fresh {
+                health.silent.insert(axis);
+            }
+            if fb.axis_error != 0 {
+                health.errored.insert(axis);
+            }
+            if fb.axis_state != Some(AxisState::ClosedLoopControl) {
+                health.not_closed_loop.insert(axis);
+            }
+        }
+        health
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::can::frame::CanFrame;
+    use crate::can::protocol::{axis_error, NodeId};
+    use crate::robot::WHEELLEG;
+
+    fn estimate(axis: Axis, pos_turns: f32, vel_turns_per_s: f32) -> CanFrame {
+        encode(
+            axis.node_id(),
+            &Message::EncoderEstimates {
+                pos_turns,
+                vel_turns_per_s,
+            },
+        )
+        .unwrap()
+    }
+
+    fn hold() -> Setpoint {
+        Setpoint::hold(
+            &WHEELLEG,
+            LegConfig {
+                clearance_m: 0.12,
+                track_m: 0.36,
+            },
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn a_setpoint_is_sixteen_frames_or_none() {
+        let commander = Commander::new(NodeMap::NOMINAL);
+        let mut q: TxQueue<CanFrame, 20> = TxQueue::new();
+        commander.queue_setpoint(&mut q, &hold()).unwrap();
+        assert_eq!(q.len(), 16);
+        // Only 4 slots left: the next tick is refused whole, the queue untouched.
+        assert_eq!(
+            commander.queue_setpoint(&mut q, &hold()),
+            Err(CanError::QueueFull)
+        );
+        assert_eq!(q.len(), 16);
+        let mut ids = heapless::Vec::<u32, 16>::new();
+        while let Some(f) = q.pop() {
+            ids.push(f.raw_id()).unwrap();
+        }
+        assert_eq!(ids[0], 1 << 5 | 0x0C, "front-left hip, Set_Input_Pos");
+        assert_eq!(ids[15], 16 << 5 | 0x0D, "rear-right wheel, Set_Input_Vel");
+    }
+
+    #[test]
+    fn feedback_round_trips_through_the_node_map() {
+        let commander = Commander::new(NodeMap::NOMINAL);
+        let mut q: TxQueue<CanFrame, 16> = TxQueue::new();
+        let mut sp = hold();
+        sp.wheels.radps = [1.0, -2.0, 3.0, -4.0];
+        commander.queue_setpoint(&mut q, &sp).unwrap();
+        let mut tracker = FeedbackTracker::new(NodeMap::NOMINAL);
+        // Echo every command back as if the axis had reached it exactly.
+        while let Some(f) = q.pop() {
+            let (node, msg) = decode(&f).unwrap();
+            let axis = Axis::from_node_id(node).unwrap();
+            let echo = match msg {
+                Message::SetInputPos { pos_turns, .. } => estimate(axis, pos_turns, 0.0),
+                Message::SetInputVel {
+                    vel_turns_per_s, ..
+                } => estimate(axis, 0.0, vel_turns_per_s),
+                other => panic!("unexpected {other:?}"),
+            };
+            assert_eq!(tracker.receive(&echo, 10), Received::Accepted(axis));
+        }
+        let legs = tracker.leg_config(&WHEELLEG).unwrap();
+        assert!((legs.track_m - 0.36).abs() < 1e-5 && (legs.clearance_m - 0.12).abs() < 1e-5);
+        let w = tracker.wheel_speeds().unwrap();
+        for (got, want) in w.radps.iter().zip(sp.wheels.radps) {
+            assert!((got - want).abs() < 1e-5, "{w:?}");
+        }
+    }
+
+    #[test]
+    fn junk_is_counted_and_ignored() {
+        let mut tracker = FeedbackTracker::new(NodeMap::NOMINAL);
+        let short = CanFrame::standard(1 << 5 | 0x09, &[0; 3]).unwrap();
+        assert!(matches!(tracker.receive(&short, 0), Received::Malformed(_)));
+        let foreign = estimate(Axis::Wheel(LegId::FrontLeft), 0.0, 0.0);
+        let foreign =
+            CanFrame::standard((40 << 5) | (foreign.raw_id() as u16 & 0x1F), foreign.data())
+                .unwrap();
+        assert_eq!(tracker.receive(&foreign, 0), Received::Unexpected);
+        let command: CanFrame = encode(NodeId::new(1).unwrap(), &Message::Estop).unwrap();
+        assert_eq!(tracker.receive(&command, 0), Received::Unexpected);
+        assert_eq!(
+            tracker.stats(),
+            BusStats {
+                accepted: 0,
+                malformed: 1,
+                unexpected: 2
+            }
+        );
+        assert_eq!(tracker.wheel_speeds(), None, "nothing real was heard");
+    }
+
+    #[test]
+    fn health_reports_silent_and_errored_axes() {
+        let mut tracker = FeedbackTracker::new(NodeMap::NOMINAL);
+        for axis in Axis::ALL {
+            let hb: CanFrame = encode(
+                axis.node_id(),
+                &Message::Heartbeat {
+                    axis_error: 0,
+                    axis_state: AxisState::ClosedLoopControl,
+                },
+            )
+            .unwrap();
+            tracker.receive(&hb, 1_000);
+        }
+        assert!(tracker.health(50_000, 100_000).is_ok());
+        let knee = Axis::Joint(LegId::RearLeft, Joint::Knee);
+        let bad: CanFrame = encode(
+            knee.node_id(),
+            &Message::Heartbeat {
+                axis_error: axis_error::WATCHDOG_TIMER_EXPIRED,
+                axis_state: AxisState::Idle,
+            },
+        )
+        .unwrap();
+        tracker.receive(&bad, 150_000);
+        let h = tracker.health(200_000, 100_000);
+        assert_eq!(
+            h.errored.iter().collect::<heapless::Vec<Axis, 16>>(),
+            [knee]
+        );
+        assert!(h.not_closed_loop.contains(knee));
+        // Everyone else has been quiet for 199 ms.
+        assert_eq!(h.silent.iter().count(), 15);
+        assert!(!h.silent.contains(knee));
+    }
+
+    #[test]
+    fn safe_stop_stops_wheels_and_holds_measured_joints() {
+        let commander = Commander::new(NodeMap::NOMINAL);
+        let mut tracker = FeedbackTracker::new(NodeMap::NOMINAL);
+        let hip = Axis::Joint(LegId::FrontLeft, Joint::Hip);
+        tracker.receive(&estimate(hip, 1.25, 0.5), 0);
+        let mut q: TxQueue<CanFrame, 32> = TxQueue::new();
+        // Only the hip has reported: 4 wheels + 1 joint.
+        assert_eq!(commander.queue_safe_stop(&mut q, &tracker).unwrap(), 5);
+        let (_, first) = decode(&q.pop().unwrap()).unwrap();
+        assert_eq!(
+            first,
+            Message::SetInputPos {
+                pos_turns: 1.25,
+                vel_ff_turns_per_s: 0.0,
+                torque_ff_nm: 0.0
+            }
+        );
+        while let Some(f) = q.pop() {
+            let (_, m) = decode(&f).unwrap();
+            assert_eq!(
+                m,
+                Message::SetInputVel {
+                    vel_turns_per_s: 0.0,
+                    torque_ff_nm: 0.0
+                }
+            );
+        }
+    }
+}

@@ -1,0 +1,691 @@
+//! ODrive CANSimple messages: ids, payload layouts, encoding and decoding.
+//!
+//! Wire format (ODrive firmware 0.5.x, `shared/odrive-cansimple.dbc`): an 11-bit standard id
+//! `node_id << 5 | cmd_id`, payloads little-endian, floats IEEE-754 `f32`. The DBC lists every
+//! message at node 0; a frame of node `n` has the DBC's id plus `n << 5`.
+//!
+//! | cmd  | message               | direction   | payload                                            |
+//! |------|-----------------------|-------------|----------------------------------------------------|
+//! | 0x01 | Heartbeat             | axis → host | u32 axis_error, u8 axis_state, 3 flag bytes        |
+//! | 0x02 | Estop                 | host → axis | none                                               |
+//! | 0x07 | Set_Axis_State        | host → axis | u32 requested state                                |
+//! | 0x09 | Get_Encoder_Estimates | axis → host | f32 pos (turns), f32 vel (turns/s)                 |
+//! | 0x0B | Set_Controller_Mode   | host → axis | u32 control mode, u32 input mode                   |
+//! | 0x0C | Set_Input_Pos         | host → axis | f32 pos (turns), i16 vel_ff ×1000, i16 torque_ff ×1000 |
+//! | 0x0D | Set_Input_Vel         | host → axis | f32 vel (turns/s), f32 torque_ff (Nm)              |
+//! | 0x18 | Clear_Errors          | host → axis | none                                               |
+//!
+//! A remote (RTR) frame with a `Get_*` id asks the axis to send that message now.
+//!
+//! Decoding never panics: a frame that is extended, too short, carries an unknown command or an
+//! out-of-range enum value is a [`DecodeError`], which callers count and drop.
+
+use embedded_can::{Frame, Id, StandardId};
+
+/// Bits of the id that carry the command.
+pub const CMD_BITS: u16 = 5;
+/// Mask of the command bits in an id.
+pub const CMD_MASK: u16 = (1 << CMD_BITS) - 1;
+/// Largest node id (6 bits).
+pub const MAX_NODE_ID: u8 = 0x3F;
+
+/// A 6-bit ODrive node id (one per axis).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct NodeId(u8);
+
+impl NodeId {
+    /// Node 0, the id of a factory-fresh ODrive.
+    pub const MIN: NodeId = NodeId(0);
+
+    /// A node id; `None` above [`MAX_NODE_ID`].
+    pub const fn new(raw: u8) -> Option<NodeId> {
+        if raw <= MAX_NODE_ID {
+            Some(NodeId(raw))
+        } else {
+            None
+        }
+    }
+
+    /// The raw id.
+    pub const fn get(self) -> u8 {
+        self.0
+    }
+}
+
+/// CANSimple command ids (the low 5 bits of a frame id).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[repr(u8)]
+pub enum CmdId {
+    /// Axis state and errors, sent periodically by the axis.
+    Heartbeat = 0x01,
+    /// Emergency stop: the axis disarms and latches `ESTOP_REQUESTED`.
+    Estop = 0x02,
+    /// Request a motor error report.
+    GetMotorError = 0x03,
+    /// Request an encoder error report.
+    GetEncoderError = 0x04,
+    /// Request the axis state (idle, closed loop, ...).
+    SetAxisState = 0x07,
+    /// Position and velocity estimate, sent periodically by the axis.
+    GetEncoderEstimates = 0x09,
+    /// Control and input mode.
+    SetControllerMode = 0x0B,
+    /// Position setpoint with feed-forwards.
+    SetInputPos = 0x0C,
+    /// Velocity setpoint with torque feed-forward.
+    SetInputVel = 0x0D,
+    /// Bus voltage report.
+    GetVbusVoltage = 0x17,
+    /// Clear latched errors.
+    ClearErrors = 0x18,
+}
+
+impl CmdId {
+    /// The command with this 5-bit value, if this crate speaks it.
+    pub const fn from_raw(raw: u8) -> Option<CmdId> {
+        Some(match raw {
+            0x01 => CmdId::Heartbeat,
+            0x02 => CmdId::Estop,
+            0x03 => CmdId::GetMotorError,
+            0x04 => CmdId::GetEncoderError,
+            0x07 => CmdId::SetAxisState,
+            0x09 => CmdId::GetEncoderEstimates,
+            0x0B => CmdId::SetControllerMode,
+            0x0C => CmdId::SetInputPos,
+            0x0D => CmdId::SetInputVel,
+            0x17 => CmdId::GetVbusVoltage,
+            0x18 => CmdId::ClearErrors,
+            _ => return None,
+        })
+    }
+}
+
+/// The 11-bit id of command `cmd` for node `node`.
+pub fn frame_id(node: NodeId, cmd: CmdId) -> StandardId {
+    let raw = (u16::from(node.get()) << CMD_BITS) | cmd as u16;
+    // node <= 63 and cmd < 32, so raw <= 0x7FF always fits; ZERO is unreachable.
+    StandardId::new(raw).unwrap_or(StandardId::ZERO)
+}
+
+/// ODrive axis states (`AXIS_STATE_*`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[repr(u8)]
+pub enum AxisState {
+    /// Not set.
+    Undefined = 0,
+    /// Motor off.
+    Idle = 1,
+    /// Startup sequence running.
+    StartupSequence = 2,
+    /// Full calibration running.
+    FullCalibrationSequence = 3,
+    /// Motor calibration running.
+    MotorCalibration = 4,
+    /// Encoder index search running.
+    EncoderIndexSearch = 6,
+    /// Encoder offset calibration running.
+    EncoderOffsetCalibration = 7,
+    /// Motor on, controller running.
+    ClosedLoopControl = 8,
+    /// Lockin spin.
+    LockinSpin = 9,
+    /// Encoder direction search.
+    EncoderDirFind = 10,
+    /// Homing.
+    Homing = 11,
+    /// Hall polarity calibration.
+    EncoderHallPolarityCalibration = 12,
+    /// Hall phase calibration.
+    EncoderHallPhaseCalibration = 13,
+}
+
+impl AxisState {
+    /// The state with this value; `None` for values ODrive does not define.
+    pub const fn from_raw(raw: u32) -> Option<AxisState> {
+        Some(match raw {
+            0 => AxisState::Undefined,
+            1 => AxisState::Idle,
+            2 => AxisState::StartupSequence,
+            3 => AxisState::FullCalibrationSequence,
+            4 => AxisState::MotorCalibration,
+            6 => AxisState::EncoderIndexSearch,
+            7 => AxisState::EncoderOffsetCalibration,
+            8 => AxisState::ClosedLoopControl,
+            9 => AxisState::LockinSpin,
+            10 => AxisState::EncoderDirFind,
+            11 => AxisState::Homing,
+            12 => AxisState::EncoderHallPolarityCalibration,
+            13 => AxisState::EncoderHallPhaseCalibration,
+            _ => return None,
+        })
+    }
+}
+
+/// ODrive control modes (`CONTROL_MODE_*`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[repr(u8)]
+pub enum ControlMode {
+    /// Voltage control.
+    Voltage = 0,
+    /// Torque control.
+    Torque = 1,
+    /// Velocity control: used for the wheels.
+    Velocity = 2,
+    /// Position control: used for the leg joints.
+    Position = 3,
+}
+
+impl ControlMode {
+    /// The mode with this value.
+    pub const fn from_raw(raw: u32) -> Option<ControlMode> {
+        Some(match raw {
+            0 => ControlMode::Voltage,
+            1 => ControlMode::Torque,
+            2 => ControlMode::Velocity,
+            3 => ControlMode::Position,
+            _ => return None,
+        })
+    }
+}
+
+/// ODrive input modes (`INPUT_MODE_*`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[repr(u8)]
+pub enum InputMode {
+    /// Inputs ignored.
+    Inactive = 0,
+    /// Setpoints used as sent: the runtime already smooths them, so this is what it uses.
+    Passthrough = 1,
+    /// Velocity ramp.
+    VelRamp = 2,
+    /// Second-order position filter.
+    PosFilter = 3,
+    /// Mixed channels.
+    MixChannels = 4,
+    /// Trapezoidal trajectory.
+    TrapTraj = 5,
+    /// Torque ramp.
+    TorqueRamp = 6,
+    /// Mirror another axis.
+    Mirror = 7,
+    /// Tuning.
+    Tuning = 8,
+}
+
+impl InputMode {
+    /// The mode with this value.
+    pub const fn from_raw(raw: u32) -> Option<InputMode> {
+        Some(match raw {
+            0 => InputMode::Inactive,
+            1 => InputMode::Passthrough,
+            2 => InputMode::VelRamp,
+            3 => InputMode::PosFilter,
+            4 => InputMode::MixChannels,
+            5 => InputMode::TrapTraj,
+            6 => InputMode::TorqueRamp,
+            7 => InputMode::Mirror,
+            8 => InputMode::Tuning,
+            _ => return None,
+        })
+    }
+}
+
+/// ODrive axis error bits (`AXIS_ERROR_*`, firmware 0.5.x) that this project uses.
+pub mod axis_error {
+    /// A state was requested that the axis cannot enter.
+    pub const INVALID_STATE: u32 = 0x0000_0001;
+    /// The controller failed: the simulated axis raises it for out-of-range setpoints.
+    pub const CONTROLLER_FAILED: u32 = 0x0000_0200;
+    /// No command arrived within the watchdog timeout.
+    pub const WATCHDOG_TIMER_EXPIRED: u32 = 0x0000_0800;
+    /// An Estop message was received.
+    pub const ESTOP_REQUESTED: u32 = 0x0000_4000;
+}
+
+/// Largest magnitude the i16 ×1000 feed-forward fields of Set_Input_Pos can carry.
+pub const MAX_FF: f32 = i16::MAX as f32 / 1000.0;
+
+/// One CANSimple message, without its node id.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Message {
+    /// Axis state and latched errors.
+    Heartbeat {
+        /// Latched axis error bits ([`axis_error`]).
+        axis_error: u32,
+        /// Current state.
+        axis_state: AxisState,
+    },
+    /// Emergency stop.
+    Estop,
+    /// Request a state.
+    SetAxisState(AxisState),
+    /// Encoder estimate, motor side.
+    EncoderEstimates {
+        /// Position.
+        pos_turns: f32,
+        /// Velocity.
+        vel_turns_per_s: f32,
+    },
+    /// Control and input mode.
+    SetControllerMode {
+        /// Control mode.
+        control_mode: ControlMode,
+        /// Input mode.
+        input_mode: InputMode,
+    },
+    /// Position setpoint.
+    SetInputPos {
+        /// Target position.
+        pos_turns: f32,
+        /// Velocity feed-forward, carried as i16 thousandths: resolution 0.001 turn/s,
+        /// magnitude at most [`MAX_FF`].
+        vel_ff_turns_per_s: f32,
+        /// Torque feed-forward, carried as i16 thousandths.
+        torque_ff_nm: f32,
+    },
+    /// Velocity setpoint.
+    SetInputVel {
+        /// Target velocity.
+        vel_turns_per_s: f32,
+        /// Torque feed-forward.
+        torque_ff_nm: f32,
+    },
+    /// Clear latched errors.
+    ClearErrors,
+    /// A remote (RTR) frame asking for the message with this command id.
+    Request(CmdId),
+}
+
+impl Message {
+    /// The message's command id.
+    pub fn cmd(&self) -> CmdId {
+        match self {
+            Message::Heartbeat { .. } => CmdId::Heartbeat,
+            Message::Estop => CmdId::Estop,
+            Message::SetAxisState(_) => CmdId::SetAxisState,
+            Message::EncoderEstimates { .. } => CmdId::GetEncoderEstimates,
+            Message::SetControllerMode { .. } => CmdId::SetControllerMode,
+            Message::SetInputPos { .. } => CmdId::SetInputPos,
+            Message::SetInputVel { .. } => CmdId::SetInputVel,
+            Message::ClearErrors => CmdId::ClearErrors,
+            Message::Request(cmd) => *cmd,
+        }
+    }
+
+    /// Whether the host sends this message to an axis (as opposed to an axis reporting).
+    pub fn is_command(&self) -> bool {
+        !matches!(
+            self,
+            Message::Heartbeat { .. } | Message::EncoderEstimates { .. }
+        )
+    }
+}
+
+/// Why a message could not be put in a frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EncodeError {
+    /// A float is NaN or infinite.
+    NotFinite,
+    /// A feed-forward does not fit its i16 ×1000 field.
+    FeedForwardOutOfRange,
+    /// The frame type refused the id or payload.
+    Frame,
+}
+
+/// Why a frame is not a valid CANSimple message.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DecodeError {
+    /// Extended (29-bit) id: CANSimple uses standard ids only.
+    ExtendedId,
+    /// Command id this crate does not speak.
+    UnknownCommand(u8),
+    /// Payload shorter than the message needs.
+    TooShort {
+        /// The command.
+        cmd: CmdId,
+        /// Bytes received.
+        len: u8,
+    },
+    /// An enum field holds a value ODrive does not define.
+    BadValue(CmdId),
+    /// A remote frame for a command that is not a request.
+    UnexpectedRemote(CmdId),
+}
+
+fn f32_at(data: &[u8], at: usize) -> f32 {
+    f32::from_le_bytes(bytes_at(data, at))
+}
+
+fn u32_at(data: &[u8], at: usize) -> u32 {
+    u32::from_le_bytes(bytes_at(data, at))
+}
+
+fn i16_at(data: &[u8], at: usize) -> i16 {
+    let mut b = [0u8; 2];
+    if let Some(src) = data.get(at..at + 2) {
+        b.copy_from_slice(src);
+    }
+    i16::from_le_bytes(b)
+}
+
+/// Four bytes at `at`, zeros if missing (callers check the length first).
+fn bytes_at(data: &[u8], at: usize) -> [u8; 4] {
+    let mut b = [0u8; 4];
+    if let Some(src) = data.get(at..at + 4) {
+        b.copy_from_slice(src);
+    }
+    b
+}
+
+fn put(buf: &mut [u8; 8], at: usize, bytes: &[u8]) {
+    if let Some(dst) = buf.get_mut(at..at + bytes.len()) {
+        dst.copy_from_slice(bytes);
+    }
+}
+
+fn finite(x: f32) -> Result<f32, EncodeError> {
+    if x.is_finite() {
+        Ok(x)
+    } else {
+        Err(EncodeError::NotFinite)
+    }
+}
+
+fn thousandths(x: f32) -> Result<i16, EncodeError> {
+    let x = finite(x)?;
+    if x.abs() > MAX_FF {
+        return Err(EncodeError::FeedForwardOutOfRange);
+    }
+    Ok(libm::roundf(x * 1000.0) as i16)
+}
+
+/// Builds the frame carrying `message` for `node`.
+pub fn encode<F: Frame>(node: NodeId, message: &Message) -> Result<F, EncodeError> {
+    let id = frame_id(node, message.cmd());
+    let mut buf = [0u8; 8];
+    let len = match *message {
+        Message::Heartbeat {
+            axis_error,
+            axis_state,
+        } => {
+            put(&mut buf, 0, &axis_error.to_le_bytes());
+            // Byte 4 is the state; bytes 5..8 are ODrive's flag bytes, which the simulated
+            // axes leave clear, so the DBC's 32-bit Axis_State decodes to the state itself.
+            put(&mut buf, 4, &[axis_state as u8]);
+            8
+        }
+        Message::Estop | Message::ClearErrors => 0,
+        Message::SetAxisState(state) => {
+            put(&mut buf, 0, &(state as u32).to_le_bytes());
+            4
+        }
+        Message::EncoderEstimates {
+            pos_turns,
+            vel_turns_per_s,
+        } => {
+            put(&mut buf, 0, &finite(pos_turns)?.to_le_bytes());
+            put(&mut buf, 4, &finite(vel_turns_per_s)?.to_le_bytes());
+            8
+        }
+        Message::SetControllerMode {
+            control_mode,
+            input_mode,
+        } => {
+            put(&mut buf, 0, &(control_mode as u32).to_le_bytes());
+            put(&mut buf, 4, &(input_mode as u32).to_le_bytes());
+            8
+        }
+        Message::SetInputPos {
+            pos_turns,
+            vel_ff_turns_per_s,
+            torque_ff_nm,
+        } => {
+            put(&mut buf, 0, &finite(pos_turns)?.to_le_bytes());
+            put(&mut buf, 4, &thousandths(vel_ff_turns_per_s)?.to_le_bytes());
+            put(&mut buf, 6, &thousandths(torque_ff_nm)?.to_le_bytes());
+            8
+        }
+        Message::SetInputVel {
+            vel_turns_per_s,
+            torque_ff_nm,
+        } => {
+            put(&mut buf, 0, &finite(vel_turns_per_s)?.to_le_bytes());
+            put(&mut buf, 4, &finite(torque_ff_nm)?.to_le_bytes());
+            8
+        }
+        Message::Request(_) => {
+            // ODrive answers a remote frame of a Get_* id; the DLC announces an 8-byte reply.
+            return F::new_remote(id, 8).ok_or(EncodeError::Frame);
+        }
+    };
+    F::new(id, buf.get(..len).unwrap_or(&[])).ok_or(EncodeError::Frame)
+}
+
+/// Splits a frame into its node id and message.
+pub fn decode<F: Frame>(frame: &F) -> Result<(NodeId, Message), DecodeError> {
+    let raw = match frame.id() {
+        Id::Standard(id) => id.as_raw(),
+        Id::Extended(_) => return Err(DecodeError::ExtendedId),
+    };
+    // An 11-bit id shifted right by 5 is at most 63: always a valid node id.
+    let node = NodeId((raw >> CMD_BITS) as u8);
+    let cmd_raw = (raw & CMD_MASK) as u8;
+    let cmd = CmdId::from_raw(cmd_raw).ok_or(DecodeError::UnknownCommand(cmd_raw))?;
+    if frame.is_remote_frame() {
+        return match cmd {
+            CmdId::Heartbeat
+            | CmdId::GetEncoderEstimates
+            | CmdId::GetMotorError
+            | CmdId::GetEncoderError
+            | CmdId::GetVbusVoltage => Ok((node, Message::Request(cmd))),
+            _ => Err(DecodeError::UnexpectedRemote(cmd)),
+        };
+    }
+    let data = frame.data();
+    let need = |n: usize| {
+        if data.len() >= n {
+            Ok(())
+        } else {
+            Err(DecodeError::TooShort {
+                cmd,
+                len: data.len() as u8,
+            })
+        }
+    };
+    let message = match cmd {
+        CmdId::Heartbeat => {
+            need(5)?;
+            let state = data.get(4).copied().unwrap_or(0);
+            Message::Heartbeat {
+                axis_error: u32_at(data, 0),
+                axis_state: AxisState::from_raw(u32::from(state))
+                    .ok_or(DecodeError::BadValue(cmd))?,
+            }
+        }
+        CmdId::Estop => Message::Estop,
+        CmdId::ClearErrors => Message::ClearErrors,
+        CmdId::SetAxisState => {
+            need(4)?;
+            Message::SetAxisState(
+                AxisState::from_raw(u32_at(data, 0)).ok_or(DecodeError::BadValue(cmd))?,
+            )
+        }
+        CmdId::GetEncoderEstimates => {
+            need(8)?;
+            Message::EncoderEstimates {
+                pos_turns: f32_at(data, 0),
+                vel_turns_per_s: f32_at(data, 4),
+            }
+        }
+        CmdId::SetControllerMode => {
+            need(8)?;
+            Message::SetControllerMode {
+                control_mode: ControlMode::from_raw(u32_at(data, 0))
+                    .ok_or(DecodeError::BadValue(cmd))?,
+                input_mode: InputMode::from_raw(u32_at(data, 4))
+                    .ok_or(DecodeError::BadValue(cmd))?,
+            }
+        }
+        CmdId::SetInputPos => {
+            need(8)?;
+            Message::SetInputPos {
+                pos_turns: f32_at(data, 0),
+                vel_ff_turns_per_s: f32::from(i16_at(data, 4)) / 1000.0,
+                torque_ff_nm: f32::from(i16_at(data, 6)) / 1000.0,
+            }
+        }
+        CmdId::SetInputVel => {
+            need(8)?;
+            Message::SetInputVel {
+                vel_turns_per_s: f32_at(data, 0),
+                torque_ff_nm: f32_at(data, 4),
+            }
+        }
+        // Reports this crate requests but never parses: a data frame of them is not expected.
+        CmdId::GetMotorError | CmdId::GetEncoderError | CmdId::GetVbusVoltage => {
+            return Err(DecodeError::UnknownCommand(cmd_raw))
+        }
+    };
+    // A NaN or infinite float is never a meaningful setpoint or estimate; refusing it here
+    // keeps every consumer from having to re-check.
+    let floats_finite = match message {
+        Message::EncoderEstimates {
+            pos_turns: a,
+            vel_turns_per_s: b,
+        }
+        | Message::SetInputVel {
+            vel_turns_per_s: a,
+            torque_ff_nm: b,
+        } => a.is_finite() && b.is_finite(),
+        Message::SetInputPos { pos_turns, .. } => pos_turns.is_finite(),
+        _ => true,
+    };
+    if !floats_finite {
+        return Err(DecodeError::BadValue(cmd));
+    }
+    Ok((node, message))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::can::frame::CanFrame;
+
+    fn node(n: u8) -> NodeId {
+        NodeId::new(n).unwrap()
+    }
+
+    #[test]
+    fn set_input_pos_matches_the_dbc_layout() {
+        let msg = Message::SetInputPos {
+            pos_turns: 1.5,
+            vel_ff_turns_per_s: -2.25,
+            torque_ff_nm: 0.1,
+        };
+        let frame: CanFrame = encode(node(3), &msg).unwrap();
+        assert_eq!(frame.raw_id(), 3 << 5 | 0x0C);
+        let d = frame.data();
+        assert_eq!(&d[0..4], &1.5f32.to_le_bytes());
+        assert_eq!(i16::from_le_bytes([d[4], d[5]]), -2250);
+        assert_eq!(i16::from_le_bytes([d[6], d[7]]), 100);
+        assert_eq!(decode(&frame).unwrap(), (node(3), msg));
+    }
+
+    #[test]
+    fn every_message_round_trips() {
+        let messages = [
+            Message::Heartbeat {
+                axis_error: axis_error::WATCHDOG_TIMER_EXPIRED,
+                axis_state: AxisState::Idle,
+            },
+            Message::Estop,
+            Message::SetAxisState(AxisState::ClosedLoopControl),
+            Message::EncoderEstimates {
+                pos_turns: -12.5,
+                vel_turns_per_s: 3.0,
+            },
+            Message::SetControllerMode {
+                control_mode: ControlMode::Velocity,
+                input_mode: InputMode::Passthrough,
+            },
+            Message::SetInputVel {
+                vel_turns_per_s: -7.5,
+                torque_ff_nm: 0.0,
+            },
+            Message::ClearErrors,
+            Message::Request(CmdId::GetEncoderEstimates),
+        ];
+        for msg in messages {
+            let frame: CanFrame = encode(node(63), &msg).unwrap();
+            assert_eq!(decode(&frame).unwrap(), (node(63), msg));
+        }
+    }
+
+    #[test]
+    fn heartbeat_state_reads_as_the_dbc_32_bit_field() {
+        let frame: CanFrame = encode(
+            node(1),
+            &Message::Heartbeat {
+                axis_error: 0,
+                axis_state: AxisState::ClosedLoopControl,
+            },
+        )
+        .unwrap();
+        assert_eq!(u32_at(frame.data(), 4), 8);
+    }
+
+    #[test]
+    fn malformed_frames_are_errors_not_panics() {
+        let short = CanFrame::standard(1 << 5 | 0x09, &[1, 2, 3]).unwrap();
+        assert_eq!(
+            decode(&short),
+            Err(DecodeError::TooShort {
+                cmd: CmdId::GetEncoderEstimates,
+                len: 3
+            })
+        );
+        let unknown = CanFrame::standard(1 << 5 | 0x1F, &[]).unwrap();
+        assert_eq!(decode(&unknown), Err(DecodeError::UnknownCommand(0x1F)));
+        let bad_state = CanFrame::standard(1 << 5 | 0x07, &[5, 0, 0, 0]).unwrap();
+        assert_eq!(
+            decode(&bad_state),
+            Err(DecodeError::BadValue(CmdId::SetAxisState))
+        );
+        let mut nan_pos = [0u8; 8];
+        nan_pos[..4].copy_from_slice(&f32::NAN.to_le_bytes());
+        let nan_frame = CanFrame::standard(1 << 5 | 0x0C, &nan_pos).unwrap();
+        assert_eq!(
+            decode(&nan_frame),
+            Err(DecodeError::BadValue(CmdId::SetInputPos))
+        );
+        let ext = CanFrame::new(embedded_can::ExtendedId::new(0x29).unwrap(), &[]).unwrap();
+        assert_eq!(decode(&ext), Err(DecodeError::ExtendedId));
+        let remote_cmd = CanFrame::new_remote(frame_id(node(2), CmdId::SetInputPos), 8).unwrap();
+        assert_eq!(
+            decode(&remote_cmd),
+            Err(DecodeError::UnexpectedRemote(CmdId::SetInputPos))
+        );
+    }
+
+    #[test]
+    fn out_of_range_values_are_refused_when_encoding() {
+        let too_fast = Message::SetInputPos {
+            pos_turns: 0.0,
+            vel_ff_turns_per_s: 40.0,
+            torque_ff_nm: 0.0,
+        };
+        assert_eq!(
+            encode::<CanFrame>(node(1), &too_fast),
+            Err(EncodeError::FeedForwardOutOfRange)
+        );
+        let nan = Message::SetInputVel {
+            vel_turns_per_s: f32::NAN,
+            torque_ff_nm: 0.0,
+        };
+        assert_eq!(
+            encode::<CanFrame>(node(1), &nan),
+            Err(EncodeError::NotFinite)
+        );
+        assert_eq!(NodeId::new(64), None);
+    }
+}
