@@ -1,0 +1,484 @@
+//! One simulated ODrive axis: state machine, controller, motor response, periodic reports.
+//!
+//! What it models, and why each piece is there:
+//!
+//! - **States**: idle (motor off) and closed-loop control. Requesting closed loop with a latched
+//!   error is refused, as on an ODrive: errors must be cleared first. Calibration states are
+//!   not simulated; requesting one latches `INVALID_STATE`.
+//! - **Controller**: position mode commands a velocity `vel_ff + pos_gain * (input_pos - pos)`;
+//!   velocity mode commands `input_vel`. The commanded velocity is clamped to the velocity limit,
+//!   and the motor follows it with a first-order lag (`time_constant_s`) whose rate of change is
+//!   clamped to the acceleration limit.
+//! - **Idle**: no torque, so the speed decays to zero with `idle_decay_s` (friction and, for the
+//!   leg joints, the high-ratio gearbox's self-locking): wheels spin down, legs stay where they
+//!   are. This is the "wheels stop, legs hold" safe state the watchdog falls back to.
+//! - **Watchdog**: in closed loop, a setpoint must arrive every `watchdog_timeout_us`; if none
+//!   does, the axis goes idle and latches `WATCHDOG_TIMER_EXPIRED`.
+//! - **Range checks**: a setpoint beyond the velocity limit or the position limits latches
+//!   `CONTROLLER_FAILED` and idles the axis (an ODrive disarms on a controller error).
+//! - **Estop** latches `ESTOP_REQUESTED` and idles; **Clear_Errors** clears every latched bit.
+//! - **Reports**: encoder estimates and heartbeats at their own periods, plus on request (RTR).
+//! - **Fault injection**: a silent axis keeps executing commands but transmits nothing.
+
+use wheelleg_runtime::can::protocol::{
+    axis_error, encode, AxisState, CmdId, ControlMode, InputMode, Message, NodeId,
+};
+use wheelleg_runtime::can::CanFrame;
+
+/// Parameters of one simulated axis (motor side: turns, turns/s).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AxisConfig {
+    /// Largest commanded speed; setpoints beyond it are errors.
+    pub vel_limit_turns_per_s: f32,
+    /// Largest rate of change of speed.
+    pub accel_limit_turns_per_s2: f32,
+    /// First-order lag of the speed behind its command.
+    pub time_constant_s: f32,
+    /// Position loop gain: commanded speed per turn of position error.
+    pub pos_gain_per_s: f32,
+    /// Allowed position setpoints `[min, max]`; `None` for a wheel (unbounded).
+    pub pos_limits_turns: Option<[f32; 2]>,
+    /// Time constant of the speed decay when idle.
+    pub idle_decay_s: f32,
+    /// Watchdog timeout; 0 disables the watchdog.
+    pub watchdog_timeout_us: u64,
+    /// Period of encoder estimate reports; 0 disables them.
+    pub encoder_period_us: u64,
+    /// Period of heartbeats; 0 disables them.
+    pub heartbeat_period_us: u64,
+}
+
+impl AxisConfig {
+    /// A leg joint actuator (9:1 gearbox): ±10 motor turns/s (≈7 rad/s at the joint), a 10 ms
+    /// speed loop, position limits of ±8 motor turns (±5.6 rad at the joint) that cover every
+    /// joint range of `WHEELLEG` (the wheel mount reaches -4.3 rad) with margin.
+    pub const JOINT: AxisConfig = AxisConfig {
+        vel_limit_turns_per_s: 10.0,
+        accel_limit_turns_per_s2: 200.0,
+        time_constant_s: 0.01,
+        pos_gain_per_s: 40.0,
+        pos_limits_turns: Some([-8.0, 8.0]),
+        idle_decay_s: 0.005,
+        watchdog_timeout_us: 100_000,
+        encoder_period_us: 10_000,
+        heartbeat_period_us: 100_000,
+    };
+
+    /// A direct-drive hub wheel: ±10 turns/s (≈3 m/s at 5 cm radius), a 20 ms speed loop, a
+    /// quarter-second spin-down when idle.
+    pub const WHEEL: AxisConfig = AxisConfig {
+        vel_limit_turns_per_s: 10.0,
+        accel_limit_turns_per_s2: 100.0,
+        time_constant_s: 0.02,
+        pos_gain_per_s: 20.0,
+        pos_limits_turns: None,
+        idle_decay_s: 0.05,
+        watchdog_timeout_us: 100_000,
+        encoder_period_us: 10_000,
+        heartbeat_period_us: 100_000,
+    };
+}
+
+/// Counters of what an axis did with the commands it got.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct AxisStats {
+    /// Commands executed.
+    pub commands: u32,
+    /// Commands refused (out of range, or not applicable in the current state or mode).
+    pub refused: u32,
+    /// Watchdog expiries.
+    pub watchdog_trips: u32,
+}
+
+/// A simulated ODrive axis.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SimAxis {
+    node: NodeId,
+    config: AxisConfig,
+    state: AxisState,
+    error: u32,
+    control_mode: ControlMode,
+    input_mode: InputMode,
+    input_pos_turns: f32,
+    vel_ff_turns_per_s: f32,
+    input_vel_turns_per_s: f32,
+    pos_turns: f32,
+    vel_turns_per_s: f32,
+    last_setpoint_us: u64,
+    next_estimate_us: u64,
+    next_heartbeat_us: u64,
+    pending_requests: [bool; 2],
+    silent: bool,
+    stats: AxisStats,
+}
+
+impl SimAxis {
+    /// An idle axis at `pos_turns`, at rest, in position control.
+    pub fn new(node: NodeId, config: AxisConfig, pos_turns: f32) -> SimAxis {
+        SimAxis {
+            node,
+            config,
+            state: AxisState::Idle,
+            error: 0,
+            control_mode: ControlMode::Position,
+            input_mode: InputMode::Passthrough,
+            input_pos_turns: pos_turns,
+            vel_ff_turns_per_s: 0.0,
+            input_vel_turns_per_s: 0.0,
+            pos_turns,
+            vel_turns_per_s: 0.0,
+            last_setpoint_us: 0,
+            next_estimate_us: 0,
+            next_heartbeat_us: 0,
+            pending_requests: [false; 2],
+            silent: false,
+            stats: AxisStats::default(),
+        }
+    }
+
+    /// The axis's node id.
+    pub fn node(&self) -> NodeId {
+        self.node
+    }
+
+    /// Current state.
+    pub fn state(&self) -> AxisState {
+        self.state
+    }
+
+    /// Latched error bits.
+    pub fn error(&self) -> u32 {
+        self.error
+    }
+
+    /// True position.
+    pub fn pos_turns(&self) -> f32 {
+        self.pos_turns
+    }
+
+    /// True speed.
+    pub fn vel_turns_per_s(&self) -> f32 {
+        self.vel_turns_per_s
+    }
+
+    /// Command counters.
+    pub fn stats(&self) -> AxisStats {
+        self.stats
+    }
+
+    /// Makes the axis stop (or resume) transmitting; it still obeys commands.
+    pub fn set_silent(&mut self, silent: bool) {
+        self.silent = silent;
+    }
+
+    /// Whether the axis transmits nothing.
+    pub fn is_silent(&self) -> bool {
+        self.silent
+    }
+
+    fn fail(&mut self, bits: u32) {
+        self.error |= bits;
+        self.state = AxisState::Idle;
+        self.stats.refused += 1;
+    }
+
+    fn in_vel_limit(&self, vel: f32) -> bool {
+        vel.abs() <= self.config.vel_limit_turns_per_s
+    }
+
+    /// Executes one command received at `now_us`.
+    pub fn handle(&mut self, message: &Message, now_us: u64) {
+        match *message {
+            Message::Estop => {
+                self.error |= axis_error::ESTOP_REQUESTED;
+                self.state = AxisState::Idle;
+                self.stats.commands += 1;
+            }
+            Message::ClearErrors => {
+                self.error = 0;
+                self.stats.commands += 1;
+            }
+            Message::SetAxisState(AxisState::Idle) => {
+                self.state = AxisState::Idle;
+                self.stats.commands += 1;
+            }
+            Message::SetAxisState(AxisState::ClosedLoopControl) => {
+                if self.error != 0 {
+                    // ODrive refuses to arm with latched errors.
+                    self.stats.refused += 1;
+                    return;
+                }
+                // Arm where the motor is, so closing the loop does not jump.
+                self.input_pos_turns = self.pos_turns;
+                self.vel_ff_turns_per_s = 0.0;
+                self.input_vel_turns_per_s = 0.0;
+                self.state = AxisState::ClosedLoopControl;
+                self.last_setpoint_us = now_us;
+                self.stats.commands += 1;
+            }
+            Message::SetAxisState(_) => self.fail(axis_error::INVALID_STATE),
+            Message::SetControllerMode {
+                control_mode,
+                input_mode,
+            } => match (control_mode, input_mode) {
+                (ControlMode::Position | ControlMode::Velocity, InputMode::Passthrough) => {
+                    self.control_mode = control_mode;
+                    self.input_mode = input_mode;
+                    self.stats.commands += 1;
+                }
+                // Only what the runtime uses is simulated; anything else is refused loudly
+                // rather than silently behaving like passthrough.
+                _ => {
+                    self.stats.refused += 1;
+                }
+            },
+            Message::SetInputPos {
+                pos_turns,
+                vel_ff_turns_per_s,
+                ..
+            } => {
+                let in_range = self
+                    .config
+                    .pos_limits_turns
+                    .is_none_or(|[lo, hi]| (lo..=hi).contains(&pos_turns));
+                if !in_range || !self.in_vel_limit(vel_ff_turns_per_s) {
+                    self.fail(axis_error::CONTROLLER_FAILED);
+                    return;
+                }
+                self.input_pos_turns = pos_turns;
+                self.vel_ff_turns_per_s = vel_ff_turns_per_s;
+                self.last_setpoint_us = now_us;
+                self.stats.commands += 1;
+            }
+            Message::SetInputVel {
+                vel_turns_per_s, ..
+            } => {
+                if !self.in_vel_limit(vel_turns_per_s) {
+                    self.fail(axis_error::CONTROLLER_FAILED);
+                    return;
+                }
+                self.input_vel_turns_per_s = vel_turns_per_s;
+                self.last_setpoint_us = now_us;
+                self.stats.commands += 1;
+            }
+            Message::Request(CmdId::Heartbeat) => self.pending_requests[0] = true,
+            Message::Request(CmdId::GetEncoderEstimates) => self.pending_requests[1] = true,
+            // Reports from other axes, or requests this axis does not simulate.
+            _ => {}
+        }
+    }
+
+    /// Advances the motor by `dt_s` ending at `now_us` (watchdog checked first).
+    pub fn step(&mut self, dt_s: f32, now_us: u64) {
+        let timeout = self.config.watchdog_timeout_us;
+        if self.state == AxisState::ClosedLoopControl
+            && timeout > 0
+            && now_us.saturating_sub(self.last_setpoint_us) > timeout
+        {
+            self.error |= axis_error::WATCHDOG_TIMER_EXPIRED;
+            self.state = AxisState::Idle;
+            self.stats.watchdog_trips += 1;
+        }
+        let v0 = self.vel_turns_per_s;
+        let v1 = if self.state == AxisState::ClosedLoopControl {
+            let limit = self.config.vel_limit_turns_per_s;
+            let target = match self.control_mode {
+                ControlMode::Velocity => self.input_vel_turns_per_s,
+                _ => {
+                    self.vel_ff_turns_per_s
+                        + self.config.pos_gain_per_s * (self.input_pos_turns - self.pos_turns)
+                }
+            }
+            .clamp(-limit, limit);
+            // Exact discretisation of the first-order lag, then the acceleration clamp.
+            let alpha = 1.0 - (-dt_s / self.config.time_constant_s).exp();
+            let max_dv = self.config.accel_limit_turns_per_s2 * dt_s;
+            v0 + ((target - v0) * alpha).clamp(-max_dv, max_dv)
+        } else {
+            v0 * (-dt_s / self.config.idle_decay_s).exp()
+        };
+        self.vel_turns_per_s = v1;
+        self.pos_turns += 0.5 * (v0 + v1) * dt_s;
+    }
+
+    /// Frames due at `now_us` (periodic reports and answers to requests), appended to `out`.
+    pub fn poll_tx(&mut self, now_us: u64, out: &mut Vec<CanFrame>) {
+        let hb_due = due(
+            &mut self.next_heartbeat_us,
+            self.config.heartbeat_period_us,
+            now_us,
+        );
+        let est_due = due(
+            &mut self.next_estimate_us,
+            self.config.encoder_period_us,
+            now_us,
+        );
+        let [hb_req, est_req] = std::mem::take(&mut self.pending_requests);
+        if self.silent {
+            return;
+        }
+        if hb_due || hb_req {
+            let hb = Message::Heartbeat {
+                axis_error: self.error,
+                axis_state: self.state,
+            };
+            out.extend(encode::<CanFrame>(self.node, &hb).ok());
+        }
+        if est_due || est_req {
+            let est = Message::EncoderEstimates {
+                pos_turns: self.pos_turns,
+                vel_turns_per_s: self.vel_turns_per_s,
+            };
+            out.extend(encode::<CanFrame>(self.node, &est).ok());
+        }
+    }
+}
+
+/// Whether a periodic report is due, advancing its schedule if so.
+fn due(next_us: &mut u64, period_us: u64, now_us: u64) -> bool {
+    if period_us == 0 || now_us < *next_us {
+        return false;
+    }
+    // Catch up without bursting if the caller skipped time.
+    *next_us = (*next_us + period_us).max(now_us + 1);
+    true
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn armed(config: AxisConfig, mode: ControlMode) -> SimAxis {
+        let mut a = SimAxis::new(NodeId::new(1).unwrap(), config, 0.0);
+        a.handle(
+            &Message::SetControllerMode {
+                control_mode: mode,
+                input_mode: InputMode::Passthrough,
+            },
+            0,
+        );
+        a.handle(&Message::SetAxisState(AxisState::ClosedLoopControl), 0);
+        assert_eq!(a.state(), AxisState::ClosedLoopControl);
+        a
+    }
+
+    fn run(a: &mut SimAxis, from_us: u64, to_us: u64, feed: Option<Message>) {
+        let mut t = from_us;
+        while t < to_us {
+            t += 1_000;
+            if let Some(m) = feed {
+                if t % 10_000 == 0 {
+                    a.handle(&m, t);
+                }
+            }
+            a.step(0.001, t);
+        }
+    }
+
+    #[test]
+    fn velocity_mode_reaches_the_setpoint_within_the_acceleration_limit() {
+        let mut a = armed(AxisConfig::WHEEL, ControlMode::Velocity);
+        let cmd = Message::SetInputVel {
+            vel_turns_per_s: 5.0,
+            torque_ff_nm: 0.0,
+        };
+        a.handle(&cmd, 0);
+        a.step(0.001, 1_000);
+        // First millisecond: capped by 100 turns/s² -> 0.1 turns/s.
+        assert!((a.vel_turns_per_s() - 0.1).abs() < 1e-5);
+        run(&mut a, 1_000, 500_000, Some(cmd));
+        assert!((a.vel_turns_per_s() - 5.0).abs() < 1e-3);
+    }
+
+    #[test]
+    fn position_mode_settles_on_the_target() {
+        let mut a = armed(AxisConfig::JOINT, ControlMode::Position);
+        let cmd = Message::SetInputPos {
+            pos_turns: 2.0,
+            vel_ff_turns_per_s: 0.0,
+            torque_ff_nm: 0.0,
+        };
+        a.handle(&cmd, 0);
+        run(&mut a, 0, 1_000_000, Some(cmd));
+        assert!((a.pos_turns() - 2.0).abs() < 1e-4, "{}", a.pos_turns());
+        assert_eq!(a.error(), 0);
+    }
+
+    #[test]
+    fn watchdog_idles_the_axis_and_the_wheel_spins_down() {
+        let mut a = armed(AxisConfig::WHEEL, ControlMode::Velocity);
+        let cmd = Message::SetInputVel {
+            vel_turns_per_s: 5.0,
+            torque_ff_nm: 0.0,
+        };
+        run(&mut a, 0, 300_000, Some(cmd));
+        assert_eq!(a.state(), AxisState::ClosedLoopControl);
+        // Commands stop at 300 ms: the watchdog fires 100 ms later.
+        run(&mut a, 300_000, 390_000, None);
+        assert_eq!(a.state(), AxisState::ClosedLoopControl);
+        run(&mut a, 390_000, 900_000, None);
+        assert_eq!(a.state(), AxisState::Idle);
+        assert_eq!(a.error(), axis_error::WATCHDOG_TIMER_EXPIRED);
+        assert!(a.vel_turns_per_s().abs() < 1e-3);
+        // Latched: re-arming fails until errors are cleared.
+        a.handle(
+            &Message::SetAxisState(AxisState::ClosedLoopControl),
+            900_000,
+        );
+        assert_eq!(a.state(), AxisState::Idle);
+        a.handle(&Message::ClearErrors, 900_000);
+        a.handle(
+            &Message::SetAxisState(AxisState::ClosedLoopControl),
+            900_000,
+        );
+        assert_eq!(a.state(), AxisState::ClosedLoopControl);
+    }
+
+    #[test]
+    fn out_of_range_setpoints_and_estop_latch_errors() {
+        let mut a = armed(AxisConfig::JOINT, ControlMode::Position);
+        a.handle(
+            &Message::SetInputPos {
+                pos_turns: 50.0,
+                vel_ff_turns_per_s: 0.0,
+                torque_ff_nm: 0.0,
+            },
+            0,
+        );
+        assert_eq!(a.error(), axis_error::CONTROLLER_FAILED);
+        assert_eq!(a.state(), AxisState::Idle);
+        assert_eq!(a.stats().refused, 1);
+        let mut w = armed(AxisConfig::WHEEL, ControlMode::Velocity);
+        w.handle(
+            &Message::SetInputVel {
+                vel_turns_per_s: 11.0,
+                torque_ff_nm: 0.0,
+            },
+            0,
+        );
+        assert_eq!(w.error(), axis_error::CONTROLLER_FAILED);
+        let mut e = armed(AxisConfig::WHEEL, ControlMode::Velocity);
+        e.handle(&Message::Estop, 0);
+        assert_eq!(e.error(), axis_error::ESTOP_REQUESTED);
+        assert_eq!(e.state(), AxisState::Idle);
+    }
+
+    #[test]
+    fn reports_come_at_their_rates_and_silence_suppresses_them() {
+        let mut a = SimAxis::new(NodeId::new(5).unwrap(), AxisConfig::JOINT, 0.0);
+        let mut out = Vec::new();
+        let mut t = 0;
+        while t < 1_000_000 {
+            a.poll_tx(t, &mut out);
+            t += 1_000;
+        }
+        let heartbeats = out.iter().filter(|f| f.raw_id() == (5 << 5 | 0x01)).count();
+        let estimates = out.iter().filter(|f| f.raw_id() == (5 << 5 | 0x09)).count();
+        assert_eq!((heartbeats, estimates), (10, 100));
+        out.clear();
+        a.set_silent(true);
+        a.handle(&Message::Request(CmdId::GetEncoderEstimates), t);
+        a.poll_tx(t + 100_000, &mut out);
+        assert!(out.is_empty());
+    }
+}

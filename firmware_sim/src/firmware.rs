@@ -1,0 +1,132 @@
+//! All the simulated axes of the robot behind one bus connection.
+
+use crate::axis::{AxisConfig, SimAxis};
+use crate::bus::{BusError, Transport};
+use wheelleg_runtime::can::node_map::{Axis, AxisKind, Joint, NodeMap};
+use wheelleg_runtime::can::protocol::{decode, NodeId};
+use wheelleg_runtime::can::CanFrame;
+use wheelleg_runtime::leg::{IkError, LegConfig};
+use wheelleg_runtime::robot::RobotGeometry;
+
+/// Counters of the traffic the firmware received.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct FirmwareStats {
+    /// Frames received.
+    pub received: u64,
+    /// Frames that did not decode as CANSimple; ignored.
+    pub malformed: u64,
+    /// Frames for nodes no simulated axis has; ignored.
+    pub foreign: u64,
+}
+
+/// A set of simulated axes sharing a bus, like the robot's 16 ODrive nodes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Firmware {
+    axes: Vec<SimAxis>,
+    stats: FirmwareStats,
+    outbox: Vec<CanFrame>,
+}
+
+impl Firmware {
+    /// Any set of axes.
+    pub fn new(axes: Vec<SimAxis>) -> Firmware {
+        Firmware {
+            axes,
+            stats: FirmwareStats::default(),
+            outbox: Vec::new(),
+        }
+    }
+
+    /// The robot's 16 axes per `map`, legs at `start` (motor positions from the leg IK),
+    /// wheels at 0, all idle.
+    pub fn for_robot(
+        geometry: &RobotGeometry,
+        map: &NodeMap,
+        start: LegConfig,
+    ) -> Result<Firmware, IkError> {
+        let joints = geometry.leg_ik(start)?;
+        let axes = Axis::ALL
+            .into_iter()
+            .map(|axis| {
+                let (config, angle_rad) = match axis {
+                    Axis::Joint(_, Joint::Hip) => (AxisConfig::JOINT, joints.hip_rad),
+                    Axis::Joint(_, Joint::Knee) => (AxisConfig::JOINT, joints.knee_rad),
+                    Axis::Joint(_, Joint::WheelMount) => {
+                        (AxisConfig::JOINT, joints.wheel_mount_rad)
+                    }
+                    Axis::Wheel(_) => (AxisConfig::WHEEL, 0.0),
+                };
+                let pos_turns = match axis.kind() {
+                    AxisKind::Joint => map.get(axis).to_motor_turns(angle_rad),
+                    AxisKind::Wheel => 0.0,
+                };
+                SimAxis::new(axis.node_id(), config, pos_turns)
+            })
+            .collect();
+        Ok(Firmware::new(axes))
+    }
+
+    /// Traffic counters.
+    pub fn stats(&self) -> FirmwareStats {
+        self.stats
+    }
+
+    /// All axes.
+    pub fn axes(&self) -> &[SimAxis] {
+        &self.axes
+    }
+
+    /// The axis on `node`.
+    pub fn node(&self, node: NodeId) -> Option<&SimAxis> {
+        self.axes.iter().find(|a| a.node() == node)
+    }
+
+    /// The axis on `node`, mutable (for fault injection).
+    pub fn node_mut(&mut self, node: NodeId) -> Option<&mut SimAxis> {
+        self.axes.iter_mut().find(|a| a.node() == node)
+    }
+
+    /// The simulated motor of a robot axis.
+    pub fn axis(&self, axis: Axis) -> Option<&SimAxis> {
+        self.node(axis.node_id())
+    }
+
+    /// The simulated motor of a robot axis, mutable (for fault injection).
+    pub fn axis_mut(&mut self, axis: Axis) -> Option<&mut SimAxis> {
+        self.node_mut(axis.node_id())
+    }
+
+    /// Hands one received frame to its axis.
+    pub fn receive(&mut self, frame: &CanFrame, now_us: u64) {
+        self.stats.received += 1;
+        match decode(frame) {
+            Err(_) => self.stats.malformed += 1,
+            Ok((node, message)) => match self.node_mut(node) {
+                Some(axis) => axis.handle(&message, now_us),
+                None => self.stats.foreign += 1,
+            },
+        }
+    }
+
+    /// One simulation step ending at `now_us`: take in everything that has arrived, move every
+    /// motor by `dt_s`, send whatever reports are due.
+    pub fn run<T: Transport + ?Sized>(
+        &mut self,
+        transport: &mut T,
+        now_us: u64,
+        dt_s: f32,
+    ) -> Result<(), BusError> {
+        while let Some(frame) = transport.recv(now_us)? {
+            self.receive(&frame, now_us);
+        }
+        self.outbox.clear();
+        for axis in &mut self.axes {
+            axis.step(dt_s, now_us);
+            axis.poll_tx(now_us, &mut self.outbox);
+        }
+        for frame in &self.outbox {
+            transport.send(frame, now_us)?;
+        }
+        Ok(())
+    }
+}

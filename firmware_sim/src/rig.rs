@@ -1,0 +1,382 @@
+//! The closed loop without a policy: runtime motion -> CAN -> simulated axes -> CAN -> runtime
+//! feedback -> forward kinematics.
+//!
+//! A [`Rig`] is the robot's controller (the runtime's [`Commander`] and [`FeedbackTracker`] with
+//! a [`TxQueue`]) wired to a bus, with the 16 simulated axes on the same bus when the bus is
+//! in-process. [`Rig::step`] executes one decision and reports the achieved pose (odometry from
+//! the *measured* wheel speeds) and leg configuration (forward kinematics of the *measured*
+//! joint angles) beside the ideal ones. Whatever a test or the demo does to the loop, it does
+//! through here, so the policy's world and the motors' world meet in one place.
+//!
+//! Safety: every control tick the controller checks [`Health`]. A node silent for longer than
+//! `health_timeout_us`, or reporting an error, puts the rig in safe stop for good: wheels to
+//! zero, joints held at their measured positions, reported as [`StopReason`].
+
+use crate::bus::{BusError, Faults, InProcessBus, Port, Transport};
+use crate::candump::CandumpWriter;
+use crate::firmware::Firmware;
+use nalgebra::Isometry2;
+use std::io::Write;
+use wheelleg_runtime::action::Action;
+use wheelleg_runtime::base::{BaseError, MecanumBase, Odometry};
+use wheelleg_runtime::can::host::{CanError, Commander, FeedbackTracker, Health, TxQueue};
+use wheelleg_runtime::can::node_map::{Axis, NodeMap};
+use wheelleg_runtime::can::protocol::AxisState;
+use wheelleg_runtime::can::CanFrame;
+use wheelleg_runtime::leg::{IkError, LegConfig};
+use wheelleg_runtime::motion::{ideal_step, MotionConfig, MotionError, Setpoint, StepMotion};
+use wheelleg_runtime::robot::RobotGeometry;
+
+/// Capacity of the controller's transmit queue: two ticks' worth of start-up frames.
+pub const TX_QUEUE_FRAMES: usize = 64;
+
+/// Settings of the closed loop.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RigConfig {
+    /// Control rate, step duration and limits.
+    pub motion: MotionConfig,
+    /// Physics step of the simulated axes (in-process bus only).
+    pub physics_dt_us: u64,
+    /// Hold time after each step's setpoints, so the motors settle before the pose is read.
+    pub settle_s: f32,
+    /// An axis not heard from for this long is silent.
+    pub health_timeout_us: u64,
+    /// Fault injection on the in-process bus.
+    pub faults: Faults,
+    /// Node map and calibration.
+    pub map: NodeMap,
+}
+
+impl Default for RigConfig {
+    /// 100 Hz control, 1 kHz physics, 0.2 s settling, 50 ms silence timeout (5 missed encoder
+    /// estimates at 100 Hz: one lost frame is noise, five in a row is a dead node).
+    fn default() -> Self {
+        RigConfig {
+            motion: MotionConfig::default(),
+            physics_dt_us: 1_000,
+            settle_s: 0.2,
+            health_timeout_us: 50_000,
+            faults: Faults::NONE,
+            map: NodeMap::NOMINAL,
+        }
+    }
+}
+
+/// Why the rig cannot go on.
+#[derive(Debug)]
+pub enum RigError {
+    /// The step is impossible or too fast.
+    Motion(MotionError),
+    /// A leg configuration has no IK solution.
+    Ik(IkError),
+    /// The base kinematics refused a measured value.
+    Base(BaseError),
+    /// Frames could not be queued.
+    Can(CanError),
+    /// The transport failed.
+    Bus(BusError),
+    /// Writing the traffic log failed.
+    Log(std::io::Error),
+    /// The axes did not all reach closed loop at start-up.
+    StartupFailed(Health),
+}
+
+impl std::fmt::Display for RigError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{self:?}")
+    }
+}
+
+impl std::error::Error for RigError {}
+
+macro_rules! from_error {
+    ($($variant:ident($t:ty)),*) => {$(
+        impl From<$t> for RigError {
+            fn from(e: $t) -> Self {
+                RigError::$variant(e)
+            }
+        }
+    )*};
+}
+from_error!(
+    Motion(MotionError),
+    Ik(IkError),
+    Base(BaseError),
+    Can(CanError),
+    Bus(BusError),
+    Log(std::io::Error)
+);
+
+/// Why the controller went into safe stop.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StopReason {
+    /// These axes were not heard from within the timeout.
+    Silent(wheelleg_runtime::can::host::AxisSet),
+    /// These axes reported errors (for example `WATCHDOG_TIMER_EXPIRED`).
+    AxisError(wheelleg_runtime::can::host::AxisSet),
+}
+
+/// What one step achieved, beside what it should have.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepReport {
+    /// Ideal pose change (in the frame of the step's start pose).
+    pub ideal_pose: Isometry2<f32>,
+    /// Measured pose change, by odometry from the measured wheel speeds.
+    pub achieved_pose: Isometry2<f32>,
+    /// Ideal leg configuration at the end of the step.
+    pub ideal_legs: LegConfig,
+    /// Measured leg configuration at the end of the step (forward kinematics).
+    pub achieved_legs: LegConfig,
+    /// Set if the controller stopped the robot during the step.
+    pub stopped: Option<StopReason>,
+}
+
+impl StepReport {
+    /// Distance between ideal and achieved position.
+    pub fn position_error_m(&self) -> f32 {
+        (self.ideal_pose.inverse() * self.achieved_pose)
+            .translation
+            .vector
+            .norm()
+    }
+
+    /// Angle between ideal and achieved heading.
+    pub fn yaw_error_rad(&self) -> f32 {
+        (self.ideal_pose.inverse() * self.achieved_pose)
+            .rotation
+            .angle()
+            .abs()
+    }
+}
+
+/// The controller and, on an in-process bus, the simulated motors, stepped together.
+pub struct Rig {
+    geometry: RobotGeometry,
+    config: RigConfig,
+    commander: Commander,
+    tracker: FeedbackTracker,
+    tx: TxQueue<CanFrame, TX_QUEUE_FRAMES>,
+    bus: InProcessBus,
+    host: Port,
+    firmware: Firmware,
+    firmware_port: Port,
+    now_us: u64,
+    odometry: Odometry,
+    legs: LegConfig,
+    stopped: Option<StopReason>,
+    commands_paused: bool,
+    log: Option<CandumpWriter<Box<dyn Write>>>,
+}
+
+impl Rig {
+    /// A rig on an in-process bus, legs at `start`, motors idle; call [`Rig::start_up`] next.
+    pub fn in_process(
+        geometry: &RobotGeometry,
+        config: RigConfig,
+        start: LegConfig,
+    ) -> Result<Rig, RigError> {
+        let bus = InProcessBus::new(config.faults);
+        let host = bus.port();
+        let firmware_port = bus.port();
+        Ok(Rig {
+            geometry: *geometry,
+            config,
+            commander: Commander::new(config.map),
+            tracker: FeedbackTracker::new(config.map),
+            tx: TxQueue::new(),
+            firmware: Firmware::for_robot(geometry, &config.map, start)?,
+            bus,
+            host,
+            firmware_port,
+            now_us: 0,
+            odometry: Odometry::default(),
+            legs: start,
+            stopped: None,
+            commands_paused: false,
+            log: None,
+        })
+    }
+
+    /// Logs every frame the controller sends or receives, in `candump -L` format.
+    pub fn log_to(&mut self, writer: CandumpWriter<Box<dyn Write>>) {
+        self.log = Some(writer);
+    }
+
+    /// Stops logging and returns the writer (flushed).
+    pub fn take_log(&mut self) -> Result<Option<Box<dyn Write>>, RigError> {
+        match self.log.take() {
+            Some(w) => Ok(Some(w.finish()?)),
+            None => Ok(None),
+        }
+    }
+
+    /// Simulated time.
+    pub fn now_us(&self) -> u64 {
+        self.now_us
+    }
+
+    /// The controller's view of the bus.
+    pub fn feedback(&self) -> &FeedbackTracker {
+        &self.tracker
+    }
+
+    /// The simulated motors.
+    pub fn firmware(&self) -> &Firmware {
+        &self.firmware
+    }
+
+    /// The simulated motors, for fault injection.
+    pub fn firmware_mut(&mut self) -> &mut Firmware {
+        &mut self.firmware
+    }
+
+    /// The in-process bus (fault counters, changing faults).
+    pub fn bus(&self) -> &InProcessBus {
+        &self.bus
+    }
+
+    /// Pose by odometry since start-up.
+    pub fn pose(&self) -> Isometry2<f32> {
+        self.odometry.pose
+    }
+
+    /// Commanded leg configuration.
+    pub fn legs(&self) -> LegConfig {
+        self.legs
+    }
+
+    /// Why the controller stopped the robot, if it did.
+    pub fn stopped(&self) -> Option<StopReason> {
+        self.stopped
+    }
+
+    /// Simulates a controller whose transmit path hangs: it keeps listening but sends nothing.
+    pub fn pause_commands(&mut self, paused: bool) {
+        self.commands_paused = paused;
+    }
+
+    /// Arms every axis and holds the start pose until all report closed loop.
+    pub fn start_up(&mut self) -> Result<(), RigError> {
+        self.commander.queue_startup(&mut self.tx)?;
+        let hold = Setpoint::hold(&self.geometry, self.legs)?;
+        // A few heartbeat periods: enough for every axis to report its new state.
+        for _ in 0..30 {
+            self.control_tick(&hold, false)?;
+        }
+        let health = self
+            .tracker
+            .health(self.now_us, self.config.health_timeout_us);
+        let all_armed = Axis::ALL.into_iter().all(|a| {
+            self.tracker
+                .axis(a)
+                .is_some_and(|f| f.axis_state == Some(AxisState::ClosedLoopControl))
+        });
+        if !health.is_ok() || !all_armed {
+            return Err(RigError::StartupFailed(health));
+        }
+        Ok(())
+    }
+
+    fn tick_s(&self) -> f32 {
+        1.0 / self.config.motion.control_rate_hz
+    }
+
+    /// One control period: read feedback, integrate odometry, check health, send commands
+    /// (the setpoint, or the safe stop), then let the motors run until the next tick.
+    fn control_tick(&mut self, setpoint: &Setpoint, supervise: bool) -> Result<(), RigError> {
+        let tick_us = (1e6 * self.tick_s()) as u64;
+        while let Some(frame) = self.host.recv(self.now_us)? {
+            if let Some(log) = &mut self.log {
+                log.log(self.now_us, &frame)?;
+            }
+            self.tracker.receive(&frame, self.now_us);
+        }
+        if let (Some(wheels), Some(legs)) = (
+            self.tracker.wheel_speeds(),
+            self.tracker.leg_config(&self.geometry),
+        ) {
+            let base = MecanumBase::at(&self.geometry, legs)?;
+            self.odometry
+                .integrate_wheels(&base, wheels, self.tick_s())?;
+        }
+        if supervise && self.stopped.is_none() {
+            let health = self
+                .tracker
+                .health(self.now_us, self.config.health_timeout_us);
+            if !health.silent.is_empty() {
+                self.stopped = Some(StopReason::Silent(health.silent));
+            } else if !health.errored.is_empty() {
+                self.stopped = Some(StopReason::AxisError(health.errored));
+            }
+        }
+        if !self.commands_paused {
+            if self.stopped.is_some() {
+                self.commander
+                    .queue_safe_stop(&mut self.tx, &self.tracker)?;
+            } else {
+                self.commander.queue_setpoint(&mut self.tx, setpoint)?;
+            }
+            while let Some(frame) = self.tx.pop() {
+                if let Some(log) = &mut self.log {
+                    log.log(self.now_us, &frame)?;
+                }
+                self.host.send(&frame, self.now_us)?;
+            }
+        }
+        let end_us = self.now_us + tick_us;
+        let dt_s = self.config.physics_dt_us as f32 * 1e-6;
+        while self.now_us < end_us {
+            self.now_us += self.config.physics_dt_us;
+            self.firmware
+                .run(&mut self.firmware_port, self.now_us, dt_s)?;
+        }
+        Ok(())
+    }
+
+    /// Holds the current legs with wheels stopped for `duration_s` (still supervised).
+    pub fn hold(&mut self, duration_s: f32) -> Result<(), RigError> {
+        let hold = Setpoint::hold(&self.geometry, self.legs)?;
+        let ticks = (duration_s / self.tick_s()).round() as u32;
+        for _ in 0..ticks {
+            self.control_tick(&hold, true)?;
+        }
+        Ok(())
+    }
+
+    /// Executes one decision: its setpoint stream, then `settle_s` of holding the target.
+    pub fn step(&mut self, action: Action) -> Result<StepReport, RigError> {
+        let motion = StepMotion::plan(&self.geometry, &self.config.motion, self.legs, action)?;
+        let (ideal_pose, ideal_legs) = ideal_step(self.legs, action);
+        let start_pose = self.odometry.pose;
+        for setpoint in motion {
+            self.control_tick(&setpoint, true)?;
+        }
+        self.legs = ideal_legs;
+        self.hold(self.config.settle_s)?;
+        let achieved_legs =
+            self.tracker
+                .leg_config(&self.geometry)
+                .ok_or(RigError::StartupFailed(
+                    self.tracker
+                        .health(self.now_us, self.config.health_timeout_us),
+                ))?;
+        Ok(StepReport {
+            ideal_pose,
+            achieved_pose: start_pose.inverse() * self.odometry.pose,
+            ideal_legs,
+            achieved_legs,
+            stopped: self.stopped,
+        })
+    }
+}
+
+/// Sum of the absolute speeds of the simulated wheel motors, in turns/s: zero when the base is
+/// really stopped, whatever the controller believes.
+pub fn true_wheel_speed_sum(firmware: &Firmware) -> f32 {
+    Axis::ALL
+        .into_iter()
+        .filter(|a| matches!(a, Axis::Wheel(_)))
+        .filter_map(|a| firmware.axis(a))
+        .map(|a| a.vel_turns_per_s().abs())
+        .sum()
+}
