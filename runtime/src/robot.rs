@@ -68,7 +68,8 @@ pub struct RobotGeometry {
     pub body_thickness_m: f32,
     /// Body x of the front hips (rear hips at minus this).
     pub hip_x_m: f32,
-    /// Body y of the left hips (right hips at minus this): the hips sit on the body's sides.
+    /// Body y of the left hips (right hips at minus this): the hip actuators sit inside the body,
+    /// inboard of its sides, so that the legs can fold under it to squeeze.
     pub hip_y_m: f32,
     /// Thigh length, hip joint to knee joint.
     pub thigh_m: f32,
@@ -100,9 +101,9 @@ pub const WHEELLEG: RobotGeometry = RobotGeometry {
     body_width_m: 0.16,
     body_thickness_m: 0.08,
     hip_x_m: 0.20,
-    hip_y_m: 0.08,
-    thigh_m: 0.11,
-    shank_m: 0.11,
+    hip_y_m: 0.06,
+    thigh_m: 0.08,
+    shank_m: 0.16,
     link_radius_m: 0.012,
     wheel_radius_m: 0.05,
     wheel_width_m: 0.04,

@@ -1,0 +1,186 @@
+//! Exact collision between the robot's parts and the obstacles, with parry3d.
+//!
+//! The robot is 13 convex parts: the body (a box), per leg a thigh and a shank (capsules along
+//! the links) and a wheel (a cylinder with its axle along body y). A cheap axis-aligned bounding
+//! box test culls part/obstacle pairs first; what survives gets parry's exact intersection test.
+//! Touching counts as colliding.
+
+use crate::obstacle::{GroundBox, Obstacle};
+use nalgebra::{Isometry3, Point2, Point3, Translation3, Vector3};
+use parry3d::bounding_volume::{Aabb, BoundingVolume};
+use parry3d::query;
+use parry3d::shape::{Capsule, Cuboid, Cylinder, Shape};
+use wheelleg_runtime::leg::{IkError, LegConfig};
+use wheelleg_runtime::robot::{LegId, RobotGeometry};
+
+/// Number of robot parts checked for collision.
+pub const PART_COUNT: usize = 1 + 3 * 4;
+
+/// One convex part of the robot, placed in the world.
+#[derive(Clone, Copy, Debug)]
+pub enum Part {
+    /// The body box.
+    Body {
+        /// World pose of the box centre.
+        pose: Isometry3<f32>,
+        /// The box.
+        shape: Cuboid,
+    },
+    /// A leg link; the capsule's segment is in world coordinates.
+    Link(Capsule),
+    /// A wheel.
+    Wheel {
+        /// World pose of the wheel centre, local y along the axle.
+        pose: Isometry3<f32>,
+        /// The wheel.
+        shape: Cylinder,
+    },
+}
+
+impl Part {
+    /// Axis-aligned bounding box in the world.
+    pub fn aabb(&self) -> Aabb {
+        match self {
+            Part::Body { pose, shape } => shape.compute_aabb(pose),
+            Part::Link(capsule) => capsule.compute_aabb(&Isometry3::identity()),
+            Part::Wheel { pose, shape } => shape.compute_aabb(pose),
+        }
+    }
+
+    fn intersects(&self, obstacle_pose: &Isometry3<f32>, obstacle: &Cuboid) -> bool {
+        let (pose, shape): (Isometry3<f32>, &dyn Shape) = match self {
+            Part::Body { pose, shape } => (*pose, shape),
+            Part::Link(capsule) => (Isometry3::identity(), capsule),
+            Part::Wheel { pose, shape } => (*pose, shape),
+        };
+        // Every pair here is convex-convex, which parry always supports; an unsupported pair
+        // would be a programming error, and counting it as a collision is the safe side.
+        query::intersection_test(&pose, shape, obstacle_pose, obstacle).unwrap_or(true)
+    }
+}
+
+/// The robot's parts at one pose, with their bounding boxes.
+#[derive(Clone, Debug)]
+pub struct RobotParts {
+    parts: [Part; PART_COUNT],
+    aabbs: [Aabb; PART_COUNT],
+    aabb: Aabb,
+}
+
+impl RobotParts {
+    /// Places the robot's parts for a body pose and leg configuration; fails if the legs cannot
+    /// reach the configuration.
+    pub fn new(
+        geometry: &RobotGeometry,
+        position: Point2<f32>,
+        yaw_rad: f32,
+        legs: LegConfig,
+    ) -> Result<Self, IkError> {
+        let joints = geometry.leg_ik(legs)?;
+        let body_pose = crate::state::body_pose_at(
+            position,
+            yaw_rad,
+            geometry.body_centre_height_m(legs.clearance_m),
+        );
+        let body = Part::Body {
+            pose: body_pose,
+            shape: Cuboid::new(Vector3::new(
+                0.5 * geometry.body_length_m,
+                0.5 * geometry.body_width_m,
+                0.5 * geometry.body_thickness_m,
+            )),
+        };
+        let wheel_shape = Cylinder::new(0.5 * geometry.wheel_width_m, geometry.wheel_radius_m);
+        let mut parts = [body; PART_COUNT];
+        for (slot, leg) in parts[1..].chunks_exact_mut(3).zip(LegId::ALL) {
+            let points = geometry.leg_points(leg, joints);
+            let to_world = |p: Point3<f32>| body_pose * p;
+            let (hip, knee, wheel) = (
+                to_world(points.hip),
+                to_world(points.knee),
+                to_world(points.wheel),
+            );
+            slot[0] = Part::Link(Capsule::new(hip, knee, geometry.link_radius_m));
+            slot[1] = Part::Link(Capsule::new(knee, wheel, geometry.link_radius_m));
+            slot[2] = Part::Wheel {
+                pose: Isometry3::from_parts(Translation3::from(wheel.coords), body_pose.rotation),
+                shape: wheel_shape,
+            };
+        }
+        let aabbs = parts.map(|p| p.aabb());
+        let aabb = aabbs[1..]
+            .iter()
+            .fold(aabbs[0], |acc, b| acc.merged(b));
+        Ok(RobotParts { parts, aabbs, aabb })
+    }
+
+    /// The parts.
+    pub fn parts(&self) -> &[Part; PART_COUNT] {
+        &self.parts
+    }
+
+    /// Bounding box of the whole robot.
+    pub fn aabb(&self) -> Aabb {
+        self.aabb
+    }
+}
+
+/// The static obstacles of a scene, ready for collision queries.
+#[derive(Clone, Debug, Default)]
+pub struct ObstacleSet {
+    boxes: Vec<GroundBox>,
+    aabbs: Vec<Aabb>,
+    poses: Vec<Isometry3<f32>>,
+    shapes: Vec<Cuboid>,
+}
+
+impl ObstacleSet {
+    /// Prepares a scene's obstacles.
+    pub fn new(obstacles: &[Obstacle]) -> Self {
+        let boxes: Vec<GroundBox> = obstacles.iter().map(Obstacle::ground_box).collect();
+        ObstacleSet {
+            aabbs: boxes
+                .iter()
+                .map(|b| {
+                    Aabb::new(
+                        Point3::new(b.min_x_m, b.min_y_m, 0.0),
+                        Point3::new(b.max_x_m, b.max_y_m, b.height_m),
+                    )
+                })
+                .collect(),
+            poses: boxes
+                .iter()
+                .map(|b| Isometry3::from_parts(Translation3::from(b.centre()), Default::default()))
+                .collect(),
+            shapes: boxes.iter().map(|b| Cuboid::new(b.half_extents())).collect(),
+            boxes,
+        }
+    }
+
+    /// The obstacles' boxes.
+    pub fn boxes(&self) -> &[GroundBox] {
+        &self.boxes
+    }
+
+    /// Whether the box `aabb` overlaps any obstacle's bounding box.
+    pub fn may_touch(&self, aabb: &Aabb) -> bool {
+        self.aabbs.iter().any(|b| b.intersects(aabb))
+    }
+
+    /// Whether any robot part intersects any obstacle.
+    pub fn collides(&self, robot: &RobotParts) -> bool {
+        for (i, obstacle_aabb) in self.aabbs.iter().enumerate() {
+            if !obstacle_aabb.intersects(&robot.aabb) {
+                continue;
+            }
+            for (part, part_aabb) in robot.parts.iter().zip(&robot.aabbs) {
+                if part_aabb.intersects(obstacle_aabb)
+                    && part.intersects(&self.poses[i], &self.shapes[i])
+                {
+                    return true;
+                }
+            }
+        }
+        false
+    }
+}

@@ -1,0 +1,270 @@
+//! Scene generators: one simple scene family per behaviour, each built so that the behaviour is
+//! necessary, and complex scenes that mix every obstacle kind.
+//!
+//! Every scene starts the robot on the 0.05 m lattice with a random yaw on the 5 degree lattice
+//! and puts the target 0.5 to 1.0 m ahead along world x. Behaviour scenes put a *fence* across
+//! the whole arena between start and target, with exactly one kind of passage in it, so the only
+//! way through is the behaviour (docs/simulator.md has the cross-section arithmetic):
+//!
+//! - lift over: bars lengthwise on every cell; the 0.17 m gaps between bars are narrower than
+//!   the robot at any track, so it must straddle a bar, body lifted above 0.15 m;
+//! - spread over: a slab, then blocks two cells away on either side; the lanes beside the slab
+//!   are too narrow for the robot, so it must straddle the slab with the legs spread;
+//! - squeeze: blocks on every cell but one: a 0.30 m gap that the default pose (0.40 m wide)
+//!   does not fit through;
+//! - around: one block, or two side by side, on the straight line to the target;
+//! - straight: no obstacles.
+
+use crate::obstacle::{cell_centre_m, Obstacle, ObstacleKind, ObstacleYaw, GRID_CELL_M};
+use crate::scenario::Scenario;
+use crate::state::{RobotState, YAW_STEPS_PER_TURN};
+use nalgebra::Point2;
+use rand::Rng;
+use wheelleg_runtime::action::MOVE_STEP_M;
+use wheelleg_runtime::robot::WHEELLEG;
+
+/// The five behaviours of the paper's secondary policies.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Behaviour {
+    /// Drive straight to the target; nothing in the way.
+    Straight,
+    /// Drive around one or two blocks.
+    Around,
+    /// Lift the body and straddle a bar.
+    LiftOver,
+    /// Spread the legs (lowering the body) and straddle a slab.
+    SpreadOver,
+    /// Narrow the legs and squeeze through a gap between blocks.
+    Squeeze,
+}
+
+impl Behaviour {
+    /// All behaviours, in training order (straight first: the others start from it).
+    pub const ALL: [Behaviour; 5] = [
+        Behaviour::Straight,
+        Behaviour::Around,
+        Behaviour::LiftOver,
+        Behaviour::SpreadOver,
+        Behaviour::Squeeze,
+    ];
+
+    /// Name used on the command line and in scenario names.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Behaviour::Straight => "straight",
+            Behaviour::Around => "around",
+            Behaviour::LiftOver => "lift",
+            Behaviour::SpreadOver => "spread",
+            Behaviour::Squeeze => "squeeze",
+        }
+    }
+}
+
+/// What to generate.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum SceneKind {
+    /// A simple scene for one behaviour.
+    Behaviour(Behaviour),
+    /// A complex scene: 1 to 8 obstacles of any kind.
+    Complex,
+}
+
+impl SceneKind {
+    /// All kinds, behaviours first.
+    pub const ALL: [SceneKind; 6] = [
+        SceneKind::Behaviour(Behaviour::Straight),
+        SceneKind::Behaviour(Behaviour::Around),
+        SceneKind::Behaviour(Behaviour::LiftOver),
+        SceneKind::Behaviour(Behaviour::SpreadOver),
+        SceneKind::Behaviour(Behaviour::Squeeze),
+        SceneKind::Complex,
+    ];
+
+    /// Name used on the command line.
+    pub const fn name(self) -> &'static str {
+        match self {
+            SceneKind::Behaviour(b) => b.name(),
+            SceneKind::Complex => "complex",
+        }
+    }
+
+    /// Parses a command-line name.
+    pub fn from_name(name: &str) -> Option<SceneKind> {
+        SceneKind::ALL.into_iter().find(|k| k.name() == name)
+    }
+}
+
+/// A value on a lattice of `step_m`, built in f64 so that it prints and parses back exactly.
+fn lattice_m(index: i32, step_m: f64) -> f32 {
+    (index as f64 * step_m) as f32
+}
+
+/// Index of the grid cell containing `value_m`.
+fn cell_index(value_m: f32) -> i32 {
+    (value_m / GRID_CELL_M).floor() as i32
+}
+
+/// Start and target of a scene, with the fence cell's x index for scenes that need one.
+struct Layout {
+    start: RobotState,
+    target: Point2<f32>,
+}
+
+/// Random start on the lattice, random yaw; the target `min_ahead_m..=1.0` ahead along x.
+fn layout(rng: &mut impl Rng, min_ahead_m: f32) -> Layout {
+    let lattice = MOVE_STEP_M as f64;
+    let x = lattice_m(rng.random_range(-2..=2), lattice);
+    let y = lattice_m(rng.random_range(-2..=2), lattice);
+    let yaw_steps = rng.random_range(0..YAW_STEPS_PER_TURN);
+    let min_k = ((min_ahead_m.max(0.5) as f64) / lattice).ceil() as i32;
+    let k = rng.random_range(min_k.min(20)..=20);
+    let start = RobotState::new(Point2::new(x, y), yaw_steps);
+    Layout {
+        target: Point2::new(lattice_m(((x as f64) / lattice).round() as i32 + k, lattice), y),
+        start,
+    }
+}
+
+/// Generates one scene of `kind`. Scenes that come out invalid (robot starting inside an
+/// obstacle, target unreachable by construction) are redrawn, so the result always validates.
+pub fn generate(kind: SceneKind, rng: &mut impl Rng, name: String) -> Scenario {
+    loop {
+        let scenario = match kind {
+            SceneKind::Behaviour(b) => behaviour_scene(b, rng, name.clone()),
+            SceneKind::Complex => complex_scene(rng, name.clone()),
+        };
+        if scenario.validate(&WHEELLEG).is_ok() && target_is_free(&scenario) {
+            return scenario;
+        }
+    }
+}
+
+/// Generates `count` scenes named `{kind}-{i}`.
+pub fn generate_many(kind: SceneKind, rng: &mut impl Rng, count: usize) -> Vec<Scenario> {
+    (0..count)
+        .map(|i| generate(kind, rng, format!("{}-{i}", kind.name())))
+        .collect()
+}
+
+/// Whether the robot could stand at the target: some yaw in the default or a squeezed pose
+/// does not collide. Scenes whose target lies inside an obstacle are useless.
+fn target_is_free(scenario: &Scenario) -> bool {
+    let obstacles = crate::collision::ObstacleSet::new(&scenario.obstacles);
+    let poses = [(0.12, 0.36), (0.18, 0.24), (0.08, 0.56), (0.10, 0.16)];
+    (0..YAW_STEPS_PER_TURN / 2).step_by(3).any(|yaw| {
+        poses.iter().any(|&(clearance_m, track_m)| {
+            let legs = wheelleg_runtime::leg::LegConfig { clearance_m, track_m };
+            crate::collision::RobotParts::new(
+                &WHEELLEG,
+                scenario.target,
+                (yaw as f32 * 5.0).to_radians(),
+                legs,
+            )
+            .is_ok_and(|parts| !obstacles.collides(&parts))
+        })
+    })
+}
+
+/// Cells of a fence: (y cell offset from the opening, kind) pairs.
+fn fence_cells(behaviour: Behaviour) -> Vec<(i32, ObstacleKind)> {
+    let span = -6..=6;
+    match behaviour {
+        Behaviour::LiftOver => span.map(|m| (m, ObstacleKind::Bar)).collect(),
+        Behaviour::SpreadOver => span
+            .filter_map(|m: i32| match m.rem_euclid(4) {
+                0 => Some((m, ObstacleKind::Slab)),
+                2 => Some((m, ObstacleKind::Block)),
+                _ => None,
+            })
+            .collect(),
+        Behaviour::Squeeze => span
+            .filter(|&m| m != 0)
+            .map(|m| (m, ObstacleKind::Block))
+            .collect(),
+        Behaviour::Straight | Behaviour::Around => Vec::new(),
+    }
+}
+
+fn behaviour_scene(behaviour: Behaviour, rng: &mut impl Rng, name: String) -> Scenario {
+    // The fence (or block) stands in the first cell at least 0.45 m ahead of the start, so the
+    // robot starts clear of it at any yaw; the target is at least `beyond` past its centre.
+    let beyond_m = match behaviour {
+        Behaviour::Around => 0.45,
+        _ => 0.25,
+    };
+    let lay = layout(rng, 0.45 + beyond_m);
+    let fence_x = cell_centre_m(cell_index(lay.start.position.x + 0.45) + 1);
+    let fence_x = if fence_x - GRID_CELL_M >= lay.start.position.x + 0.45 {
+        fence_x - GRID_CELL_M
+    } else {
+        fence_x
+    };
+    let mut target = lay.target;
+    if target.x < fence_x + beyond_m {
+        target.x = lattice_m(((fence_x + beyond_m) as f64 / MOVE_STEP_M as f64).ceil() as i32, MOVE_STEP_M as f64);
+    }
+    let path_cell = cell_index(lay.start.position.y);
+    let obstacles = match behaviour {
+        Behaviour::Straight => Vec::new(),
+        Behaviour::Around => {
+            let mut blocks = vec![Obstacle::new(ObstacleKind::Block, fence_x, cell_centre_m(path_cell), ObstacleYaw::Deg0)];
+            if rng.random_bool(0.5) {
+                let side = if rng.random_bool(0.5) { 1 } else { -1 };
+                blocks.push(Obstacle::new(ObstacleKind::Block, fence_x, cell_centre_m(path_cell + side), ObstacleYaw::Deg0));
+            }
+            blocks
+        }
+        Behaviour::LiftOver | Behaviour::SpreadOver | Behaviour::Squeeze => {
+            let opening = path_cell + rng.random_range(-1..=1);
+            fence_cells(behaviour)
+                .into_iter()
+                .map(|(m, kind)| Obstacle::new(kind, fence_x, cell_centre_m(opening + m), ObstacleYaw::Deg0))
+                .collect()
+        }
+    };
+    Scenario {
+        name,
+        start: lay.start,
+        target,
+        obstacles,
+    }
+}
+
+fn complex_scene(rng: &mut impl Rng, name: String) -> Scenario {
+    let lay = layout(rng, 0.5);
+    let count = rng.random_range(1..=8);
+    let (x0, x1) = (cell_index(lay.start.position.x - 0.5), cell_index(lay.target.x + 0.5));
+    let y_mid = cell_index(lay.start.position.y);
+    let mut obstacles = Vec::with_capacity(count);
+    let start_obstacles_free = |obstacles: &[Obstacle]| {
+        Scenario {
+            name: String::new(),
+            start: lay.start,
+            target: lay.target,
+            obstacles: obstacles.to_vec(),
+        }
+        .validate(&WHEELLEG)
+        .is_ok()
+    };
+    let mut attempts = 0;
+    while obstacles.len() < count && attempts < 100 {
+        attempts += 1;
+        let kind = ObstacleKind::ALL[rng.random_range(0..3)];
+        let yaw = if rng.random_bool(0.5) { ObstacleYaw::Deg0 } else { ObstacleYaw::Deg90 };
+        let cell = (rng.random_range(x0..=x1), rng.random_range(y_mid - 3..=y_mid + 3));
+        let candidate = Obstacle::new(kind, cell_centre_m(cell.0), cell_centre_m(cell.1), yaw);
+        if obstacles.iter().any(|o: &Obstacle| o.centre == candidate.centre) {
+            continue;
+        }
+        obstacles.push(candidate);
+        if !start_obstacles_free(&obstacles) {
+            obstacles.pop();
+        }
+    }
+    Scenario {
+        name,
+        start: lay.start,
+        target: lay.target,
+        obstacles,
+    }
+}

@@ -1,0 +1,230 @@
+//! Scenario files: JSON, read and written by the CLI.
+//!
+//! ```json
+//! {"scenarios":[{"name":"bar-0","robot":{"x":0.0,"y":0.0,"yaw_deg":30.0},
+//!   "target":{"x":0.8,"y":0.0},
+//!   "obstacles":[{"kind":"bar","x":0.375,"y":0.125,"yaw_deg":0}]}]}
+//! ```
+//! Lengths in metres, angles in degrees. The robot's yaw must lie on the 5 degree action
+//! lattice; obstacle yaw is 0 or 90 (180 and 270 are the same boxes and are accepted).
+
+use crate::obstacle::{Obstacle, ObstacleKind, ObstacleYaw};
+use crate::scenario::{Scenario, ScenarioError};
+use crate::state::RobotState;
+use nalgebra::Point2;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+use wheelleg_runtime::action::YAW_STEP_DEG;
+use wheelleg_runtime::robot::RobotGeometry;
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FileRecord {
+    scenarios: Vec<ScenarioRecord>,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ScenarioRecord {
+    name: String,
+    robot: RobotRecord,
+    target: PointRecord,
+    #[serde(default)]
+    obstacles: Vec<ObstacleRecord>,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RobotRecord {
+    x: f64,
+    y: f64,
+    yaw_deg: f64,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PointRecord {
+    x: f64,
+    y: f64,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ObstacleRecord {
+    kind: String,
+    x: f64,
+    y: f64,
+    yaw_deg: f64,
+}
+
+/// Why a scenario file could not be used.
+#[derive(Debug)]
+pub enum ScenarioFileError {
+    /// The file could not be read or written.
+    Io {
+        /// The file.
+        path: String,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// Not JSON of the scenario file's shape.
+    Syntax {
+        /// Where in the document (e.g. `scenarios[1].robot.x`) and what.
+        message: String,
+    },
+    /// Well-formed, but a scenario in it is impossible.
+    Invalid(ScenarioError),
+}
+
+impl std::fmt::Display for ScenarioFileError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ScenarioFileError::Io { path, source } => write!(f, "{path}: {source}"),
+            ScenarioFileError::Syntax { message } => write!(f, "malformed scenario file: {message}"),
+            ScenarioFileError::Invalid(e) => write!(f, "impossible scenario: {e}"),
+        }
+    }
+}
+
+impl std::error::Error for ScenarioFileError {}
+
+/// Parses and validates scenario JSON.
+pub fn parse(json: &str, geometry: &RobotGeometry) -> Result<Vec<Scenario>, ScenarioFileError> {
+    let mut deserializer = serde_json::Deserializer::from_str(json);
+    let file: FileRecord = serde_path_to_error::deserialize(&mut deserializer).map_err(|e| {
+        ScenarioFileError::Syntax {
+            message: format!("at `{}`: {}", e.path(), e.inner()),
+        }
+    })?;
+    file.scenarios
+        .into_iter()
+        .enumerate()
+        .map(|(i, record)| {
+            let scenario = from_record(i, record)?;
+            scenario.validate(geometry)?;
+            Ok(scenario)
+        })
+        .collect::<Result<_, ScenarioError>>()
+        .map_err(ScenarioFileError::Invalid)
+}
+
+/// Reads and validates a scenario file.
+pub fn load(path: &Path, geometry: &RobotGeometry) -> Result<Vec<Scenario>, ScenarioFileError> {
+    let json = std::fs::read_to_string(path).map_err(|source| ScenarioFileError::Io {
+        path: path.display().to_string(),
+        source,
+    })?;
+    parse(&json, geometry)
+}
+
+/// Serializes scenarios as a scenario file.
+pub fn to_json(scenarios: &[Scenario]) -> String {
+    let file = FileRecord {
+        scenarios: scenarios.iter().map(to_record).collect(),
+    };
+    // Serializing plain records of strings and numbers cannot fail.
+    serde_json::to_string_pretty(&file).unwrap_or_default()
+}
+
+/// Writes a scenario file atomically: a reader never sees half a file, and a failed write leaves
+/// the old file in place.
+pub fn save(path: &Path, scenarios: &[Scenario]) -> Result<(), ScenarioFileError> {
+    crate::atomic_write(path, to_json(scenarios).as_bytes()).map_err(|source| {
+        ScenarioFileError::Io {
+            path: path.display().to_string(),
+            source,
+        }
+    })
+}
+
+fn from_record(index: usize, r: ScenarioRecord) -> Result<Scenario, ScenarioError> {
+    let label = if r.name.is_empty() {
+        format!("#{index}")
+    } else {
+        format!("\"{}\" (#{index})", r.name)
+    };
+    let fail = |field: String, problem: &str| ScenarioError {
+        scenario: label.clone(),
+        field,
+        problem: problem.to_string(),
+    };
+    let number = |v: f64, field: &str| -> Result<f32, ScenarioError> {
+        if v.is_finite() && v.abs() < 1.0e4 {
+            Ok(v as f32)
+        } else {
+            Err(fail(field.to_string(), "must be a finite number below 10^4"))
+        }
+    };
+    let yaw_deg = number(r.robot.yaw_deg, "robot.yaw_deg")?;
+    let yaw_steps = (yaw_deg / YAW_STEP_DEG).round();
+    if (yaw_steps * YAW_STEP_DEG - yaw_deg).abs() > 1e-3 {
+        return Err(fail(
+            "robot.yaw_deg".into(),
+            "must be a multiple of 5 degrees (the action's yaw lattice)",
+        ));
+    }
+    let start = RobotState::new(
+        Point2::new(number(r.robot.x, "robot.x")?, number(r.robot.y, "robot.y")?),
+        yaw_steps as i32,
+    );
+    let target = Point2::new(number(r.target.x, "target.x")?, number(r.target.y, "target.y")?);
+    let mut obstacles = Vec::with_capacity(r.obstacles.len());
+    for (i, o) in r.obstacles.into_iter().enumerate() {
+        let kind = ObstacleKind::ALL
+            .into_iter()
+            .find(|k| k.name() == o.kind)
+            .ok_or_else(|| {
+                fail(
+                    format!("obstacles[{i}].kind"),
+                    &format!("unknown kind {:?} (expected bar, slab or block)", o.kind),
+                )
+            })?;
+        let yaw_field = format!("obstacles[{i}].yaw_deg");
+        let yaw = number(o.yaw_deg, &yaw_field)?;
+        let yaw = match (yaw.rem_euclid(180.0) * 1000.0).round() as i32 {
+            0 | 180_000 => ObstacleYaw::Deg0,
+            90_000 => ObstacleYaw::Deg90,
+            _ => return Err(fail(yaw_field, "must be 0 or 90 degrees")),
+        };
+        obstacles.push(Obstacle::new(
+            kind,
+            number(o.x, &format!("obstacles[{i}].x"))?,
+            number(o.y, &format!("obstacles[{i}].y"))?,
+            yaw,
+        ));
+    }
+    Ok(Scenario {
+        name: if r.name.is_empty() { format!("#{index}") } else { r.name },
+        start,
+        target,
+        obstacles,
+    })
+}
+
+fn to_record(s: &Scenario) -> ScenarioRecord {
+    // Values are printed at 0.1 mm: scenario coordinates live on mm-scale lattices, and this
+    // keeps files readable (no 0.30000001) while reading back to the same f32.
+    let round = |v: f32| (v as f64 * 1.0e4).round() / 1.0e4;
+    ScenarioRecord {
+        name: s.name.clone(),
+        robot: RobotRecord {
+            x: round(s.start.position.x),
+            y: round(s.start.position.y),
+            yaw_deg: s.start.yaw_deg() as f64,
+        },
+        target: PointRecord {
+            x: round(s.target.x),
+            y: round(s.target.y),
+        },
+        obstacles: s
+            .obstacles
+            .iter()
+            .map(|o| ObstacleRecord {
+                kind: o.kind.name().to_string(),
+                x: round(o.centre.x),
+                y: round(o.centre.y),
+                yaw_deg: o.yaw.degrees() as f64,
+            })
+            .collect(),
+    }
+}
