@@ -1,0 +1,192 @@
+//! The runtime's int8 inference against an independent integer reference, and the SIMD kernel
+//! against the scalar one, over many random networks and inputs.
+// Test code: a failed unwrap or index is a failed test, which is what it should be.
+#![allow(clippy::unwrap_used, clippy::indexing_slicing, clippy::expect_used)]
+
+mod common;
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use wheelleg_runtime::model::kernel::{self, Kernel};
+use wheelleg_runtime::model::load::Linear;
+use wheelleg_runtime::model::{DefaultPolicy, Outputs};
+use wheelleg_trainer::quantize::{EvalPolicy, RangeMethod};
+
+use common::*;
+
+fn check_against_reference(
+    policy: &EvalPolicy<'_>,
+    outputs: &Outputs,
+    expected: &(Vec<i8>, Option<i8>),
+) {
+    assert_eq!(outputs.action_logits.as_slice(), expected.0.as_slice());
+    assert_eq!(outputs.value.map(|(q, _, _)| q), expected.1);
+    assert_eq!(outputs.value.is_some(), policy.model().value_head.is_some());
+}
+
+#[test]
+fn int8_inference_is_bit_exact_with_the_reference_on_random_networks() {
+    let mut rng = ChaCha8Rng::seed_from_u64(0x5eed);
+    let mut decisions = 0;
+    for net_index in 0..150 {
+        let arch = random_architecture(&mut rng);
+        let method = if net_index % 2 == 0 {
+            RangeMethod::MinMax
+        } else {
+            RangeMethod::Percentile {
+                low: 1.0,
+                high: 99.0,
+            }
+        };
+        let (_, quantized) = random_quantized(&mut rng, &arch, method);
+        let bytes = quantized.to_bytes().unwrap();
+        let mut policy = EvalPolicy::from_bytes(&bytes)
+            .unwrap_or_else(|e| panic!("network {net_index} {arch:?}: {e}"));
+        for _ in 0..20 {
+            let (height, state) = random_inputs_mm(&mut rng, &arch);
+            let expected = reference_forward(&quantized, &height, &state);
+            for kernel in Kernel::ALL.into_iter().filter(|k| k.is_supported()) {
+                policy.set_kernel(kernel).unwrap();
+                let outputs = policy.evaluate(&height, &state).unwrap();
+                check_against_reference(&policy, &outputs, &expected);
+            }
+            decisions += 1;
+        }
+    }
+    assert_eq!(decisions, 3000);
+}
+
+#[test]
+fn default_network_is_bit_exact_and_acts_through_the_firmware_api() {
+    for seed in 0..3 {
+        let (_, quantized) = default_quantized(seed);
+        let bytes = quantized.to_bytes().unwrap();
+        let policy = DefaultPolicy::from_bytes(&bytes).unwrap();
+        let mut rng = ChaCha8Rng::seed_from_u64(seed + 100);
+        for _ in 0..50 {
+            let (height, state) = random_inputs_mm(&mut rng, &quantized.arch);
+            let mut map = [[0i16; 32]; 32];
+            for (row, chunk) in map.iter_mut().zip(height.chunks_exact(32)) {
+                row.copy_from_slice(chunk);
+            }
+            let action = policy.act(&map, &state).unwrap();
+            let (logits, value) = reference_forward(&quantized, &height, &state);
+            let outputs = policy.evaluate(&height, &state).unwrap();
+            assert_eq!(outputs.action_logits.as_slice(), logits.as_slice());
+            assert_eq!(outputs.value.map(|v| v.0), value);
+            // Greedy action = first maximum of each head of the reference logits.
+            let indices: Vec<usize> = logits
+                .chunks_exact(3)
+                .map(|head| {
+                    let best = *head.iter().max().unwrap();
+                    head.iter().position(|&l| l == best).unwrap()
+                })
+                .collect();
+            assert_eq!(action.head_indices().to_vec(), indices);
+        }
+    }
+}
+
+#[test]
+fn wrong_input_sizes_are_typed_errors() {
+    let (_, quantized) = default_quantized(9);
+    let bytes = quantized.to_bytes().unwrap();
+    let policy = DefaultPolicy::from_bytes(&bytes).unwrap();
+    let map = [[0i16; 16]; 16];
+    assert!(matches!(
+        policy.act(&map, &[0; 4]),
+        Err(wheelleg_runtime::model::InferError::HeightMapShape {
+            expected: 1024,
+            found: 256
+        })
+    ));
+    assert!(matches!(
+        policy.evaluate(&[0; 1024], &[0; 3]),
+        Err(wheelleg_runtime::model::InferError::StateLength {
+            expected: 4,
+            found: 3
+        })
+    ));
+    assert!(policy.evaluate_m(&[0.0; 5000], &[0.0; 4]).is_err());
+    assert!(policy.evaluate_m(&[0.0; 1024], &[0.0; 40]).is_err());
+}
+
+#[test]
+fn simd_kernel_equals_scalar_kernel_on_random_rows_and_extreme_values() {
+    if !Kernel::Avx2.is_supported() {
+        eprintln!("AVX2 not available on this CPU: only the scalar kernel runs here");
+        return;
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(42);
+    for case in 0..3000 {
+        let rows = rng.random_range(1..=13);
+        let row_len = rng.random_range(1..=300);
+        let extreme = case % 3 == 0;
+        // |x - zp| <= 255 and any int8 weight, bias within the format's bound.
+        let input: Vec<i16> = (0..row_len)
+            .map(|_| {
+                if extreme {
+                    if rng.random_bool(0.5) {
+                        255
+                    } else {
+                        -255
+                    }
+                } else {
+                    rng.random_range(-255..=255)
+                }
+            })
+            .collect();
+        let weights: Vec<u8> = (0..rows * row_len)
+            .map(|_| if extreme { 0x80 } else { rng.random() })
+            .collect();
+        let le = |v: Vec<i32>| -> Vec<u8> { v.into_iter().flat_map(i32::to_le_bytes).collect() };
+        let bias = le((0..rows)
+            .map(|_| rng.random_range(-(1 << 30)..=(1 << 30)))
+            .collect());
+        let multipliers = le((0..rows).map(|_| rng.random_range(0..i32::MAX)).collect());
+        let shifts: Vec<u8> = (0..rows)
+            .map(|_| rng.random_range(-31i8..=30) as u8)
+            .collect();
+        let linear = Linear {
+            weights: &weights,
+            bias: &bias,
+            multipliers: &multipliers,
+            shifts: &shifts,
+            rows,
+            row_len,
+            input_zero_point: 0,
+            output_zero_point: rng.random(),
+            relu: rng.random_bool(0.5),
+        };
+        let mut scalar = vec![0i8; rows];
+        let mut simd = vec![0i8; rows];
+        kernel::linear(Kernel::Scalar, &linear, &input, &mut scalar);
+        kernel::linear(Kernel::Avx2, &linear, &input, &mut simd);
+        assert_eq!(scalar, simd, "case {case}: rows {rows} row_len {row_len}");
+        // And both equal the plain sum before requantization.
+        for row in 0..rows {
+            let dot: i64 = input
+                .iter()
+                .zip(&weights[row * row_len..(row + 1) * row_len])
+                .map(|(&x, &w)| i64::from(x) * i64::from(w as i8))
+                .sum();
+            assert_eq!(
+                dot,
+                i64::from(kernel::dot_scalar(&input, &weights[row * row_len..]))
+            );
+        }
+    }
+}
+
+#[test]
+fn detection_picks_a_supported_kernel() {
+    assert!(Kernel::detect().is_supported());
+    assert!(Kernel::Scalar.is_supported());
+    let (_, quantized) = default_quantized(1);
+    let bytes = quantized.to_bytes().unwrap();
+    let mut policy = DefaultPolicy::from_bytes(&bytes).unwrap();
+    assert_eq!(policy.kernel(), Kernel::detect());
+    for kernel in Kernel::ALL {
+        assert_eq!(policy.set_kernel(kernel).is_ok(), kernel.is_supported());
+    }
+}

@@ -1,0 +1,511 @@
+//! From a float network and its calibration to int8 tensors, and from those to file bytes.
+
+use std::fmt;
+
+use serde::Serialize;
+use wheelleg_runtime::model::crc32::crc32;
+use wheelleg_runtime::model::format::{
+    ActQuantRecord, ConvRecord, DenseRecord, Envelope, InputQuantRecord, InputRecord,
+    FORMAT_VERSION, MAGIC,
+};
+use wheelleg_runtime::model::load::MAX_BIAS_ABS;
+
+use super::calibrate::{Calibration, RangeMethod, RangeObserver};
+use super::params::{quantize_multiplier, quantize_rows, ActQuant};
+use crate::network_f32::{Architecture, ConvSpec, DenseF32, NetworkF32};
+
+/// Why a network could not be quantized.
+#[derive(Clone, Debug, PartialEq)]
+pub enum QuantizeError {
+    /// A requantization multiplier is out of the runtime's range (a scale ratio above 2^30).
+    Multiplier {
+        /// Which layer.
+        layer: String,
+        /// The real multiplier.
+        value: f64,
+    },
+    /// A bias does not fit the runtime's bound once divided by its scale.
+    Bias {
+        /// Which layer.
+        layer: String,
+        /// The quantized value that was too large.
+        value: f64,
+    },
+    /// A size does not fit the file's fields.
+    TooLarge {
+        /// What.
+        what: String,
+    },
+    /// Serialization failed.
+    Encode(String),
+}
+
+impl fmt::Display for QuantizeError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            QuantizeError::Multiplier { layer, value } => {
+                write!(f, "{layer}: multiplier {value:e} is not representable")
+            }
+            QuantizeError::Bias { layer, value } => {
+                write!(f, "{layer}: quantized bias {value:e} exceeds 2^30")
+            }
+            QuantizeError::TooLarge { what } => write!(f, "{what} does not fit the format"),
+            QuantizeError::Encode(error) => write!(f, "encoding failed: {error}"),
+        }
+    }
+}
+
+impl std::error::Error for QuantizeError {}
+
+/// How a raw input in millimetres becomes int8.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InputQuant {
+    /// Scale (metres per step) and zero point.
+    pub act: ActQuant,
+    /// Fixed-point multiplier of `1 mm / scale`.
+    pub multiplier: i32,
+    /// Its shift.
+    pub shift: i8,
+}
+
+/// One layer's integer tensors (conv or dense), rows = output channels.
+#[derive(Clone, Debug, PartialEq)]
+pub struct QuantizedLayer {
+    /// Int8 weights: conv OHWI, dense `[out][in]`.
+    pub weights: Vec<i8>,
+    /// Per-row weight scales (real per step).
+    pub weight_scales: Vec<f32>,
+    /// Int32 bias per row, in units of input scale x weight scale.
+    pub bias: Vec<i32>,
+    /// Requantization multiplier per row.
+    pub multipliers: Vec<i32>,
+    /// Requantization shift per row.
+    pub shifts: Vec<i8>,
+    /// Input activation quantization.
+    pub input: ActQuant,
+    /// Output activation quantization.
+    pub output: ActQuant,
+    /// ReLU fused.
+    pub relu: bool,
+}
+
+/// A quantized conv layer.
+#[derive(Clone, Debug, PartialEq)]
+pub struct QuantizedConv {
+    /// Shape.
+    pub spec: ConvSpec,
+    /// Tensors.
+    pub layer: QuantizedLayer,
+}
+
+/// A quantized dense layer.
+#[derive(Clone, Debug, PartialEq)]
+pub struct QuantizedDense {
+    /// Inputs.
+    pub in_features: usize,
+    /// Outputs.
+    pub out_features: usize,
+    /// Tensors.
+    pub layer: QuantizedLayer,
+}
+
+/// The whole network in int8, ready to be written.
+#[derive(Clone, Debug, PartialEq)]
+pub struct QuantizedNetwork {
+    /// Shape.
+    pub arch: Architecture,
+    /// Height map (millimetres, i16) to int8.
+    pub height: InputQuant,
+    /// Each state feature (millimetres, i32) to int8.
+    pub state: Vec<InputQuant>,
+    /// Quantization of the flattened features, which the state shares after folding.
+    pub features: ActQuant,
+    /// Conv stack.
+    pub convs: Vec<QuantizedConv>,
+    /// Hidden dense stack.
+    pub hidden: Vec<QuantizedDense>,
+    /// Action head.
+    pub action_head: QuantizedDense,
+    /// Value head.
+    pub value_head: Option<QuantizedDense>,
+}
+
+fn act_quant(observer: &RangeObserver, method: RangeMethod) -> ActQuant {
+    let (low, high) = observer.range(method);
+    ActQuant::from_range(low, high)
+}
+
+fn input_quant(
+    observer: &RangeObserver,
+    method: RangeMethod,
+    what: &str,
+) -> Result<InputQuant, QuantizeError> {
+    let act = act_quant(observer, method);
+    let real = 0.001 / f64::from(act.scale);
+    let (multiplier, shift) =
+        quantize_multiplier(real).map_err(|error| QuantizeError::Multiplier {
+            layer: what.to_owned(),
+            value: error.0,
+        })?;
+    Ok(InputQuant {
+        act,
+        multiplier,
+        shift,
+    })
+}
+
+/// Quantizes float rows (`row_len` inputs each) with bias, between two activation
+/// quantizations.
+fn quantize_layer(
+    name: &str,
+    weights: &[f32],
+    bias: &[f32],
+    row_len: usize,
+    input: ActQuant,
+    output: ActQuant,
+    relu: bool,
+) -> Result<QuantizedLayer, QuantizeError> {
+    let (quantized, weight_scales) = quantize_rows(weights, row_len);
+    let mut bias_q = Vec::with_capacity(bias.len());
+    let mut multipliers = Vec::with_capacity(bias.len());
+    let mut shifts = Vec::with_capacity(bias.len());
+    for (&b, &weight_scale) in bias.iter().zip(&weight_scales) {
+        // The accumulator's unit: one input step times one weight step.
+        let acc_scale = f64::from(input.scale) * f64::from(weight_scale);
+        let value = (f64::from(b) / acc_scale).round();
+        if value.abs() > f64::from(MAX_BIAS_ABS) {
+            return Err(QuantizeError::Bias {
+                layer: name.to_owned(),
+                value,
+            });
+        }
+        bias_q.push(value as i32);
+        let (multiplier, shift) = quantize_multiplier(acc_scale / f64::from(output.scale))
+            .map_err(|error| QuantizeError::Multiplier {
+                layer: name.to_owned(),
+                value: error.0,
+            })?;
+        multipliers.push(multiplier);
+        shifts.push(shift);
+    }
+    Ok(QuantizedLayer {
+        weights: quantized,
+        weight_scales,
+        bias: bias_q,
+        multipliers,
+        shifts,
+        input,
+        output,
+        relu,
+    })
+}
+
+/// Folds the state features' own quantization into a layer that reads the concatenated
+/// (features ++ state) vector, so the runtime can treat the whole vector as one int8 tensor
+/// quantized like the features.
+///
+/// State slot j holds `q_j = zp_j + x_j / t_j`, but the layer reads it as `s_x (q_j - zp_x)`.
+/// With column j scaled by `t_j / s_x` and `sum_j W_j t_j (zp_x - zp_j)` added to the bias, the
+/// layer computes exactly `W x + b` in real arithmetic.
+fn fold_state(
+    layer: &DenseF32,
+    features_len: usize,
+    features: ActQuant,
+    state: &[InputQuant],
+) -> (Vec<f32>, Vec<f32>) {
+    let mut weights = layer.weights.clone();
+    let mut bias = layer.bias.clone();
+    for (row, b) in weights.chunks_exact_mut(layer.in_features).zip(&mut bias) {
+        for (w, quant) in row[features_len..].iter_mut().zip(state) {
+            let t = quant.act.scale;
+            *b += *w * t * (f32::from(features.zero_point) - f32::from(quant.act.zero_point));
+            *w *= t / features.scale;
+        }
+    }
+    (weights, bias)
+}
+
+fn dense(
+    name: &str,
+    layer: &DenseF32,
+    weights_bias: Option<(Vec<f32>, Vec<f32>)>,
+    input: ActQuant,
+    output: ActQuant,
+    relu: bool,
+) -> Result<QuantizedDense, QuantizeError> {
+    let (weights, bias) =
+        weights_bias.unwrap_or_else(|| (layer.weights.clone(), layer.bias.clone()));
+    Ok(QuantizedDense {
+        in_features: layer.in_features,
+        out_features: layer.out_features,
+        layer: quantize_layer(
+            name,
+            &weights,
+            &bias,
+            layer.in_features,
+            input,
+            output,
+            relu,
+        )?,
+    })
+}
+
+/// Post-training quantization of `network` with the activation ranges of `calibration`.
+pub fn quantize(
+    network: &NetworkF32,
+    calibration: &Calibration,
+    method: RangeMethod,
+) -> Result<QuantizedNetwork, QuantizeError> {
+    let height = input_quant(&calibration.height, method, "height map")?;
+    let state = calibration
+        .state
+        .iter()
+        .map(|observer| input_quant(observer, method, "state"))
+        .collect::<Result<Vec<_>, _>>()?;
+
+    let mut input = height.act;
+    let mut convs = Vec::with_capacity(network.convs.len());
+    for (index, (conv, observer)) in network.convs.iter().zip(&calibration.convs).enumerate() {
+        let spec = conv.spec;
+        let patch = spec.in_channels * spec.kernel * spec.kernel;
+        // OIHW -> OHWI: the runtime's patches are channel-innermost.
+        let mut ohwi = Vec::with_capacity(conv.weights.len());
+        for o in 0..spec.out_channels {
+            for ky in 0..spec.kernel {
+                for kx in 0..spec.kernel {
+                    for i in 0..spec.in_channels {
+                        ohwi.push(
+                            conv.weights[((o * spec.in_channels + i) * spec.kernel + ky)
+                                * spec.kernel
+                                + kx],
+                        );
+                    }
+                }
+            }
+        }
+        let output = act_quant(observer, method);
+        let layer = quantize_layer(
+            &format!("conv {index}"),
+            &ohwi,
+            &conv.bias,
+            patch,
+            input,
+            output,
+            true,
+        )?;
+        convs.push(QuantizedConv { spec, layer });
+        input = output;
+    }
+    let features = input;
+    let features_len = network.arch.features_len();
+    let fold = |layer: &DenseF32| Some(fold_state(layer, features_len, features, &state));
+
+    let mut hidden = Vec::with_capacity(network.hidden.len());
+    for (index, (layer, observer)) in network.hidden.iter().zip(&calibration.hidden).enumerate() {
+        let output = act_quant(observer, method);
+        let folded = if index == 0 { fold(layer) } else { None };
+        hidden.push(dense(
+            &format!("dense {index}"),
+            layer,
+            folded,
+            input,
+            output,
+            true,
+        )?);
+        input = output;
+    }
+    // Without hidden layers the heads read the concatenated vector themselves.
+    let heads_fold = |layer: &DenseF32| {
+        if network.hidden.is_empty() {
+            fold(layer)
+        } else {
+            None
+        }
+    };
+    let action_head = dense(
+        "action head",
+        &network.action_head,
+        heads_fold(&network.action_head),
+        input,
+        act_quant(&calibration.action, method),
+        false,
+    )?;
+    let value_head = match &network.value_head {
+        Some(head) => Some(dense(
+            "value head",
+            head,
+            heads_fold(head),
+            input,
+            act_quant(&calibration.value, method),
+            false,
+        )?),
+        None => None,
+    };
+    Ok(QuantizedNetwork {
+        arch: network.arch.clone(),
+        height,
+        state,
+        features,
+        convs,
+        hidden,
+        action_head,
+        value_head,
+    })
+}
+
+/// The file's payload in the order of `wheelleg_runtime::model::format` (sequences as `Vec`s).
+#[derive(Serialize)]
+struct Payload<'a> {
+    input: InputRecord,
+    state: Vec<InputQuantRecord>,
+    convs: Vec<ConvRecord<'a>>,
+    hidden: Vec<DenseRecord<'a>>,
+    action_head: DenseRecord<'a>,
+    value_head: Option<DenseRecord<'a>>,
+}
+
+/// A layer's tensors as the little-endian bytes the file stores.
+struct LayerBytes {
+    weights: Vec<u8>,
+    bias: Vec<u8>,
+    multipliers: Vec<u8>,
+    shifts: Vec<u8>,
+}
+
+impl LayerBytes {
+    fn new(layer: &QuantizedLayer) -> LayerBytes {
+        let le = |values: &[i32]| values.iter().flat_map(|v| v.to_le_bytes()).collect();
+        LayerBytes {
+            weights: layer.weights.iter().map(|&w| w as u8).collect(),
+            bias: le(&layer.bias),
+            multipliers: le(&layer.multipliers),
+            shifts: layer.shifts.iter().map(|&s| s as u8).collect(),
+        }
+    }
+}
+
+fn u16_of(value: usize, what: &str) -> Result<u16, QuantizeError> {
+    u16::try_from(value).map_err(|_| QuantizeError::TooLarge {
+        what: format!("{what} ({value})"),
+    })
+}
+
+fn u8_of(value: usize, what: &str) -> Result<u8, QuantizeError> {
+    u8::try_from(value).map_err(|_| QuantizeError::TooLarge {
+        what: format!("{what} ({value})"),
+    })
+}
+
+fn input_record(quant: &InputQuant) -> InputQuantRecord {
+    InputQuantRecord {
+        scale_m: quant.act.scale,
+        zero_point: quant.act.zero_point,
+        multiplier: quant.multiplier,
+        shift: quant.shift,
+    }
+}
+
+fn act_record(quant: ActQuant) -> ActQuantRecord {
+    ActQuantRecord {
+        scale: quant.scale,
+        zero_point: quant.zero_point,
+    }
+}
+
+fn dense_record<'a>(
+    dense: &QuantizedDense,
+    bytes: &'a LayerBytes,
+) -> Result<DenseRecord<'a>, QuantizeError> {
+    Ok(DenseRecord {
+        in_features: u16_of(dense.in_features, "dense inputs")?,
+        out_features: u16_of(dense.out_features, "dense outputs")?,
+        relu: dense.layer.relu,
+        output: act_record(dense.layer.output),
+        weights: &bytes.weights,
+        bias: &bytes.bias,
+        multipliers: &bytes.multipliers,
+        shifts: &bytes.shifts,
+    })
+}
+
+/// Wraps a payload in the envelope: magic, version, payload, CRC-32 of all that.
+pub fn envelope_bytes(version: u16, payload: &[u8]) -> Result<Vec<u8>, QuantizeError> {
+    let envelope = Envelope {
+        magic: MAGIC,
+        version,
+        payload,
+        crc32_le: [0; 4],
+    };
+    let mut bytes =
+        postcard::to_allocvec(&envelope).map_err(|e| QuantizeError::Encode(e.to_string()))?;
+    let covered = bytes.len() - 4;
+    let crc = crc32(&bytes[..covered]);
+    bytes[covered..].copy_from_slice(&crc.to_le_bytes());
+    Ok(bytes)
+}
+
+impl QuantizedNetwork {
+    /// The postcard-encoded payload (everything inside the envelope).
+    pub fn payload_bytes(&self) -> Result<Vec<u8>, QuantizeError> {
+        let conv_bytes: Vec<LayerBytes> = self
+            .convs
+            .iter()
+            .map(|c| LayerBytes::new(&c.layer))
+            .collect();
+        let hidden_bytes: Vec<LayerBytes> = self
+            .hidden
+            .iter()
+            .map(|d| LayerBytes::new(&d.layer))
+            .collect();
+        let action_bytes = LayerBytes::new(&self.action_head.layer);
+        let value_bytes = self.value_head.as_ref().map(|d| LayerBytes::new(&d.layer));
+
+        let convs = self
+            .convs
+            .iter()
+            .zip(&conv_bytes)
+            .map(|(conv, bytes)| {
+                Ok(ConvRecord {
+                    in_channels: u16_of(conv.spec.in_channels, "conv input channels")?,
+                    out_channels: u16_of(conv.spec.out_channels, "conv output channels")?,
+                    kernel: u8_of(conv.spec.kernel, "conv kernel")?,
+                    stride: u8_of(conv.spec.stride, "conv stride")?,
+                    padding: u8_of(conv.spec.padding, "conv padding")?,
+                    relu: conv.layer.relu,
+                    output: act_record(conv.layer.output),
+                    weights: &bytes.weights,
+                    bias: &bytes.bias,
+                    multipliers: &bytes.multipliers,
+                    shifts: &bytes.shifts,
+                })
+            })
+            .collect::<Result<Vec<_>, QuantizeError>>()?;
+        let hidden = self
+            .hidden
+            .iter()
+            .zip(&hidden_bytes)
+            .map(|(dense, bytes)| dense_record(dense, bytes))
+            .collect::<Result<Vec<_>, _>>()?;
+        let payload = Payload {
+            input: InputRecord {
+                rows: u16_of(self.arch.height_rows, "height map rows")?,
+                cols: u16_of(self.arch.height_cols, "height map columns")?,
+                height: input_record(&self.height),
+            },
+            state: self.state.iter().map(input_record).collect(),
+            convs,
+            hidden,
+            action_head: dense_record(&self.action_head, &action_bytes)?,
+            value_head: match (&self.value_head, &value_bytes) {
+                (Some(head), Some(bytes)) => Some(dense_record(head, bytes)?),
+                _ => None,
+            },
+        };
+        postcard::to_allocvec(&payload).map_err(|e| QuantizeError::Encode(e.to_string()))
+    }
+
+    /// The complete `.wlw` file.
+    pub fn to_bytes(&self) -> Result<Vec<u8>, QuantizeError> {
+        envelope_bytes(FORMAT_VERSION, &self.payload_bytes()?)
+    }
+}

@@ -1,0 +1,37 @@
+//! Post-training int8 quantization (the TFLite / CMSIS-NN scheme) and the weights file bytes.
+//!
+//! 1. [`calibrate`]: run the float network on calibration observations (height maps from
+//!    rollouts) and record every quantized tensor's range (min/max or percentiles).
+//! 2. [`params`]: turn ranges into activation scales and zero points, weights into symmetric
+//!    per-output-channel int8, real multipliers into fixed-point multiplier + shift.
+//! 3. [`build`]: quantize every layer ([`quantize`]), folding the state's own quantization into
+//!    the layer that reads features ++ state, and encode the `.wlw` file
+//!    ([`QuantizedNetwork::to_bytes`]).
+//!
+//! The int8 network is then run by `wheelleg_runtime::model` itself ([`EvalPolicy`]).
+
+pub mod build;
+pub mod calibrate;
+pub mod params;
+
+pub use build::{quantize, InputQuant, QuantizeError, QuantizedLayer, QuantizedNetwork};
+pub use calibrate::{Calibration, RangeMethod, RangeObserver};
+pub use params::{quantize_multiplier, ActQuant};
+
+use wheelleg_runtime::model::Policy;
+
+/// The runtime policy with buffers large enough for any architecture the trainer is likely to
+/// try (64 KiB activations, 8 Ki-element rows): evaluation on the host, not the robot.
+pub type EvalPolicy<'a> = Policy<'a, 65_536, 8_192>;
+
+/// An observation in the runtime's integer units: heights in millimetres (i16, saturating) and
+/// state in millimetres (i32), rounded half away from zero like `Policy::evaluate_m`.
+pub fn observation_mm(height_m: &[f32], state: &[f32]) -> (Vec<i16>, Vec<i32>) {
+    (
+        height_m
+            .iter()
+            .map(|&m| (m * 1000.0).round() as i16)
+            .collect(),
+        state.iter().map(|&m| (m * 1000.0).round() as i32).collect(),
+    )
+}
