@@ -333,6 +333,12 @@ impl Rig {
         Ok(())
     }
 
+    /// Runs one supervised control tick with `setpoint` (for callers that drive a
+    /// [`StepMotion`] themselves, for example to interrupt it).
+    pub fn drive(&mut self, setpoint: &Setpoint) -> Result<(), RigError> {
+        self.control_tick(setpoint, true)
+    }
+
     /// Holds the current legs with wheels stopped for `duration_s` (still supervised).
     pub fn hold(&mut self, duration_s: f32) -> Result<(), RigError> {
         let hold = Setpoint::hold(&self.geometry, self.legs)?;
