@@ -8,7 +8,7 @@
 //! |------|-----------------------|-------------|----------------------------------------------------|
 //! | 0x01 | Heartbeat             | axis → host | u32 axis_error, u8 axis_state, 3 flag bytes        |
 //! | 0x02 | Estop                 | host → axis | none                                               |
-//! | 0x07 | Set_Axis_State        | host → axis | u32 requested state                                |
+//! | 0x07 | Set_Axis_State        | host → axis | u32 requested state, 4 zero bytes                  |
 //! | 0x09 | Get_Encoder_Estimates | axis → host | f32 pos (turns), f32 vel (turns/s)                 |
 //! | 0x0B | Set_Controller_Mode   | host → axis | u32 control mode, u32 input mode                   |
 //! | 0x0C | Set_Input_Pos         | host → axis | f32 pos (turns), i16 vel_ff ×1000, i16 torque_ff ×1000 |
@@ -417,7 +417,9 @@ pub fn encode<F: Frame>(node: NodeId, message: &Message) -> Result<F, EncodeErro
         Message::Estop | Message::ClearErrors => 0,
         Message::SetAxisState(state) => {
             put(&mut buf, 0, &(state as u32).to_le_bytes());
-            4
+            // ODrive reads only the first 4 bytes, but its DBC declares 8: pad with zeros so
+            // DBC-based tools decode the frame.
+            8
         }
         Message::EncoderEstimates {
             pos_turns,
