@@ -64,13 +64,31 @@ pub fn dot_scalar(input: &[i16], weights: &[u8]) -> i32 {
 /// Runs one layer's rows on `input` (length `linear.row_len`) into `output` (length
 /// `linear.rows`) with the portable kernel.
 pub fn linear_scalar(linear: &Linear<'_>, input: &[i16], output: &mut [i8]) {
-    for (row, (out, weights)) in output
-        .iter_mut()
-        .zip(linear.weights.chunks_exact(linear.row_len))
-        .enumerate()
-    {
-        let acc = dot_scalar(input, weights) + i32_at(linear.bias, row);
-        *out = finish(linear, row, acc);
+    // Lock-step iterators over the per-row tensors: no index arithmetic or bounds checks per row.
+    let rows = linear
+        .weights
+        .chunks_exact(linear.row_len)
+        .zip(linear.bias.chunks_exact(4))
+        .zip(linear.multipliers.chunks_exact(4))
+        .zip(linear.shifts);
+    for (out, (((weights, bias), multiplier), &shift)) in output.iter_mut().zip(rows) {
+        let acc = dot_scalar(input, weights) + le_i32(bias);
+        *out = to_int8(
+            acc,
+            le_i32(multiplier),
+            shift as i8,
+            linear.output_zero_point,
+            linear.relu,
+        );
+    }
+}
+
+/// An i32 from 4 little-endian bytes (0 if fewer: lengths were checked by the loader).
+#[inline(always)]
+fn le_i32(bytes: &[u8]) -> i32 {
+    match bytes {
+        &[a, b, c, d] => i32::from_le_bytes([a, b, c, d]),
+        _ => 0,
     }
 }
 

@@ -12,13 +12,14 @@
 #![allow(unsafe_code)]
 
 use core::arch::x86_64::{
-    __cpuid_count, __m256i, _mm256_add_epi32, _mm256_castsi256_si128, _mm256_cvtepi8_epi16,
-    _mm256_extracti128_si256, _mm256_loadu_si256, _mm256_madd_epi16, _mm256_setzero_si256,
-    _mm_add_epi32, _mm_cvtsi128_si32, _mm_loadu_si128, _mm_shuffle_epi32, _xgetbv,
+    __cpuid_count, __m128i, __m256i, _mm256_add_epi32, _mm256_castsi256_si128,
+    _mm256_cvtepi8_epi16, _mm256_extracti128_si256, _mm256_hadd_epi32, _mm256_loadu_si256,
+    _mm256_madd_epi16, _mm256_setzero_si256, _mm_add_epi32, _mm_cvtsi128_si32, _mm_loadu_si128,
+    _mm_storeu_si128, _xgetbv,
 };
 use core::sync::atomic::{AtomicU8, Ordering};
 
-use super::kernel::{dot_scalar, finish, linear_scalar};
+use super::kernel::{finish, linear_scalar};
 use super::load::{i32_at, Linear};
 
 /// 0: not yet detected, 1: no AVX2, 2: AVX2.
@@ -78,40 +79,75 @@ unsafe fn read_xcr0() -> u64 {
 /// [`super::kernel::linear_scalar`]'s contract, with AVX2 when the CPU has it (falls back to the
 /// scalar kernel otherwise, so calling it is always safe).
 pub fn linear_avx2(linear: &Linear<'_>, input: &[i16], output: &mut [i8]) {
-    let row_len = linear.row_len;
+    let rows = linear.rows;
     // The bounds the unsafe code relies on, checked once here rather than trusted.
-    let shapes_ok = input.len() == row_len
-        && output.len() == linear.rows
-        && linear.weights.len() == linear.rows.saturating_mul(row_len);
+    let shapes_ok = input.len() == linear.row_len
+        && output.len() == rows
+        && linear.weights.len() == rows.saturating_mul(linear.row_len)
+        && linear.bias.len() == rows.saturating_mul(4)
+        && linear.multipliers.len() == rows.saturating_mul(4)
+        && linear.shifts.len() == rows;
     if !shapes_ok || !avx2_supported() {
         linear_scalar(linear, input, output);
         return;
     }
     // SAFETY: AVX2 is supported (checked just above) and the slice lengths the function
-    // indexes with raw pointers were checked against `rows` and `row_len`.
+    // reads with raw pointers were checked against `rows` and `row_len`.
     unsafe { linear_avx2_unchecked(linear, input, output) }
 }
 
-/// Sums the 8 int32 lanes.
+/// Sums each of four 8-lane accumulators: `[sum(a), sum(b), sum(c), sum(d)]`.
 #[target_feature(enable = "avx2")]
-fn hsum(v: __m256i) -> i32 {
-    let sum = _mm_add_epi32(_mm256_castsi256_si128(v), _mm256_extracti128_si256::<1>(v));
-    let sum = _mm_add_epi32(sum, _mm_shuffle_epi32::<0b01_00_11_10>(sum));
-    let sum = _mm_add_epi32(sum, _mm_shuffle_epi32::<0b10_11_00_01>(sum));
-    _mm_cvtsi128_si32(sum)
+fn hsum4(a: __m256i, b: __m256i, c: __m256i, d: __m256i) -> __m128i {
+    // Within each 128-bit half: pairwise sums of a,b then c,d, then of those.
+    let ab = _mm256_hadd_epi32(a, b);
+    let cd = _mm256_hadd_epi32(c, d);
+    let abcd = _mm256_hadd_epi32(ab, cd);
+    _mm_add_epi32(
+        _mm256_castsi256_si128(abcd),
+        _mm256_extracti128_si256::<1>(abcd),
+    )
+}
+
+/// 16 weights of a row's last, partial block. Lanes past the row's end multiply zero inputs,
+/// so whatever they hold (the next row's weights, or zeros past the tensor) adds nothing.
+///
+/// # Safety
+/// AVX2 must be available and `start < weights.len()`.
+#[target_feature(enable = "avx2")]
+unsafe fn load_tail_weights(weights: &[u8], start: usize) -> __m256i {
+    if start + 16 <= weights.len() {
+        // SAFETY: the 16 bytes at `start` are inside `weights` (checked just above).
+        _mm256_cvtepi8_epi16(unsafe { _mm_loadu_si128(weights.as_ptr().add(start).cast()) })
+    } else {
+        let mut padded = [0u8; 16];
+        for (slot, byte) in padded.iter_mut().zip(weights.get(start..).unwrap_or(&[])) {
+            *slot = *byte;
+        }
+        // SAFETY: `padded` is 16 bytes.
+        _mm256_cvtepi8_epi16(unsafe { _mm_loadu_si128(padded.as_ptr().cast()) })
+    }
 }
 
 /// # Safety
-/// AVX2 must be available; `input.len() == row_len`, `output.len() == rows` and
-/// `weights.len() == rows * row_len`.
+/// AVX2 must be available; `input.len() == row_len`, `output.len() == rows`,
+/// `weights.len() == rows * row_len`, `bias.len() == multipliers.len() == 4 * rows` and
+/// `shifts.len() == rows`.
 #[target_feature(enable = "avx2")]
 unsafe fn linear_avx2_unchecked(linear: &Linear<'_>, input: &[i16], output: &mut [i8]) {
     let row_len = linear.row_len;
     let rows = linear.rows;
-    // Elements handled by whole 16-wide blocks; the rest by the scalar dot product.
-    let body = row_len - row_len % 16;
+    let tail = row_len % 16;
+    // Elements handled by whole 16-wide blocks; the last partial block is zero-padded.
+    let body = row_len - tail;
     let x = input.as_ptr();
     let w = linear.weights.as_ptr();
+    let mut x_tail = [0i16; 16];
+    for (slot, value) in x_tail.iter_mut().zip(input.get(body..).unwrap_or(&[])) {
+        *slot = *value;
+    }
+    // SAFETY: `x_tail` is 16 i16.
+    let x_tail = unsafe { _mm256_loadu_si256(x_tail.as_ptr().cast()) };
 
     let mut row = 0;
     while row + 4 <= rows {
@@ -129,17 +165,27 @@ unsafe fn linear_avx2_unchecked(linear: &Linear<'_>, input: &[i16], output: &mut
             }
             i += 16;
         }
-        for (r, acc) in acc.iter().enumerate() {
-            let index = row + r;
-            let start = index * row_len;
-            let tail_w = linear
-                .weights
-                .get(start + body..start + row_len)
-                .unwrap_or(&[]);
-            let tail_x = input.get(body..).unwrap_or(&[]);
-            let sum = hsum(*acc) + dot_scalar(tail_x, tail_w) + i32_at(linear.bias, index);
-            if let Some(out) = output.get_mut(index) {
-                *out = finish(linear, index, sum);
+        if tail != 0 {
+            for (r, acc) in acc.iter_mut().enumerate() {
+                // SAFETY: AVX2 is available; the start is inside `weights` since tail > 0.
+                let ws = unsafe { load_tail_weights(linear.weights, (row + r) * row_len + body) };
+                *acc = _mm256_add_epi32(*acc, _mm256_madd_epi16(x_tail, ws));
+            }
+        }
+        let [a, b, c, d] = acc;
+        // SAFETY: row + 4 <= rows, so the 16 bias bytes at 4 * row are inside `bias`.
+        let bias = unsafe { _mm_loadu_si128(linear.bias.as_ptr().add(4 * row).cast()) };
+        let mut sums = [0i32; 4];
+        // SAFETY: `sums` is 16 bytes.
+        unsafe {
+            _mm_storeu_si128(
+                sums.as_mut_ptr().cast(),
+                _mm_add_epi32(hsum4(a, b, c, d), bias),
+            )
+        };
+        for (r, sum) in sums.into_iter().enumerate() {
+            if let Some(out) = output.get_mut(row + r) {
+                *out = finish(linear, row + r, sum);
             }
         }
         row += 4;
@@ -155,13 +201,13 @@ unsafe fn linear_avx2_unchecked(linear: &Linear<'_>, input: &[i16], output: &mut
             acc = _mm256_add_epi32(acc, _mm256_madd_epi16(xs, _mm256_cvtepi8_epi16(ws)));
             i += 16;
         }
-        let start = row * row_len;
-        let tail_w = linear
-            .weights
-            .get(start + body..start + row_len)
-            .unwrap_or(&[]);
-        let tail_x = input.get(body..).unwrap_or(&[]);
-        let sum = hsum(acc) + dot_scalar(tail_x, tail_w) + i32_at(linear.bias, row);
+        if tail != 0 {
+            // SAFETY: AVX2 is available; the start is inside `weights` since tail > 0.
+            let ws = unsafe { load_tail_weights(linear.weights, row * row_len + body) };
+            acc = _mm256_add_epi32(acc, _mm256_madd_epi16(x_tail, ws));
+        }
+        let zero = _mm256_setzero_si256();
+        let sum = _mm_cvtsi128_si32(hsum4(acc, zero, zero, zero)) + i32_at(linear.bias, row);
         if let Some(out) = output.get_mut(row) {
             *out = finish(linear, row, sum);
         }

@@ -1,0 +1,326 @@
+//! The loader answers every bad file with the right typed error and never panics.
+#![allow(clippy::unwrap_used, clippy::indexing_slicing, clippy::expect_used)]
+
+mod common;
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use wheelleg_runtime::model::format::{FORMAT_VERSION, MAGIC};
+use wheelleg_runtime::model::load::{Model, MAX_CONV_LAYERS};
+use wheelleg_runtime::model::{Capacity, DefaultPolicy, LayerRef, LoadError, Policy};
+use wheelleg_trainer::network_f32::{Architecture, ConvSpec};
+use wheelleg_trainer::quantize::build::envelope_bytes;
+use wheelleg_trainer::quantize::RangeMethod;
+
+use common::*;
+
+fn default_bytes() -> Vec<u8> {
+    default_quantized(3).1.to_bytes().unwrap()
+}
+
+#[test]
+fn a_valid_file_loads_and_every_prefix_is_truncated() {
+    let bytes = default_bytes();
+    assert!(DefaultPolicy::from_bytes(&bytes).is_ok());
+    for len in 0..bytes.len() {
+        assert_eq!(
+            Model::parse(&bytes[..len]).err(),
+            Some(LoadError::Truncated),
+            "prefix of {len} bytes"
+        );
+    }
+}
+
+#[test]
+fn magic_version_checksum_and_trailing_bytes_are_checked() {
+    let bytes = default_bytes();
+    assert_eq!(&bytes[..4], &MAGIC);
+
+    let mut wrong_magic = bytes.clone();
+    wrong_magic[0] = b'X';
+    assert!(matches!(
+        Model::parse(&wrong_magic),
+        Err(LoadError::BadMagic { found }) if found == *b"XLWM"
+    ));
+    assert!(matches!(
+        Model::parse(b"PK"),
+        Err(LoadError::BadMagic { .. })
+    ));
+
+    // The version is the varint right after the magic (one byte below 128).
+    let mut wrong_version = bytes.clone();
+    wrong_version[4] = 2;
+    assert_eq!(
+        Model::parse(&wrong_version).err(),
+        Some(LoadError::UnsupportedVersion {
+            found: 2,
+            supported: FORMAT_VERSION
+        })
+    );
+    // A validly written file of another version is refused the same way.
+    let future = envelope_bytes(FORMAT_VERSION + 1, b"anything").unwrap();
+    assert!(matches!(
+        Model::parse(&future),
+        Err(LoadError::UnsupportedVersion { found, .. }) if found == FORMAT_VERSION + 1
+    ));
+
+    // Any flipped bit in the payload or in the stored checksum is a checksum error.
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    for _ in 0..200 {
+        let mut corrupted = bytes.clone();
+        let at = rng.random_range(8..bytes.len());
+        corrupted[at] ^= 1 << rng.random_range(0..8);
+        assert!(
+            matches!(Model::parse(&corrupted), Err(LoadError::BadChecksum { .. })),
+            "flip at {at}: {:?}",
+            Model::parse(&corrupted).err()
+        );
+    }
+
+    let mut longer = bytes.clone();
+    longer.extend_from_slice(&[0, 0, 0]);
+    assert_eq!(
+        Model::parse(&longer).err(),
+        Some(LoadError::TrailingBytes { count: 3 })
+    );
+}
+
+#[test]
+fn models_larger_than_the_buffers_are_refused_with_the_capacity() {
+    let bytes = default_bytes();
+    // Row buffer too short for the 516-wide dense input.
+    assert_eq!(
+        Policy::<4096, 300>::from_bytes(&bytes).err(),
+        Some(LoadError::ExceedsCapacity {
+            what: Capacity::RowElements,
+            required: 516,
+            capacity: 300
+        })
+    );
+    assert_eq!(
+        Policy::<4095, 1024>::from_bytes(&bytes).err(),
+        Some(LoadError::ExceedsCapacity {
+            what: Capacity::ActivationElements,
+            required: 4096,
+            capacity: 4095
+        })
+    );
+
+    // A stride-1 first layer keeps 32 x 32 x 8 = 8192 activations: too large for the default.
+    let mut rng = ChaCha8Rng::seed_from_u64(1);
+    let mut arch = Architecture::default_policy();
+    arch.convs[0].out_channels = 8;
+    arch.convs[0].stride = 1;
+    arch.convs[1].in_channels = 8;
+    let (_, quantized) = random_quantized(&mut rng, &arch, RangeMethod::MinMax);
+    let big = quantized.to_bytes().unwrap();
+    assert_eq!(
+        DefaultPolicy::from_bytes(&big).err(),
+        Some(LoadError::ExceedsCapacity {
+            what: Capacity::ActivationElements,
+            required: 8192,
+            capacity: 4096
+        })
+    );
+    assert!(Policy::<8192, 2052>::from_bytes(&big).is_ok());
+
+    // More conv layers than the layer table holds.
+    let mut deep = Architecture::default_policy();
+    deep.convs = (0..=MAX_CONV_LAYERS)
+        .map(|_| ConvSpec {
+            in_channels: 1,
+            out_channels: 1,
+            kernel: 1,
+            stride: 1,
+            padding: 0,
+        })
+        .collect();
+    let (_, quantized) = random_quantized(&mut rng, &deep, RangeMethod::MinMax);
+    assert_eq!(
+        Model::parse(&quantized.to_bytes().unwrap()).err(),
+        Some(LoadError::ExceedsCapacity {
+            what: Capacity::ConvLayers,
+            required: MAX_CONV_LAYERS + 1,
+            capacity: MAX_CONV_LAYERS
+        })
+    );
+}
+
+#[test]
+fn inconsistent_layers_are_shape_or_parameter_errors() {
+    let (_, good) = default_quantized(4);
+
+    let mut short = good.clone();
+    short.convs[1].layer.weights.pop();
+    assert_eq!(
+        Model::parse(&short.to_bytes().unwrap()).err(),
+        Some(LoadError::ShapeMismatch {
+            layer: LayerRef::Conv(1),
+            what: "weights bytes",
+            expected: 32 * 9 * 16,
+            found: 32 * 9 * 16 - 1
+        })
+    );
+
+    let mut channels = good.clone();
+    channels.convs[2].spec.in_channels = 16;
+    assert!(matches!(
+        Model::parse(&channels.to_bytes().unwrap()),
+        Err(LoadError::ShapeMismatch {
+            layer: LayerRef::Conv(2),
+            what: "input channels",
+            ..
+        })
+    ));
+
+    let mut head = good.clone();
+    head.action_head.out_features = 14;
+    head.action_head.layer.weights.truncate(14 * 128);
+    head.action_head.layer.bias.pop();
+    head.action_head.layer.multipliers.pop();
+    head.action_head.layer.shifts.pop();
+    assert_eq!(
+        Model::parse(&head.to_bytes().unwrap()).err(),
+        Some(LoadError::ShapeMismatch {
+            layer: LayerRef::ActionHead,
+            what: "outputs",
+            expected: 15,
+            found: 14
+        })
+    );
+
+    let mut dense_in = good.clone();
+    dense_in.hidden[0].in_features = 512;
+    assert!(matches!(
+        Model::parse(&dense_in.to_bytes().unwrap()),
+        Err(LoadError::ShapeMismatch {
+            layer: LayerRef::Dense(0),
+            what: "input features",
+            expected: 516,
+            found: 512
+        })
+    ));
+
+    let mut shift = good.clone();
+    shift.hidden[0].layer.shifts[3] = 31;
+    assert_eq!(
+        Model::parse(&shift.to_bytes().unwrap()).err(),
+        Some(LoadError::InvalidParameter {
+            layer: LayerRef::Dense(0),
+            what: "shift"
+        })
+    );
+
+    let mut multiplier = good.clone();
+    multiplier.action_head.layer.multipliers[0] = -1;
+    assert_eq!(
+        Model::parse(&multiplier.to_bytes().unwrap()).err(),
+        Some(LoadError::InvalidParameter {
+            layer: LayerRef::ActionHead,
+            what: "multiplier"
+        })
+    );
+
+    let mut bias = good.clone();
+    bias.convs[0].layer.bias[0] = i32::MAX;
+    assert_eq!(
+        Model::parse(&bias.to_bytes().unwrap()).err(),
+        Some(LoadError::InvalidParameter {
+            layer: LayerRef::Conv(0),
+            what: "bias magnitude"
+        })
+    );
+
+    let mut stride = good.clone();
+    stride.convs[0].spec.stride = 0;
+    assert!(matches!(
+        Model::parse(&stride.to_bytes().unwrap()),
+        Err(LoadError::InvalidParameter {
+            layer: LayerRef::Conv(0),
+            ..
+        })
+    ));
+
+    // A payload with a valid envelope but garbage inside.
+    assert!(matches!(
+        Model::parse(&envelope_bytes(FORMAT_VERSION, &[0xff; 40]).unwrap()),
+        Err(LoadError::Corrupt { .. })
+    ));
+}
+
+/// Random mutations of whole files (caught by the checksum) and of payloads re-wrapped in a valid
+/// envelope (which reach the record decoder and the validation): never a panic, and whatever
+/// loads also runs.
+#[test]
+fn random_mutations_never_panic() {
+    let mut rng = ChaCha8Rng::seed_from_u64(77);
+    let (_, quantized) = default_quantized(6);
+    let file = quantized.to_bytes().unwrap();
+    let payload = quantized.payload_bytes().unwrap();
+    // A small architecture too, so mutations hit the structure more often than the tensors.
+    let (_, small) = random_quantized(
+        &mut rng,
+        &Architecture {
+            height_rows: 6,
+            height_cols: 5,
+            state_len: 2,
+            convs: vec![ConvSpec {
+                in_channels: 1,
+                out_channels: 3,
+                kernel: 3,
+                stride: 2,
+                padding: 1,
+            }],
+            hidden: vec![7],
+            value_head: true,
+        },
+        RangeMethod::MinMax,
+    );
+    let small_payload = small.payload_bytes().unwrap();
+    let mut loaded = 0;
+    for iteration in 0..10_000 {
+        let (base, wrap) = match iteration % 3 {
+            0 => (&file, false),
+            1 => (&payload, true),
+            _ => (&small_payload, true),
+        };
+        let mut bytes = base.clone();
+        for _ in 0..rng.random_range(1..=4) {
+            match rng.random_range(0..4) {
+                0 if !bytes.is_empty() => {
+                    let at = rng.random_range(0..bytes.len());
+                    bytes[at] = rng.random();
+                }
+                1 if !bytes.is_empty() => {
+                    let at = rng.random_range(0..bytes.len());
+                    bytes.truncate(at);
+                }
+                2 => {
+                    let at = rng.random_range(0..=bytes.len());
+                    bytes.insert(at, rng.random());
+                }
+                _ if !bytes.is_empty() => {
+                    let at = rng.random_range(0..bytes.len());
+                    bytes.remove(at);
+                }
+                _ => {}
+            }
+        }
+        let bytes = if wrap {
+            envelope_bytes(FORMAT_VERSION, &bytes).unwrap()
+        } else {
+            bytes
+        };
+        if let Ok(policy) = Policy::<65_536, 8_192>::from_bytes(&bytes) {
+            loaded += 1;
+            let model = policy.model();
+            let cells = usize::from(model.input.rows) * usize::from(model.input.cols);
+            let height = vec![150i16; cells];
+            let state = vec![1000i32; model.state.len()];
+            let outputs = policy.evaluate(&height, &state).unwrap();
+            let _ = outputs.action();
+        };
+    }
+    // Mutations of tensor bytes keep a file valid: some must load and run.
+    assert!(loaded > 100, "only {loaded} mutated files loaded");
+}
