@@ -46,6 +46,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             r.yaw_error_rad().to_degrees()
         );
     }
+    // End with the safety messages too, so the log exercises every command the robot sends.
+    rig.estop()?;
+    rig.recover()?;
     rig.take_log()?;
     let load = bus_load(&Traffic::default(), 1e6);
     println!(

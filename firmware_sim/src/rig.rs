@@ -157,9 +157,13 @@ pub struct Rig {
     tracker: FeedbackTracker,
     tx: TxQueue<CanFrame, TX_QUEUE_FRAMES>,
     bus: InProcessBus,
-    host: Port,
+    host: Box<dyn Transport>,
     firmware: Firmware,
-    firmware_port: Port,
+    /// The simulated axes' port on the in-process bus; `None` when the motors are elsewhere
+    /// (another process on SocketCAN, or real hardware) and time is real.
+    firmware_port: Option<Port>,
+    /// Wall-clock origin when time is real.
+    realtime_origin: Option<std::time::Instant>,
     now_us: u64,
     odometry: Odometry,
     legs: LegConfig,
@@ -186,8 +190,39 @@ impl Rig {
             tx: TxQueue::new(),
             firmware: Firmware::for_robot(geometry, &config.map, start)?,
             bus,
+            host: Box::new(host),
+            firmware_port: Some(firmware_port),
+            realtime_origin: None,
+            now_us: 0,
+            odometry: Odometry::default(),
+            legs: start,
+            stopped: None,
+            commands_paused: false,
+            log: None,
+        })
+    }
+
+    /// A rig whose motors are on `host`'s bus elsewhere (for example `firmware_sim --can vcan0`
+    /// in another process, or real ODrives): no local simulation, control ticks paced by the
+    /// wall clock. The remote axes must start with the legs at `start`.
+    pub fn remote(
+        geometry: &RobotGeometry,
+        config: RigConfig,
+        start: LegConfig,
+        host: Box<dyn Transport>,
+    ) -> Result<Rig, RigError> {
+        geometry.leg_ik(start)?;
+        Ok(Rig {
+            geometry: *geometry,
+            config,
+            commander: Commander::new(config.map),
+            tracker: FeedbackTracker::new(config.map),
+            tx: TxQueue::new(),
+            firmware: Firmware::new(Vec::new()),
+            bus: InProcessBus::new(Faults::NONE),
             host,
-            firmware_port,
+            firmware_port: None,
+            realtime_origin: Some(std::time::Instant::now()),
             now_us: 0,
             odometry: Odometry::default(),
             legs: start,
@@ -220,7 +255,7 @@ impl Rig {
         &self.tracker
     }
 
-    /// The simulated motors.
+    /// The simulated motors (none for a [`Rig::remote`] rig).
     pub fn firmware(&self) -> &Firmware {
         &self.firmware
     }
@@ -324,13 +359,47 @@ impl Rig {
             }
         }
         let end_us = self.now_us + tick_us;
-        let dt_s = self.config.physics_dt_us as f32 * 1e-6;
-        while self.now_us < end_us {
-            self.now_us += self.config.physics_dt_us;
-            self.firmware
-                .run(&mut self.firmware_port, self.now_us, dt_s)?;
+        match (&mut self.firmware_port, self.realtime_origin) {
+            (Some(port), _) => {
+                let dt_s = self.config.physics_dt_us as f32 * 1e-6;
+                while self.now_us < end_us {
+                    self.now_us += self.config.physics_dt_us;
+                    self.firmware.run(port, self.now_us, dt_s)?;
+                }
+            }
+            (None, Some(origin)) => {
+                let deadline = origin + std::time::Duration::from_micros(end_us);
+                if let Some(wait) = deadline.checked_duration_since(std::time::Instant::now()) {
+                    std::thread::sleep(wait);
+                }
+                self.now_us = end_us.max(origin.elapsed().as_micros() as u64);
+            }
+            (None, None) => self.now_us = end_us,
         }
         Ok(())
+    }
+
+    /// Sends Estop to every axis (they disarm and latch `ESTOP_REQUESTED`) and keeps the rig in
+    /// safe stop; then runs one control period so the motors see it.
+    pub fn estop(&mut self) -> Result<(), RigError> {
+        self.commander.queue_estop(&mut self.tx)?;
+        let health = self
+            .tracker
+            .health(self.now_us, self.config.health_timeout_us);
+        self.stopped
+            .get_or_insert(StopReason::AxisError(health.errored));
+        let hold = Setpoint::hold(&self.geometry, self.legs)?;
+        self.control_tick(&hold, false)
+    }
+
+    /// Recovers from a stop: Clear_Errors to every axis, then the start-up sequence again. Axes
+    /// re-arm where they are, then move (within their speed limits) to the commanded legs; the
+    /// odometry pose is kept.
+    pub fn recover(&mut self) -> Result<(), RigError> {
+        self.commander.queue_clear_errors(&mut self.tx)?;
+        self.stopped = None;
+        self.commands_paused = false;
+        self.start_up()
     }
 
     /// Runs one supervised control tick with `setpoint` (for callers that drive a

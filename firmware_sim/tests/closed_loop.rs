@@ -213,6 +213,27 @@ fn a_silent_node_stops_the_robot_safely_and_is_reported() {
         rig.firmware().axis(knee).unwrap().state(),
         AxisState::ClosedLoopControl
     );
+    // The operator escalates: Estop disarms everything and latches the error...
+    rig.estop().unwrap();
+    for axis in Axis::ALL {
+        let sim = rig.firmware().axis(axis).unwrap();
+        assert_eq!(sim.state(), AxisState::Idle);
+        assert_ne!(sim.error() & axis_error::ESTOP_REQUESTED, 0);
+    }
+    // ...and once the node talks again, Clear_Errors and start-up bring the robot back.
+    rig.firmware_mut()
+        .axis_mut(silent)
+        .unwrap()
+        .set_silent(false);
+    rig.recover().unwrap();
+    assert_eq!(rig.stopped(), None);
+    let report = rig
+        .step(Action {
+            move_y: Step::Plus,
+            ..Action::IDLE
+        })
+        .unwrap();
+    assert_close(&report, "after recovery", 1.0);
 }
 
 #[derive(Clone, Default)]
