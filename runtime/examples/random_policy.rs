@@ -1,0 +1,50 @@
+//! Writes the default network with seeded random weights as a `.wlw` file and prints the
+//! greedy action index the runtime takes on the fixed observation of `nostd-check`, so that the
+//! no_std binary's decision can be checked against the host's:
+//! `cargo run --release -p wheelleg-runtime --example random_policy -- OUT.wlw`
+// A host tool: failing loudly on bad arguments or I/O is its whole error handling.
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::indexing_slicing,
+    clippy::std_instead_of_core
+)]
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use wheelleg_runtime::model::DefaultPolicy;
+use wheelleg_trainer::export::write_atomic;
+use wheelleg_trainer::network_f32::{Architecture, NetworkF32};
+use wheelleg_trainer::quantize::{observation_mm, quantize, Calibration, RangeMethod};
+
+/// The observation of nostd-check/src/main.rs, in metres: flat ground with a 0.2 m box 0.5 m
+/// ahead, clearance 0.25 m, track 0.4 m, target 2 m ahead and 0.5 m to the left.
+fn observation() -> (Vec<f32>, Vec<f32>) {
+    let mut height = vec![0.0f32; 32 * 32];
+    for row in 2..8 {
+        for col in 12..20 {
+            height[row * 32 + col] = 0.2;
+        }
+    }
+    (height, vec![0.25, 0.4, 2.0, 0.5])
+}
+
+fn main() {
+    let path = std::env::args()
+        .nth(1)
+        .expect("usage: random_policy OUT.wlw");
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    let network = NetworkF32::random(&Architecture::default_policy(), &mut rng);
+    let (height, state) = observation();
+    let calibration =
+        Calibration::from_observations(&network, [(height.as_slice(), state.as_slice())]);
+    let bytes = quantize(&network, &calibration, RangeMethod::MinMax)
+        .unwrap()
+        .to_bytes()
+        .unwrap();
+    write_atomic(std::path::Path::new(&path), &bytes).unwrap();
+    let (height_mm, state_mm) = observation_mm(&height, &state);
+    let policy = DefaultPolicy::from_bytes(&bytes).unwrap();
+    let action = policy.evaluate(&height_mm, &state_mm).unwrap().action();
+    println!("{}", action.index());
+}

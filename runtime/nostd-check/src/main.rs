@@ -1,0 +1,86 @@
+//! A firmware-shaped program: no `std`, no allocator, its own panic handler. It links the C
+//! library only for the process entry and `write`/`_exit`, as a microcontroller's startup code
+//! would provide the entry. Linking `std` would fail the build with a duplicate `panic_impl`
+//! lang item, and any use of `alloc` would fail it with "no global memory allocator found".
+//!
+//! It loads the weights file named by `WHEELLEG_POLICY` at build time, takes one decision on a
+//! fixed observation, prints the action index and exits with 0 (or prints the error, exits 1).
+#![no_std]
+#![no_main]
+
+use core::fmt::Write;
+use core::panic::PanicInfo;
+
+use wheelleg_runtime::model::DefaultPolicy;
+
+static WEIGHTS: &[u8] = include_bytes!(env!("WHEELLEG_POLICY"));
+
+#[link(name = "c")]
+extern "C" {
+    fn write(fd: i32, buf: *const u8, count: usize) -> isize;
+    fn _exit(status: i32) -> !;
+}
+
+/// Standard output through `write(2)`.
+struct Stdout;
+
+impl Write for Stdout {
+    fn write_str(&mut self, text: &str) -> core::fmt::Result {
+        // SAFETY: the pointer and length come from a valid `&str`.
+        let written = unsafe { write(1, text.as_ptr(), text.len()) };
+        if written == text.len() as isize {
+            Ok(())
+        } else {
+            Err(core::fmt::Error)
+        }
+    }
+}
+
+#[panic_handler]
+fn panic(_info: &PanicInfo) -> ! {
+    // SAFETY: `_exit` ends the process; no state is left to tear down.
+    unsafe { _exit(101) }
+}
+
+/// The prebuilt `core` for linux-gnu targets is compiled with unwinding and references this
+/// symbol; with `panic = "abort"` nothing ever unwinds, so it is never called. (Firmware targets
+/// such as thumbv7em-none-eabihf ship a `core` without it.)
+#[no_mangle]
+extern "C" fn rust_eh_personality() {}
+
+/// The same observation as `examples/random_policy.rs`, in millimetres.
+fn observation() -> ([[i16; 32]; 32], [i32; 4]) {
+    let mut height_mm = [[0i16; 32]; 32];
+    for row in height_mm.iter_mut().take(8).skip(2) {
+        for cell in row.iter_mut().take(20).skip(12) {
+            *cell = 200;
+        }
+    }
+    (height_mm, [250, 400, 2000, 500])
+}
+
+#[no_mangle]
+extern "C" fn main(_argc: i32, _argv: *const *const u8) -> i32 {
+    let (height_mm, state_mm) = observation();
+    let result = DefaultPolicy::from_bytes(WEIGHTS)
+        .map_err(|error| (error, None))
+        .and_then(|policy| {
+            policy
+                .act(&height_mm, &state_mm)
+                .map_err(|error| (wheelleg_runtime::model::LoadError::Truncated, Some(error)))
+        });
+    match result {
+        Ok(action) => {
+            let _ = writeln!(Stdout, "{}", action.index());
+            0
+        }
+        Err((load, None)) => {
+            let _ = writeln!(Stdout, "load error: {load}");
+            1
+        }
+        Err((_, Some(infer))) => {
+            let _ = writeln!(Stdout, "inference error: {infer}");
+            1
+        }
+    }
+}
