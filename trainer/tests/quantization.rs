@@ -226,6 +226,10 @@ fn default_model_budget() {
         2 * needs.activation_elements + 2 * needs.row_elements,
         scratch,
     );
+    let policy_bytes = core::mem::size_of::<DefaultPolicy<'static>>();
+    eprintln!("DefaultPolicy value: {policy_bytes} bytes");
+    // A layer table of borrowed slices, not a copy of the tensors.
+    assert!(policy_bytes < 4096, "{policy_bytes}");
     assert_eq!(model.parameter_count(), 82_288);
     assert_eq!(network.parameter_count(), 82_288);
     // conv 36,864 + 294,912 + 147,456; dense 66,048; heads 1,920 + 128.
