@@ -94,9 +94,14 @@ impl SceneKind {
     }
 }
 
-/// A value on a lattice of `step_m`, built in f64 so that it prints and parses back exactly.
-fn lattice_m(index: i32, step_m: f64) -> f32 {
-    (index as f64 * step_m) as f32
+/// The `index`-th point of the robot's start lattice: 0.025 + 0.05 k.
+pub fn on_robot_lattice(index: i32) -> f32 {
+    ((index as f64 + 0.5) * MOVE_STEP_M as f64) as f32
+}
+
+/// Index of the robot lattice point nearest `value_m`.
+fn robot_lattice_index(value_m: f32) -> i32 {
+    (value_m as f64 / MOVE_STEP_M as f64 - 0.5).round() as i32
 }
 
 /// Index of the grid cell containing `value_m`.
@@ -113,14 +118,16 @@ struct Layout {
 /// Random start on the lattice, random yaw; the target `min_ahead_m..=1.0` ahead along x.
 fn layout(rng: &mut impl Rng, min_ahead_m: f32) -> Layout {
     let lattice = MOVE_STEP_M as f64;
-    let x = lattice_m(rng.random_range(-2..=2), lattice);
-    let y = lattice_m(rng.random_range(-2..=2), lattice);
+    // Offset by half a step so that every obstacle cell centre (0.125 + 0.25 k) lies on the
+    // robot's lattice: a passage centred on a cell can then be entered exactly on centre.
+    let x = on_robot_lattice(rng.random_range(-2..=2));
+    let y = on_robot_lattice(rng.random_range(-2..=2));
     let yaw_steps = rng.random_range(0..YAW_STEPS_PER_TURN);
     let min_k = ((min_ahead_m.max(0.5) as f64) / lattice).ceil() as i32;
     let k = rng.random_range(min_k.min(20)..=20);
     let start = RobotState::new(Point2::new(x, y), yaw_steps);
     Layout {
-        target: Point2::new(lattice_m(((x as f64) / lattice).round() as i32 + k, lattice), y),
+        target: Point2::new(on_robot_lattice(robot_lattice_index(x) + k), y),
         start,
     }
 }
@@ -201,7 +208,7 @@ fn behaviour_scene(behaviour: Behaviour, rng: &mut impl Rng, name: String) -> Sc
     };
     let mut target = lay.target;
     if target.x < fence_x + beyond_m {
-        target.x = lattice_m(((fence_x + beyond_m) as f64 / MOVE_STEP_M as f64).ceil() as i32, MOVE_STEP_M as f64);
+        target.x = on_robot_lattice(robot_lattice_index(fence_x + beyond_m + 0.5 * MOVE_STEP_M));
     }
     let path_cell = cell_index(lay.start.position.y);
     let obstacles = match behaviour {
