@@ -1,1 +1,43 @@
-fn main() {}
+//! `wheelleg`: simulate, plan, render, train, evaluate and run the wheel-legged robot's policy.
+//!
+//! Each subcommand lives in its own module under `cli/` with its arguments and a `run`
+//! function; this file only dispatches. Every failure is reported as one line naming what is
+//! wrong, with a non-zero exit status.
+
+mod cli;
+
+use clap::{Parser, Subcommand};
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(name = "wheelleg", version, about = "Wheel-legged robot navigation by deep RL")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Generate scenes of a behaviour or complex scenes into a scenario file.
+    Generate(cli::generate::Args),
+    /// Prove scenarios solvable and find their shortest step counts.
+    Plan(cli::plan::Args),
+    /// Draw each scenario's top view (with the planner's path) and the robot's height map.
+    Render(cli::render::Args),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Generate(args) => cli::generate::run(args),
+        Command::Plan(args) => cli::plan::run(args),
+        Command::Render(args) => cli::render::run(args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(error) => {
+            eprintln!("wheelleg: {error}");
+            ExitCode::FAILURE
+        }
+    }
+}
