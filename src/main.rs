@@ -24,6 +24,12 @@ enum Command {
     Plan(cli::plan::Args),
     /// Draw each scenario's top view (with the planner's path) and the robot's height map.
     Render(cli::render::Args),
+    /// Train a policy with PPO (checkpoints, metrics, --resume).
+    Train(cli::train::Args),
+    /// Evaluate a policy: success, collision-free success, path length vs the planner.
+    Eval(cli::eval::Args),
+    /// Plot learning curves of runs into a PNG.
+    Plot(cli::plot::Args),
 }
 
 fn main() -> ExitCode {
@@ -32,6 +38,9 @@ fn main() -> ExitCode {
         Command::Generate(args) => cli::generate::run(args),
         Command::Plan(args) => cli::plan::run(args),
         Command::Render(args) => cli::render::run(args),
+        Command::Train(args) => cli::train::run(args),
+        Command::Eval(args) => cli::eval::run(args),
+        Command::Plot(args) => cli::plot::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,0 +1,95 @@
+//! `wheelleg eval --policy CKPT (--scenarios FILE | --generated N --kind K) --seed S [--json]
+//! [--stochastic]`.
+
+use super::CliResult;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use std::path::PathBuf;
+use wheelleg_runtime::robot::WHEELLEG;
+use wheelleg_sim::generate::{generate_many, SceneKind};
+use wheelleg_trainer::evaluate::{evaluate, EvalOptions};
+use wheelleg_trainer::network::BackendKind;
+
+/// Arguments of `eval`.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Policy checkpoint (a run's checkpoint.ckpt).
+    #[arg(long)]
+    policy: PathBuf,
+    /// Scenario file (JSON) to evaluate on.
+    #[arg(long, conflicts_with_all = ["generated", "kind"])]
+    scenarios: Option<PathBuf>,
+    /// Evaluate on this many generated scenes (needs --kind).
+    #[arg(long, requires = "kind")]
+    generated: Option<usize>,
+    /// Kind of generated scenes: straight, around, lift, spread, squeeze, complex.
+    #[arg(long)]
+    kind: Option<String>,
+    /// Seed of scene generation and stochastic actions (use seeds not used in training).
+    #[arg(long, default_value_t = 1_000_000)]
+    seed: u64,
+    /// Print JSON instead of a table.
+    #[arg(long)]
+    json: bool,
+    /// Sample actions instead of taking the most probable.
+    #[arg(long)]
+    stochastic: bool,
+    /// Planner budget per scenario (expanded states) for the shortest-path ratio; 0 skips it.
+    #[arg(long, default_value_t = 20_000)]
+    planner_expansions: usize,
+}
+
+/// Runs `eval`.
+pub fn run(args: Args) -> CliResult {
+    let net = wheelleg_trainer::evaluate::load_policy(&args.policy)?;
+    let scenarios = match (&args.scenarios, args.generated, &args.kind) {
+        (Some(file), _, _) => wheelleg_sim::scenario_file::load(file, &WHEELLEG)?,
+        (None, Some(n), Some(kind)) => {
+            let kind = SceneKind::from_name(kind).ok_or_else(|| {
+                format!("unknown --kind {kind:?} (straight, around, lift, spread, squeeze, complex)")
+            })?;
+            generate_many(kind, &mut ChaCha8Rng::seed_from_u64(args.seed), n)
+        }
+        _ => return Err("give --scenarios FILE or --generated N --kind K".into()),
+    };
+    if scenarios.is_empty() {
+        return Err("no scenarios to evaluate".into());
+    }
+    let options = EvalOptions {
+        stochastic: args.stochastic,
+        planner_expansions: args.planner_expansions,
+        ..EvalOptions::default()
+    };
+    let device = BackendKind::Flex.device()?;
+    let mut rng = ChaCha8Rng::seed_from_u64(args.seed);
+    rng.set_stream(1);
+    let report = evaluate(&net, &device, &scenarios, &options, &mut rng)?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+        return Ok(());
+    }
+    println!("{:<28} {:>8} {:>9} {:>6} {:>10} {:>8}", "scenario", "success", "coll-free", "steps", "collisions", "planner");
+    for r in &report.scenarios {
+        println!(
+            "{:<28} {:>8} {:>9} {:>6} {:>10} {:>8}",
+            r.name,
+            if r.success { "yes" } else { "no" },
+            if r.collision_free { "yes" } else { "no" },
+            r.steps,
+            r.collisions,
+            r.planner_steps.map_or("-".to_string(), |s| s.to_string())
+        );
+    }
+    let opt = |v: Option<f32>, digits: usize| v.map_or("-".to_string(), |v| format!("{v:.digits$}"));
+    println!();
+    println!("scenarios            {}", report.scenarios.len());
+    println!("success rate         {:.1}%", 100.0 * report.success_rate);
+    println!("collision-free rate  {:.1}%", 100.0 * report.collision_free_rate);
+    println!("mean steps (success) {}", opt(report.mean_steps, 1));
+    println!(
+        "steps vs shortest    {} ({} successes without a planner result, excluded)",
+        opt(report.steps_vs_shortest, 3),
+        report.planner_budget_exceeded
+    );
+    Ok(())
+}

@@ -1,0 +1,243 @@
+//! Checkpoints: everything a run needs to continue exactly where it stopped, written atomically
+//! and validated on load.
+//!
+//! File layout: `WLCKPT01` magic (8 bytes), payload length (u64 LE), FNV-1a 64 checksum of the
+//! payload (u64 LE), then the postcard-encoded [`Checkpoint`]. A truncated, corrupt or
+//! foreign file is refused with a message saying which check failed.
+
+use crate::network_f32::{Architecture, Conv2dF32, ConvSpec, DenseF32, NetworkF32};
+use crate::ppo::Adam;
+use crate::vec_env::EnvSnapshot;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+const MAGIC: &[u8; 8] = b"WLCKPT01";
+const HEADER_LEN: usize = 24;
+
+/// The architecture as stored (network_f32's types stay serde-free for the no_std side).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ArchRecord {
+    /// Height-map rows and columns.
+    pub height: (usize, usize),
+    /// State features.
+    pub state_len: usize,
+    /// Conv layers: (in, out, kernel, stride, padding).
+    pub convs: Vec<(usize, usize, usize, usize, usize)>,
+    /// Hidden dense widths.
+    pub hidden: Vec<usize>,
+    /// Value head present.
+    pub value_head: bool,
+}
+
+impl ArchRecord {
+    /// Records an architecture.
+    pub fn from_arch(a: &Architecture) -> Self {
+        ArchRecord {
+            height: (a.height_rows, a.height_cols),
+            state_len: a.state_len,
+            convs: a.convs.iter().map(|c| (c.in_channels, c.out_channels, c.kernel, c.stride, c.padding)).collect(),
+            hidden: a.hidden.clone(),
+            value_head: a.value_head,
+        }
+    }
+
+    /// The architecture.
+    pub fn to_arch(&self) -> Architecture {
+        Architecture {
+            height_rows: self.height.0,
+            height_cols: self.height.1,
+            state_len: self.state_len,
+            convs: self
+                .convs
+                .iter()
+                .map(|&(in_channels, out_channels, kernel, stride, padding)| ConvSpec { in_channels, out_channels, kernel, stride, padding })
+                .collect(),
+            hidden: self.hidden.clone(),
+            value_head: self.value_head,
+        }
+    }
+}
+
+/// A network: architecture plus parameter tensors in `network::parameters` order.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct NetworkRecord {
+    /// Shape.
+    pub arch: ArchRecord,
+    /// Tensors.
+    pub tensors: Vec<Vec<f32>>,
+}
+
+impl NetworkRecord {
+    /// Records a network.
+    pub fn from_network(net: &NetworkF32) -> Self {
+        NetworkRecord {
+            arch: ArchRecord::from_arch(&net.arch),
+            tensors: crate::network::parameters(net).into_iter().map(<[f32]>::to_vec).collect(),
+        }
+    }
+
+    /// Rebuilds the network, checking every tensor's length against the architecture.
+    pub fn to_network(&self) -> Result<NetworkF32, String> {
+        let arch = self.arch.to_arch();
+        let mut t = self.tensors.iter();
+        let mut take = |len: usize, what: &str| -> Result<Vec<f32>, String> {
+            let v = t.next().ok_or_else(|| format!("checkpoint network is missing tensor {what}"))?;
+            if v.len() != len {
+                return Err(format!("checkpoint tensor {what} has {} values, the architecture needs {len}", v.len()));
+            }
+            Ok(v.clone())
+        };
+        let mut convs = Vec::new();
+        for (i, &spec) in arch.convs.iter().enumerate() {
+            let weights = take(spec.out_channels * spec.in_channels * spec.kernel * spec.kernel, &format!("conv{i}.weight"))?;
+            let bias = take(spec.out_channels, &format!("conv{i}.bias"))?;
+            convs.push(Conv2dF32 { spec, weights, bias });
+        }
+        let mut width = arch.concat_len();
+        let mut dense = |out: usize, name: &str, width: usize| -> Result<DenseF32, String> {
+            Ok(DenseF32 {
+                in_features: width,
+                out_features: out,
+                weights: take(out * width, &format!("{name}.weight"))?,
+                bias: take(out, &format!("{name}.bias"))?,
+            })
+        };
+        let mut hidden = Vec::new();
+        for (i, &out) in arch.hidden.iter().enumerate() {
+            hidden.push(dense(out, &format!("hidden{i}"), width)?);
+            width = out;
+        }
+        let action_head = dense(crate::network_f32::ACTION_LOGITS, "action_head", width)?;
+        let value_head = if arch.value_head { Some(dense(1, "value_head", width)?) } else { None };
+        if t.next().is_some() {
+            return Err("checkpoint network has more tensors than its architecture".into());
+        }
+        Ok(NetworkF32 { arch, convs, hidden, action_head, value_head })
+    }
+}
+
+/// Sums of the current iteration are not stored: checkpoints are taken between iterations.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Checkpoint {
+    /// What produced it (`baseline`, `secondary-straight`, ...).
+    pub kind: String,
+    /// The run's config as TOML; a resume with a different config is refused.
+    pub config_toml: String,
+    /// The run's seed.
+    pub seed: u64,
+    /// Iterations completed.
+    pub iteration: u64,
+    /// Environment steps taken.
+    pub env_steps: u64,
+    /// The policy.
+    pub network: NetworkRecord,
+    /// Optimizer state.
+    pub adam: Adam,
+    /// Word position of the sampling RNG (actions, minibatch shuffles).
+    pub sampler_word_pos: u128,
+    /// The environments.
+    pub envs: Vec<EnvSnapshot>,
+    /// Seconds of training before this checkpoint (so steps/s and ETA survive a resume).
+    pub elapsed_s: f64,
+}
+
+fn fnv1a(bytes: &[u8]) -> u64 {
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| (h ^ b as u64).wrapping_mul(0x0100_0000_01b3))
+}
+
+impl Checkpoint {
+    /// Encodes the file bytes.
+    pub fn to_bytes(&self) -> Result<Vec<u8>, String> {
+        let payload = postcard::to_allocvec(self).map_err(|e| format!("cannot encode checkpoint: {e}"))?;
+        let mut out = Vec::with_capacity(HEADER_LEN + payload.len());
+        out.extend_from_slice(MAGIC);
+        out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+        out.extend_from_slice(&fnv1a(&payload).to_le_bytes());
+        out.extend_from_slice(&payload);
+        Ok(out)
+    }
+
+    /// Decodes and validates file bytes.
+    pub fn from_bytes(bytes: &[u8]) -> Result<Checkpoint, String> {
+        if bytes.len() < HEADER_LEN || &bytes[..8] != MAGIC {
+            return Err("not a wheelleg checkpoint (bad magic)".into());
+        }
+        let len = u64::from_le_bytes(bytes[8..16].try_into().unwrap_or_default()) as usize;
+        let sum = u64::from_le_bytes(bytes[16..24].try_into().unwrap_or_default());
+        let payload = &bytes[HEADER_LEN..];
+        if payload.len() != len {
+            return Err(format!("checkpoint truncated or padded: payload is {} bytes, header says {len}", payload.len()));
+        }
+        if fnv1a(payload) != sum {
+            return Err("checkpoint corrupt: checksum mismatch".into());
+        }
+        let c: Checkpoint = postcard::from_bytes(payload).map_err(|e| format!("checkpoint corrupt: {e}"))?;
+        let net = c.network.to_network()?;
+        if !c.adam.fits(&net) {
+            return Err("checkpoint optimizer state does not match its network".into());
+        }
+        Ok(c)
+    }
+
+    /// Writes the checkpoint atomically (temporary file + rename).
+    pub fn save(&self, path: &Path) -> Result<(), String> {
+        let bytes = self.to_bytes()?;
+        crate::export::write_atomic(path, &bytes).map_err(|e| format!("cannot write checkpoint {}: {e}", path.display()))
+    }
+
+    /// Reads and validates a checkpoint file.
+    pub fn load(path: &Path) -> Result<Checkpoint, String> {
+        let bytes = std::fs::read(path).map_err(|e| format!("cannot read checkpoint {}: {e}", path.display()))?;
+        Checkpoint::from_bytes(&bytes).map_err(|e| format!("{}: {e}", path.display()))
+    }
+}
+
+/// Loads just the policy from a checkpoint file.
+pub fn load_policy(path: &Path) -> Result<NetworkF32, String> {
+    Checkpoint::load(path)?.network.to_network()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+
+    fn sample() -> Checkpoint {
+        let net = crate::network::init_policy(&Architecture::default_policy(), &mut ChaCha8Rng::seed_from_u64(1));
+        Checkpoint {
+            kind: "baseline".into(),
+            config_toml: "x".into(),
+            seed: 3,
+            iteration: 7,
+            env_steps: 70_000,
+            adam: Adam::new(&net),
+            network: NetworkRecord::from_network(&net),
+            sampler_word_pos: 12345,
+            envs: vec![],
+            elapsed_s: 1.5,
+        }
+    }
+
+    #[test]
+    fn round_trips_and_refuses_damage() {
+        let c = sample();
+        let bytes = c.to_bytes().unwrap();
+        assert_eq!(Checkpoint::from_bytes(&bytes).unwrap(), c);
+        assert_eq!(c.network.to_network().unwrap(), crate::network::init_policy(&Architecture::default_policy(), &mut ChaCha8Rng::seed_from_u64(1)));
+        let e = Checkpoint::from_bytes(&bytes[..bytes.len() - 10]).unwrap_err();
+        assert!(e.contains("truncated"), "{e}");
+        let mut bad = bytes.clone();
+        bad[100] ^= 1;
+        assert!(Checkpoint::from_bytes(&bad).unwrap_err().contains("checksum"));
+        assert!(Checkpoint::from_bytes(b"hello world, this is not it").unwrap_err().contains("magic"));
+    }
+
+    #[test]
+    fn mismatched_tensors_are_named() {
+        let mut c = sample();
+        c.network.tensors[2].pop();
+        let e = c.network.to_network().unwrap_err();
+        assert!(e.contains("conv1.weight"), "{e}");
+    }
+}

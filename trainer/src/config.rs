@@ -1,0 +1,239 @@
+//! Every hyperparameter of a training run, read from a TOML file.
+//!
+//! Defaults follow the paper where it gives a value (batch of 10,000 environment steps for the
+//! baseline, the reward of the simulator) and common PPO practice elsewhere. Unknown keys are
+//! refused so a typo never silently falls back to a default.
+
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// PPO's hyperparameters (the reusable core: the curriculum uses the same ones).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PpoConfig {
+    /// Adam learning rate.
+    pub learning_rate: f64,
+    /// Adam epsilon.
+    pub adam_epsilon: f64,
+    /// Discount factor gamma.
+    pub gamma: f32,
+    /// GAE lambda. 1.0 gives the paper's A = R - V (Monte-Carlo return minus value); the
+    /// default 0.95 trades a little bias for much less variance.
+    pub gae_lambda: f32,
+    /// Clip range epsilon of the probability ratio (Eq. 1).
+    pub clip_epsilon: f32,
+    /// Weight of the surrogate, lambda_1 of Eq. 2.
+    pub policy_coef: f32,
+    /// Weight of the value loss, lambda_2 of Eq. 2.
+    pub value_coef: f32,
+    /// Weight of the entropy bonus.
+    pub entropy_coef: f32,
+    /// Passes over each batch.
+    pub epochs: usize,
+    /// Samples per gradient step.
+    pub minibatch_size: usize,
+    /// Global gradient norm limit (0 disables clipping).
+    pub max_grad_norm: f32,
+    /// Normalise advantages per minibatch to zero mean, unit variance.
+    pub normalize_advantages: bool,
+    /// Stop the epochs early once the approximate KL(old || new) of a minibatch exceeds this
+    /// (0 disables).
+    pub target_kl: f32,
+}
+
+impl Default for PpoConfig {
+    fn default() -> Self {
+        PpoConfig {
+            learning_rate: 3e-4,
+            adam_epsilon: 1e-5,
+            gamma: 0.99,
+            gae_lambda: 0.95,
+            clip_epsilon: 0.2,
+            policy_coef: 1.0,
+            value_coef: 0.5,
+            entropy_coef: 0.01,
+            epochs: 4,
+            minibatch_size: 256,
+            max_grad_norm: 0.5,
+            normalize_advantages: true,
+            target_kl: 0.03,
+        }
+    }
+}
+
+/// Network sizes (the architecture is stored with every checkpoint, never assumed).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct NetworkConfig {
+    /// Output channels of each stride-2 3x3 conv layer.
+    pub conv_channels: Vec<usize>,
+    /// Widths of the hidden dense layers.
+    pub hidden: Vec<usize>,
+}
+
+impl Default for NetworkConfig {
+    fn default() -> Self {
+        NetworkConfig {
+            conv_channels: vec![16, 32, 32],
+            hidden: vec![128],
+        }
+    }
+}
+
+/// The run: budget, scenes, parallelism, logging.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RunConfig {
+    /// Scene kind trained on (`straight`, `around`, `lift`, `spread`, `squeeze`, `complex`).
+    pub scene_kind: String,
+    /// Environment steps per PPO iteration (the paper's batch: 10,000 for the baseline).
+    pub steps_per_iteration: usize,
+    /// Environments stepped in lock-step (one batched inference per step).
+    pub num_envs: usize,
+    /// Total environment steps of the run.
+    pub total_env_steps: u64,
+    /// Step limit of an episode.
+    pub max_episode_steps: u32,
+    /// Checkpoint every this many iterations (the last iteration always checkpoints).
+    pub checkpoint_interval: usize,
+    /// Worker threads stepping environments (std threads, each owns a fixed slice of envs).
+    pub threads: usize,
+    /// Deep-learning backend: `flex` (default), `ndarray`, `cubecl-cpu`, `cuda`.
+    pub backend: String,
+}
+
+impl Default for RunConfig {
+    fn default() -> Self {
+        RunConfig {
+            scene_kind: "complex".into(),
+            steps_per_iteration: 10_000,
+            num_envs: 50,
+            total_env_steps: 5_000_000,
+            max_episode_steps: 100,
+            checkpoint_interval: 5,
+            threads: 2,
+            backend: "flex".into(),
+        }
+    }
+}
+
+/// A whole training configuration file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrainConfig {
+    /// The run.
+    pub run: RunConfig,
+    /// PPO.
+    pub ppo: PpoConfig,
+    /// The network.
+    pub network: NetworkConfig,
+}
+
+impl TrainConfig {
+    /// Parses TOML text and validates it.
+    pub fn from_toml(text: &str) -> Result<TrainConfig, String> {
+        let config: TrainConfig = toml::from_str(text).map_err(|e| e.to_string())?;
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// Reads and validates a config file.
+    pub fn load(path: &Path) -> Result<TrainConfig, String> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| format!("cannot read config {}: {e}", path.display()))?;
+        TrainConfig::from_toml(&text).map_err(|e| format!("config {}: {e}", path.display()))
+    }
+
+    /// The config as TOML (stored in every checkpoint to detect mismatched resumes).
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).unwrap_or_default()
+    }
+
+    /// Checks ranges, naming the offending key.
+    pub fn validate(&self) -> Result<(), String> {
+        let r = &self.run;
+        let p = &self.ppo;
+        let check = |ok: bool, what: &str| if ok { Ok(()) } else { Err(what.to_string()) };
+        check(
+            wheelleg_sim::generate::SceneKind::from_name(&r.scene_kind).is_some(),
+            "run.scene_kind must be one of straight, around, lift, spread, squeeze, complex",
+        )?;
+        check(r.num_envs >= 1, "run.num_envs must be at least 1")?;
+        check(
+            r.steps_per_iteration >= r.num_envs,
+            "run.steps_per_iteration must be at least run.num_envs",
+        )?;
+        check(r.max_episode_steps >= 1, "run.max_episode_steps must be at least 1")?;
+        check(r.checkpoint_interval >= 1, "run.checkpoint_interval must be at least 1")?;
+        check(r.threads >= 1, "run.threads must be at least 1")?;
+        crate::network::BackendKind::from_name(&r.backend).map(|_| ())?;
+        check(p.learning_rate > 0.0, "ppo.learning_rate must be positive")?;
+        check((0.0..=1.0).contains(&p.gamma), "ppo.gamma must be in [0, 1]")?;
+        check((0.0..=1.0).contains(&p.gae_lambda), "ppo.gae_lambda must be in [0, 1]")?;
+        check(p.clip_epsilon > 0.0, "ppo.clip_epsilon must be positive")?;
+        check(p.epochs >= 1, "ppo.epochs must be at least 1")?;
+        check(p.minibatch_size >= 2, "ppo.minibatch_size must be at least 2")?;
+        check(p.max_grad_norm >= 0.0, "ppo.max_grad_norm must be >= 0")?;
+        check(p.target_kl >= 0.0, "ppo.target_kl must be >= 0")?;
+        check(
+            !self.network.conv_channels.is_empty() && self.network.conv_channels.iter().all(|&c| c > 0),
+            "network.conv_channels must be non-empty positive widths",
+        )?;
+        check(
+            self.network.hidden.iter().all(|&h| h > 0),
+            "network.hidden widths must be positive",
+        )?;
+        Ok(())
+    }
+
+    /// Environment steps each env takes per iteration.
+    pub fn steps_per_env(&self) -> usize {
+        self.run.steps_per_iteration / self.run.num_envs
+    }
+
+    /// The architecture these sizes describe.
+    pub fn architecture(&self) -> crate::network_f32::Architecture {
+        let mut arch = crate::network_f32::Architecture::default_policy();
+        let mut in_channels = 1;
+        arch.convs = self
+            .network
+            .conv_channels
+            .iter()
+            .map(|&out| {
+                let spec = crate::network_f32::ConvSpec {
+                    in_channels,
+                    out_channels: out,
+                    kernel: 3,
+                    stride: 2,
+                    padding: 1,
+                };
+                in_channels = out;
+                spec
+            })
+            .collect();
+        arch.hidden = self.network.hidden.clone();
+        arch.value_head = true;
+        arch
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_follow_the_paper_and_round_trip() {
+        let c = TrainConfig::default();
+        assert_eq!(c.run.steps_per_iteration, 10_000);
+        assert_eq!(c.architecture(), crate::network_f32::Architecture::default_policy());
+        assert_eq!(TrainConfig::from_toml(&c.to_toml()).unwrap(), c);
+    }
+
+    #[test]
+    fn typos_and_bad_values_are_named() {
+        let e = TrainConfig::from_toml("[ppo]\nlearning_rat = 1.0\n").unwrap_err();
+        assert!(e.contains("learning_rat"), "{e}");
+        let e = TrainConfig::from_toml("[run]\nscene_kind = \"maze\"\n").unwrap_err();
+        assert!(e.contains("run.scene_kind"), "{e}");
+    }
+}

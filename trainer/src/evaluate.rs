@@ -1,0 +1,150 @@
+//! Evaluation (paper, "Evaluation"): run the policy on fixed scenarios and report success rate,
+//! collision-free success rate, mean path length and its ratio to the planner's shortest path.
+//!
+//! All scenarios run in lock-step so the policy is evaluated once per step on the whole batch.
+//! Greedy (most probable choice per head) by default; stochastic draws come from the caller's
+//! seeded RNG.
+
+use crate::network_f32::NetworkF32;
+use crate::ppo::PolicyOutput;
+use burn::tensor::Device;
+use rand::Rng;
+use serde::Serialize;
+use wheelleg_runtime::action::Action;
+use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
+use wheelleg_sim::env::{Env, EnvConfig, Observation, Status};
+use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig};
+use wheelleg_sim::scenario::Scenario;
+
+/// One scenario's result.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ScenarioResult {
+    /// Scenario name.
+    pub name: String,
+    /// Reached the target.
+    pub success: bool,
+    /// Reached it without any collision.
+    pub collision_free: bool,
+    /// Steps taken.
+    pub steps: u32,
+    /// Collisions.
+    pub collisions: u32,
+    /// How the episode ended.
+    pub status: String,
+    /// The planner's shortest step count, when it found one within its budget.
+    pub planner_steps: Option<usize>,
+}
+
+/// The whole evaluation.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct EvalReport {
+    /// Fraction of scenarios reached.
+    pub success_rate: f32,
+    /// Fraction reached without collision.
+    pub collision_free_rate: f32,
+    /// Mean steps of the successful episodes (none without successes).
+    pub mean_steps: Option<f32>,
+    /// Sum of policy steps over sum of planner steps, over scenarios both solved.
+    pub steps_vs_shortest: Option<f32>,
+    /// Successful scenarios left out of the ratio because the planner ran out of budget.
+    pub planner_budget_exceeded: usize,
+    /// Per scenario.
+    pub scenarios: Vec<ScenarioResult>,
+}
+
+/// Options of an evaluation.
+#[derive(Clone, Debug)]
+pub struct EvalOptions {
+    /// Sample actions instead of taking the most probable.
+    pub stochastic: bool,
+    /// Planner budget (expanded states) per scenario; 0 skips the planner.
+    pub planner_expansions: usize,
+    /// Episode rules.
+    pub env_config: EnvConfig,
+}
+
+impl Default for EvalOptions {
+    fn default() -> Self {
+        EvalOptions { stochastic: false, planner_expansions: 20_000, env_config: EnvConfig::default() }
+    }
+}
+
+/// Runs `net` once on every scenario.
+pub fn evaluate(
+    net: &NetworkF32,
+    device: &Device,
+    scenarios: &[Scenario],
+    options: &EvalOptions,
+    rng: &mut impl Rng,
+) -> Result<EvalReport, String> {
+    let burn_net = crate::network::Net::new(net, device, false)?;
+    let mut envs = scenarios
+        .iter()
+        .map(|s| Env::new(s, options.env_config).map_err(|e| format!("scenario {}: {e:?}", s.name)))
+        .collect::<Result<Vec<_>, _>>()?;
+    let mut obs = Observation::default();
+    loop {
+        let running: Vec<usize> = (0..envs.len()).filter(|&i| !envs[i].status().is_done()).collect();
+        if running.is_empty() {
+            break;
+        }
+        let mut heights = Vec::with_capacity(running.len() * HEIGHT_MAP_CELLS);
+        let mut states = Vec::with_capacity(running.len() * STATE_LEN);
+        for &i in &running {
+            envs[i].observe(&mut obs);
+            heights.extend_from_slice(&obs.height_map);
+            states.extend_from_slice(&obs.state);
+        }
+        let f = burn_net.forward(heights, states, running.len());
+        let out = PolicyOutput { log_probs: crate::network::to_vec(f.log_probs), values: vec![] };
+        for (k, &i) in running.iter().enumerate() {
+            let choices = if options.stochastic { out.sample(k, rng) } else { out.greedy(k) };
+            let action = Action::from_head_indices(std::array::from_fn(|h| choices[h] as usize)).unwrap_or_default();
+            envs[i].step(action).map_err(|_| "stepped a finished episode".to_string())?;
+        }
+    }
+    let planner = PlannerConfig { max_expansions: options.planner_expansions, ..PlannerConfig::default() };
+    let mut results = Vec::with_capacity(scenarios.len());
+    for (s, env) in scenarios.iter().zip(&envs) {
+        let success = env.status() == Status::Success;
+        let planner_steps = if success && options.planner_expansions > 0 {
+            let fresh = Env::new(s, options.env_config).map_err(|e| format!("scenario {}: {e:?}", s.name))?;
+            match plan(&fresh, &planner).outcome {
+                PlanOutcome::Solved { actions, .. } => Some(actions.len()),
+                _ => None,
+            }
+        } else {
+            None
+        };
+        results.push(ScenarioResult {
+            name: s.name.clone(),
+            success,
+            collision_free: success && env.collisions() == 0,
+            steps: env.steps(),
+            collisions: env.collisions(),
+            status: format!("{:?}", env.status()),
+            planner_steps,
+        });
+    }
+    let n = results.len().max(1) as f32;
+    let successes: Vec<&ScenarioResult> = results.iter().filter(|r| r.success).collect();
+    let mean_steps =
+        (!successes.is_empty()).then(|| successes.iter().map(|r| r.steps as f32).sum::<f32>() / successes.len() as f32);
+    let both: Vec<&&ScenarioResult> = successes.iter().filter(|r| r.planner_steps.is_some()).collect();
+    let steps_vs_shortest = (!both.is_empty()).then(|| {
+        both.iter().map(|r| r.steps as f32).sum::<f32>() / both.iter().map(|r| r.planner_steps.unwrap_or(1) as f32).sum::<f32>()
+    });
+    Ok(EvalReport {
+        success_rate: successes.len() as f32 / n,
+        collision_free_rate: results.iter().filter(|r| r.collision_free).count() as f32 / n,
+        mean_steps,
+        steps_vs_shortest,
+        planner_budget_exceeded: if options.planner_expansions > 0 { successes.len() - both.len() } else { 0 },
+        scenarios: results,
+    })
+}
+
+/// Loads a policy from a checkpoint file.
+pub fn load_policy(path: &std::path::Path) -> Result<NetworkF32, String> {
+    crate::checkpoint::load_policy(path)
+}

@@ -1,0 +1,389 @@
+//! Proximal policy optimisation, the paper's "Preliminaries" and Eq. 2:
+//!
+//! `L(theta) = E[ lambda_1 * eta_PPO(theta) + lambda_2 * L_v(theta) ] (+ entropy bonus)`, with
+//! `eta_PPO = E[min(Z(psi) A, psi A)]` (Eq. 1, `psi` the probability ratio, `Z` the clip to
+//! `[1 - eps, 1 + eps]`) maximised and `L_v = (V(s) - R)^2` minimised.
+//!
+//! The verbs follow the paper: [`Ppo::act`] (sample with the current policy), [`Ppo::evaluate`]
+//! (log-probabilities and values of given samples: Algorithm 2 recomputes replayed samples'
+//! advantages with it), [`Ppo::update`] (minibatch epochs of Adam on the loss). Rollout and
+//! advantage computation live in `storage`/`runner`, so a caller can feed any [`Batch`].
+
+use crate::config::PpoConfig;
+use crate::network::{self, Net};
+use crate::network_f32::NetworkF32;
+use crate::storage::Batch;
+use burn::tensor::{Device, Tensor, TensorData};
+use rand::seq::SliceRandom;
+use rand::Rng;
+use serde::{Deserialize, Serialize};
+use wheelleg_runtime::action::{CHOICES, DIMS};
+use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
+
+/// Adam (Kingma & Ba) over the flat parameter tensors, PyTorch semantics (bias-corrected
+/// moments, epsilon added to the root). Kept here rather than burn's optimizer so that the
+/// state is plain vectors (exact checkpoints) and clipping is over the global norm.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Adam {
+    /// Steps taken.
+    pub step: u64,
+    /// First moments, one vector per parameter tensor.
+    pub m: Vec<Vec<f32>>,
+    /// Second moments.
+    pub v: Vec<Vec<f32>>,
+}
+
+impl Adam {
+    /// Zero state for `net`'s parameters.
+    pub fn new(net: &NetworkF32) -> Adam {
+        let zeros: Vec<Vec<f32>> = network::parameters(net).iter().map(|p| vec![0.0; p.len()]).collect();
+        Adam { step: 0, m: zeros.clone(), v: zeros }
+    }
+
+    /// Whether the state fits `net`'s parameter shapes.
+    pub fn fits(&self, net: &NetworkF32) -> bool {
+        let params = network::parameters(net);
+        params.len() == self.m.len()
+            && params.len() == self.v.len()
+            && params.iter().zip(&self.m).zip(&self.v).all(|((p, m), v)| p.len() == m.len() && p.len() == v.len())
+    }
+
+    /// One Adam step on `net` with `grads` (already clipped).
+    pub fn apply(&mut self, net: &mut NetworkF32, grads: &[Vec<f32>], lr: f64, epsilon: f64) {
+        const BETA1: f64 = 0.9;
+        const BETA2: f64 = 0.999;
+        self.step += 1;
+        let bias1 = 1.0 - BETA1.powi(self.step as i32);
+        let bias2 = 1.0 - BETA2.powi(self.step as i32);
+        let step_size = (lr / bias1) as f32;
+        let bias2_sqrt = bias2.sqrt() as f32;
+        let eps = epsilon as f32;
+        for (((p, g), m), v) in network::parameters_mut(net).into_iter().zip(grads).zip(&mut self.m).zip(&mut self.v) {
+            for i in 0..p.len() {
+                m[i] = BETA1 as f32 * m[i] + (1.0 - BETA1 as f32) * g[i];
+                v[i] = BETA2 as f32 * v[i] + (1.0 - BETA2 as f32) * g[i] * g[i];
+                p[i] -= step_size * m[i] / (v[i].sqrt() / bias2_sqrt + eps);
+            }
+        }
+    }
+}
+
+/// What one update did (means over the minibatches actually taken).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct UpdateStats {
+    /// Clipped surrogate loss (negated Eq. 1).
+    pub policy_loss: f32,
+    /// Value loss.
+    pub value_loss: f32,
+    /// Mean entropy of the five heads' distributions (sum over heads).
+    pub entropy: f32,
+    /// Approximate KL(old || new) of the last minibatch.
+    pub approx_kl: f32,
+    /// Fraction of samples whose ratio was clipped.
+    pub clip_fraction: f32,
+    /// Minibatch gradient steps taken.
+    pub gradient_steps: usize,
+    /// Whether the KL limit stopped the epochs early.
+    pub kl_stopped: bool,
+}
+
+/// Policy and value outputs for a batch of observations.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PolicyOutput {
+    /// `batch * DIMS * CHOICES` log-probabilities.
+    pub log_probs: Vec<f32>,
+    /// `batch` values.
+    pub values: Vec<f32>,
+}
+
+impl PolicyOutput {
+    /// Log-probability of `actions` (`DIMS` choices) for sample `i`.
+    pub fn action_log_prob(&self, i: usize, actions: &[u8]) -> f32 {
+        (0..DIMS).map(|h| self.log_probs[(i * DIMS + h) * CHOICES + actions[h] as usize]).sum()
+    }
+
+    /// Samples one choice per head for sample `i` (inverse CDF on one uniform draw per head).
+    pub fn sample(&self, i: usize, rng: &mut impl Rng) -> [u8; DIMS] {
+        let mut out = [0u8; DIMS];
+        for (h, slot) in out.iter_mut().enumerate() {
+            let u: f32 = rng.random();
+            let mut acc = 0.0;
+            let mut choice = CHOICES - 1;
+            for c in 0..CHOICES {
+                acc += self.log_probs[(i * DIMS + h) * CHOICES + c].exp();
+                if u < acc {
+                    choice = c;
+                    break;
+                }
+            }
+            *slot = choice as u8;
+        }
+        out
+    }
+
+    /// The most probable choice per head for sample `i` (greedy evaluation).
+    pub fn greedy(&self, i: usize) -> [u8; DIMS] {
+        let mut out = [0u8; DIMS];
+        for (h, slot) in out.iter_mut().enumerate() {
+            let row = &self.log_probs[(i * DIMS + h) * CHOICES..(i * DIMS + h + 1) * CHOICES];
+            let mut best = 0;
+            for c in 1..CHOICES {
+                if row[c] > row[best] {
+                    best = c;
+                }
+            }
+            *slot = best as u8;
+        }
+        out
+    }
+}
+
+/// The PPO learner: the policy's parameters, their Adam state and the hyperparameters.
+pub struct Ppo {
+    /// Hyperparameters.
+    pub config: PpoConfig,
+    /// The policy and value function (shared trunk).
+    pub net: NetworkF32,
+    /// Optimizer state.
+    pub adam: Adam,
+    device: Device,
+}
+
+/// Observations are evaluated in chunks of this many samples (bounds memory of inference).
+const EVAL_CHUNK: usize = 1024;
+
+impl Ppo {
+    /// A learner for `net` on `device` (a plain device; autodiff is added for updates).
+    pub fn new(net: NetworkF32, config: PpoConfig, device: Device) -> Result<Ppo, String> {
+        network::check_policy_shape(&net)?;
+        let adam = Adam::new(&net);
+        Ok(Ppo { config, net, adam, device })
+    }
+
+    /// The device.
+    pub fn device(&self) -> &Device {
+        &self.device
+    }
+
+    /// Log-probabilities and values of `n` observations under the current parameters.
+    pub fn evaluate(&self, heights_m: &[f32], states: &[f32], n: usize) -> Result<PolicyOutput, String> {
+        let net = Net::new(&self.net, &self.device, false)?;
+        let mut out = PolicyOutput { log_probs: Vec::with_capacity(n * DIMS * CHOICES), values: Vec::with_capacity(n) };
+        let mut start = 0;
+        while start < n {
+            let end = (start + EVAL_CHUNK).min(n);
+            let f = net.forward(
+                heights_m[start * HEIGHT_MAP_CELLS..end * HEIGHT_MAP_CELLS].to_vec(),
+                states[start * STATE_LEN..end * STATE_LEN].to_vec(),
+                end - start,
+            );
+            out.log_probs.extend(network::to_vec(f.log_probs));
+            out.values.extend(network::to_vec(f.values));
+            start = end;
+        }
+        Ok(out)
+    }
+
+    /// Samples actions for `n` observations: (choices `n * DIMS`, their log-probabilities,
+    /// values).
+    pub fn act(
+        &self,
+        heights_m: &[f32],
+        states: &[f32],
+        n: usize,
+        rng: &mut impl Rng,
+    ) -> Result<(Vec<u8>, Vec<f32>, Vec<f32>), String> {
+        let out = self.evaluate(heights_m, states, n)?;
+        let mut actions = Vec::with_capacity(n * DIMS);
+        let mut log_probs = Vec::with_capacity(n);
+        for i in 0..n {
+            let a = out.sample(i, rng);
+            log_probs.push(out.action_log_prob(i, &a));
+            actions.extend_from_slice(&a);
+        }
+        Ok((actions, log_probs, out.values))
+    }
+
+    /// `config.epochs` passes over `batch` in shuffled minibatches; stops early when the
+    /// approximate KL exceeds `config.target_kl`.
+    pub fn update(&mut self, batch: &Batch, rng: &mut impl Rng) -> Result<UpdateStats, String> {
+        let n = batch.len();
+        let mb = self.config.minibatch_size.min(n);
+        if mb < 2 {
+            return Err(format!("batch of {n} samples is too small for an update"));
+        }
+        let mut order: Vec<usize> = (0..n).collect();
+        let mut sums = UpdateStats::default();
+        let mut last_kl = 0.0;
+        let mut kl_stopped = false;
+        'epochs: for _ in 0..self.config.epochs {
+            order.shuffle(rng);
+            // Drop the ragged tail: every minibatch has the same size and weight.
+            for chunk in order.chunks_exact(mb) {
+                let s = self.minibatch_step(batch, chunk)?;
+                sums.policy_loss += s.policy_loss;
+                sums.value_loss += s.value_loss;
+                sums.entropy += s.entropy;
+                sums.clip_fraction += s.clip_fraction;
+                sums.gradient_steps += 1;
+                last_kl = s.approx_kl;
+                if self.config.target_kl > 0.0 && s.approx_kl > self.config.target_kl {
+                    kl_stopped = true;
+                    break 'epochs;
+                }
+            }
+        }
+        let k = sums.gradient_steps.max(1) as f32;
+        Ok(UpdateStats {
+            policy_loss: sums.policy_loss / k,
+            value_loss: sums.value_loss / k,
+            entropy: sums.entropy / k,
+            approx_kl: last_kl,
+            clip_fraction: sums.clip_fraction / k,
+            gradient_steps: sums.gradient_steps,
+            kl_stopped,
+        })
+    }
+
+    /// Forward, loss, backward, global-norm clip and Adam on the samples `idx` of `batch`.
+    pub fn minibatch_step(&mut self, batch: &Batch, idx: &[usize]) -> Result<UpdateStats, String> {
+        let b = idx.len();
+        let c = &self.config;
+        let mut heights = Vec::with_capacity(b * HEIGHT_MAP_CELLS);
+        let mut states = Vec::with_capacity(b * STATE_LEN);
+        let mut one_hot = vec![0.0f32; b * DIMS * CHOICES];
+        let mut old_lp = Vec::with_capacity(b);
+        let mut adv = Vec::with_capacity(b);
+        let mut ret = Vec::with_capacity(b);
+        for (k, &i) in idx.iter().enumerate() {
+            heights.extend_from_slice(&batch.heights_m[i * HEIGHT_MAP_CELLS..(i + 1) * HEIGHT_MAP_CELLS]);
+            states.extend_from_slice(&batch.states[i * STATE_LEN..(i + 1) * STATE_LEN]);
+            for h in 0..DIMS {
+                one_hot[(k * DIMS + h) * CHOICES + batch.actions[i * DIMS + h] as usize] = 1.0;
+            }
+            old_lp.push(batch.old_log_probs[i]);
+            adv.push(batch.advantages[i]);
+            ret.push(batch.returns[i]);
+        }
+        if c.normalize_advantages {
+            let mean = adv.iter().sum::<f32>() / b as f32;
+            let var = adv.iter().map(|a| (a - mean) * (a - mean)).sum::<f32>() / (b as f32 - 1.0);
+            let std = var.sqrt() + 1e-8;
+            adv.iter_mut().for_each(|a| *a = (*a - mean) / std);
+        }
+        let device = self.device.clone().autodiff();
+        let net = Net::new(&self.net, &device, true)?;
+        let fwd = net.forward(heights, states, b);
+        let data1 = |v: Vec<f32>| Tensor::<1>::from_data(TensorData::new(v, [b]), &device);
+        let one_hot = Tensor::<3>::from_data(TensorData::new(one_hot, [b, DIMS, CHOICES]), &device);
+        let (old_lp, adv, ret) = (data1(old_lp), data1(adv), data1(ret));
+
+        // psi = pi(a|s) / pi_old(a|s), from the sum of the five heads' log-probabilities.
+        let new_lp: Tensor<1> = (fwd.log_probs.clone() * one_hot).sum_dim(2).sum_dim(1).reshape([b]);
+        let log_ratio = new_lp - old_lp;
+        let ratio = log_ratio.clone().exp();
+        // Eq. 1: min(Z(psi) A, psi A); negated because Adam minimises.
+        let unclipped = ratio.clone() * adv.clone();
+        let clipped = ratio.clone().clamp(1.0 - c.clip_epsilon, 1.0 + c.clip_epsilon) * adv;
+        let policy_loss = unclipped.min_pair(clipped).mean().neg();
+        // L_v: squared error of the value against the return target.
+        let value_loss = (fwd.values - ret).square().mean();
+        // Entropy of the factorised distribution: the sum of the heads' entropies.
+        let entropy = (fwd.log_probs.clone().exp() * fwd.log_probs).sum_dim(2).sum_dim(1).mean().neg();
+        let loss = policy_loss.clone().mul_scalar(c.policy_coef)
+            + value_loss.clone().mul_scalar(c.value_coef)
+            - entropy.clone().mul_scalar(c.entropy_coef);
+        let grads = loss.backward();
+        let mut g = net.gradients(&grads);
+
+        // Diagnostics, without gradients: approx KL (Schulman's k3 estimator) and clip fraction.
+        let log_ratio = network::to_vec(log_ratio.detach());
+        let approx_kl = log_ratio.iter().map(|lr| lr.exp() - 1.0 - lr).sum::<f32>() / b as f32;
+        let clip_fraction =
+            log_ratio.iter().filter(|lr| (lr.exp() - 1.0).abs() > c.clip_epsilon).count() as f32 / b as f32;
+        let scalar = |t: Tensor<1>| network::to_vec(t.detach()).first().copied().unwrap_or(f32::NAN);
+        let stats = UpdateStats {
+            policy_loss: scalar(policy_loss),
+            value_loss: scalar(value_loss),
+            entropy: scalar(entropy),
+            approx_kl,
+            clip_fraction,
+            gradient_steps: 1,
+            kl_stopped: false,
+        };
+        if !stats.policy_loss.is_finite() || !stats.value_loss.is_finite() {
+            return Err(format!(
+                "loss became non-finite (policy {}, value {}): lower ppo.learning_rate",
+                stats.policy_loss, stats.value_loss
+            ));
+        }
+        clip_global_norm(&mut g, c.max_grad_norm);
+        self.adam.apply(&mut self.net, &g, c.learning_rate, c.adam_epsilon);
+        Ok(stats)
+    }
+}
+
+/// Scales all gradients together so their joint L2 norm is at most `max_norm` (0: no clip).
+/// Returns the norm before clipping.
+pub fn clip_global_norm(grads: &mut [Vec<f32>], max_norm: f32) -> f32 {
+    let norm = grads.iter().flatten().map(|g| g * g).sum::<f32>().sqrt();
+    if max_norm > 0.0 && norm > max_norm {
+        let scale = max_norm / (norm + 1e-6);
+        grads.iter_mut().flatten().for_each(|g| *g *= scale);
+    }
+    norm
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::network::{init_policy, BackendKind};
+    use crate::network_f32::Architecture;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+
+    #[test]
+    fn global_norm_clipping_scales_jointly() {
+        let mut g = vec![vec![3.0], vec![4.0]];
+        assert_eq!(clip_global_norm(&mut g, 1.0), 5.0);
+        assert!((g[0][0] - 0.6).abs() < 1e-5 && (g[1][0] - 0.8).abs() < 1e-5);
+    }
+
+    #[test]
+    fn sampling_follows_the_probabilities_and_greedy_takes_the_mode() {
+        let lp = |p: [f32; 3]| p.map(f32::ln);
+        let mut log_probs = Vec::new();
+        for _ in 0..DIMS {
+            log_probs.extend(lp([0.1, 0.2, 0.7]));
+        }
+        let out = PolicyOutput { log_probs, values: vec![0.0] };
+        assert_eq!(out.greedy(0), [2; DIMS]);
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let draws = 5000;
+        let twos = (0..draws).filter(|_| out.sample(0, &mut rng)[0] == 2).count();
+        assert!((twos as f32 / draws as f32 - 0.7).abs() < 0.03);
+    }
+
+    #[test]
+    fn an_update_raises_the_probability_of_advantaged_actions() {
+        let arch = Architecture::default_policy();
+        let net = init_policy(&arch, &mut ChaCha8Rng::seed_from_u64(2));
+        let config = PpoConfig { epochs: 8, minibatch_size: 16, target_kl: 0.0, learning_rate: 1e-3, normalize_advantages: false, ..PpoConfig::default() };
+        let mut ppo = Ppo::new(net, config, BackendKind::Flex.device().unwrap()).unwrap();
+        let n = 32;
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let heights: Vec<f32> = (0..n * HEIGHT_MAP_CELLS).map(|_| rng.random_range(0.0..0.1)).collect();
+        let states: Vec<f32> = (0..n * STATE_LEN).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let before = ppo.evaluate(&heights, &states, n).unwrap();
+        // Action "all heads choose 2" is good for every sample.
+        let actions = vec![2u8; n * DIMS];
+        let old: Vec<f32> = (0..n).map(|i| before.action_log_prob(i, &actions[i * DIMS..])).collect();
+        let adv: Vec<f32> = (0..n).map(|i| if i % 2 == 0 { 1.0 } else { 0.5 }).collect();
+        let batch = Batch { heights_m: heights.clone(), states: states.clone(), actions: actions.clone(), old_log_probs: old.clone(), advantages: adv, returns: vec![1.0; n] };
+        let stats = ppo.update(&batch, &mut rng).unwrap();
+        assert_eq!(stats.gradient_steps, 16);
+        let after = ppo.evaluate(&heights, &states, n).unwrap();
+        let gained = (0..n).filter(|&i| after.action_log_prob(i, &actions[i * DIMS..]) > old[i]).count();
+        assert!(gained > n * 3 / 4, "only {gained} of {n} gained");
+    }
+}

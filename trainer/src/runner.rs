@@ -1,0 +1,268 @@
+//! The training loop, top to bottom like the paper's Algorithm 1 for one scene family:
+//! sample trajectories with the current policy in many environments, compute returns and
+//! advantages, update by PPO; log every iteration, checkpoint at an interval.
+//!
+//! Run folder: `config.toml` (the config used), `metrics.jsonl` (one JSON object per
+//! iteration), `checkpoint.ckpt` (latest checkpoint, atomic).
+
+use crate::checkpoint::{Checkpoint, NetworkRecord};
+use crate::config::TrainConfig;
+use crate::network::{init_policy, BackendKind};
+use crate::ppo::{Ppo, UpdateStats};
+use crate::storage::RolloutStorage;
+use crate::vec_env::{EpisodeStats, VecEnv};
+use indicatif::{ProgressBar, ProgressStyle};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
+use wheelleg_sim::env::EnvConfig;
+use wheelleg_sim::generate::SceneKind;
+
+/// Name of the latest checkpoint in a run folder.
+pub const CHECKPOINT_FILE: &str = "checkpoint.ckpt";
+/// Name of the metrics log in a run folder.
+pub const METRICS_FILE: &str = "metrics.jsonl";
+
+/// One iteration's line in `metrics.jsonl`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct IterationMetrics {
+    /// Iteration number, from 1.
+    pub iteration: u64,
+    /// Environment steps taken so far.
+    pub env_steps: u64,
+    /// Episodes finished during the iteration.
+    pub episodes: usize,
+    /// Mean undiscounted return of those episodes.
+    pub mean_return: f32,
+    /// Fraction that reached the target.
+    pub success_rate: f32,
+    /// Fraction that reached the target without any collision.
+    pub collision_free_rate: f32,
+    /// Mean steps of the successful episodes (path length); none without successes.
+    pub mean_success_steps: Option<f32>,
+    /// PPO statistics.
+    pub update: UpdateStats,
+    /// Environment steps per second of the whole iteration (rollout + update).
+    pub steps_per_s: f32,
+    /// Seconds of training so far.
+    pub elapsed_s: f64,
+}
+
+/// Episode outcomes summarised.
+pub fn summarise(episodes: &[EpisodeStats]) -> (f32, f32, f32, Option<f32>) {
+    let n = episodes.len().max(1) as f32;
+    let successes: Vec<&EpisodeStats> = episodes.iter().filter(|e| e.success).collect();
+    let mean_return = episodes.iter().map(|e| e.return_sum).sum::<f32>() / n;
+    let success = successes.len() as f32 / n;
+    let collision_free = successes.iter().filter(|e| e.collisions == 0).count() as f32 / n;
+    let steps = (!successes.is_empty())
+        .then(|| successes.iter().map(|e| e.steps as f32).sum::<f32>() / successes.len() as f32);
+    (mean_return, success, collision_free, steps)
+}
+
+/// Options of a run besides the config.
+#[derive(Clone, Debug)]
+pub struct RunOptions {
+    /// Run folder.
+    pub out: PathBuf,
+    /// Seed of every random choice.
+    pub seed: u64,
+    /// Continue from the folder's checkpoint.
+    pub resume: bool,
+    /// Draw a progress bar.
+    pub progress: bool,
+    /// Stop after this many iterations in this process (tests of resume; `None`: run to the
+    /// budget).
+    pub max_iterations: Option<u64>,
+    /// Label stored in checkpoints.
+    pub kind: String,
+}
+
+/// Where a run ended.
+#[derive(Clone, Debug)]
+pub struct RunSummary {
+    /// Iterations completed in total.
+    pub iterations: u64,
+    /// Environment steps taken in total.
+    pub env_steps: u64,
+    /// The last iteration's metrics.
+    pub last: Option<IterationMetrics>,
+    /// The checkpoint file.
+    pub checkpoint: PathBuf,
+}
+
+/// Trains a policy with PPO on fresh scenes of `config.run.scene_kind`.
+pub fn train(config: &TrainConfig, opts: &RunOptions) -> Result<RunSummary, String> {
+    config.validate()?;
+    let run = &config.run;
+    let kind = SceneKind::from_name(&run.scene_kind).ok_or("bad run.scene_kind")?;
+    let device = BackendKind::from_name(&run.backend)?.device()?;
+    std::fs::create_dir_all(&opts.out).map_err(|e| format!("cannot create {}: {e}", opts.out.display()))?;
+    let ckpt_path = opts.out.join(CHECKPOINT_FILE);
+    let metrics_path = opts.out.join(METRICS_FILE);
+    let env_config = EnvConfig { max_steps: run.max_episode_steps, ..EnvConfig::default() };
+    let steps_per_env = config.steps_per_env();
+    let n = run.num_envs;
+
+    // Every random choice derives from the seed: network init, scene streams, action sampling
+    // and minibatch shuffles.
+    let mut sampler = ChaCha8Rng::seed_from_u64(opts.seed);
+    sampler.set_stream(1);
+    let mut init_rng = ChaCha8Rng::seed_from_u64(opts.seed);
+    init_rng.set_stream(2);
+    let env_seed = opts.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15).wrapping_add(3);
+    let mut envs = VecEnv::new(kind, n, env_seed, env_config, run.threads)?;
+    let mut ppo = Ppo::new(init_policy(&config.architecture(), &mut init_rng), config.ppo.clone(), device)?;
+    let (mut iteration, mut env_steps, mut elapsed_before) = (0u64, 0u64, 0.0f64);
+
+    if opts.resume {
+        let c = Checkpoint::load(&ckpt_path)?;
+        if c.config_toml != config.to_toml() {
+            return Err(format!(
+                "{} was written with a different config; resume with the run's own {}",
+                ckpt_path.display(),
+                opts.out.join("config.toml").display()
+            ));
+        }
+        if c.seed != opts.seed {
+            return Err(format!("{} belongs to seed {}, not {}", ckpt_path.display(), c.seed, opts.seed));
+        }
+        ppo.net = c.network.to_network()?;
+        ppo.adam = c.adam;
+        sampler.set_word_pos(c.sampler_word_pos);
+        envs.restore(env_seed, &c.envs)?;
+        (iteration, env_steps, elapsed_before) = (c.iteration, c.env_steps, c.elapsed_s);
+        truncate_metrics(&metrics_path, iteration)?;
+    } else {
+        if ckpt_path.exists() {
+            return Err(format!(
+                "{} already holds a run; pass --resume to continue it or choose another --out",
+                opts.out.display()
+            ));
+        }
+        crate::export::write_atomic(&opts.out.join("config.toml"), config.to_toml().as_bytes())
+            .map_err(|e| format!("cannot write config.toml: {e}"))?;
+        let _ = std::fs::remove_file(&metrics_path);
+    }
+
+    let bar = if opts.progress { ProgressBar::new(run.total_env_steps) } else { ProgressBar::hidden() };
+    bar.set_style(
+        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {human_pos}/{human_len} steps, ETA {eta} | {msg}")
+            .map_err(|e| e.to_string())?
+            .progress_chars("=> "),
+    );
+    bar.set_position(env_steps);
+
+    let mut storage = RolloutStorage::new(n, steps_per_env);
+    let mut heights = vec![0.0f32; n * HEIGHT_MAP_CELLS];
+    let mut states = vec![0.0f32; n * STATE_LEN];
+    envs.observe(&mut heights, &mut states);
+    let start = Instant::now();
+    let mut last = None;
+    let mut iterations_here = 0;
+    while env_steps < run.total_env_steps && opts.max_iterations.is_none_or(|m| iterations_here < m) {
+        let iter_start = Instant::now();
+        // 1. Sample trajectories with the current policy.
+        storage.clear();
+        let mut episodes = Vec::new();
+        for _ in 0..steps_per_env {
+            let (actions, log_probs, values) = ppo.act(&heights, &states, n, &mut sampler)?;
+            let (obs_h, obs_s) = (heights.clone(), states.clone());
+            let results = envs.step(&actions, &mut heights, &mut states);
+            let rewards: Vec<f32> = results.iter().map(|r| r.reward).collect();
+            let dones: Vec<bool> = results.iter().map(|r| r.done).collect();
+            episodes.extend(results.iter().filter_map(|r| r.episode));
+            storage.push_step(&obs_h, &obs_s, &actions, &log_probs, &values, &rewards, &dones);
+        }
+        // 2. Returns and advantages (GAE), bootstrapped with the value of where each env stands.
+        let last_values = ppo.evaluate(&heights, &states, n)?.values;
+        storage.compute_returns(&last_values, config.ppo.gamma, config.ppo.gae_lambda);
+        // 3. PPO update.
+        let update = ppo.update(&storage.samples, &mut sampler)?;
+
+        iteration += 1;
+        iterations_here += 1;
+        env_steps += (n * steps_per_env) as u64;
+        let elapsed_s = elapsed_before + start.elapsed().as_secs_f64();
+        let (mean_return, success_rate, collision_free_rate, mean_success_steps) = summarise(&episodes);
+        let m = IterationMetrics {
+            iteration,
+            env_steps,
+            episodes: episodes.len(),
+            mean_return,
+            success_rate,
+            collision_free_rate,
+            mean_success_steps,
+            update,
+            steps_per_s: (n * steps_per_env) as f32 / iter_start.elapsed().as_secs_f32(),
+            elapsed_s,
+        };
+        append_metrics(&metrics_path, &m)?;
+        bar.set_position(env_steps.min(run.total_env_steps));
+        bar.set_message(format!(
+            "it {iteration} success {:.0}% coll-free {:.0}% return {:.2} {:.0} steps/s",
+            100.0 * success_rate,
+            100.0 * collision_free_rate,
+            mean_return,
+            m.steps_per_s
+        ));
+        last = Some(m);
+        let finished = env_steps >= run.total_env_steps || opts.max_iterations.is_some_and(|mx| iterations_here >= mx);
+        if iteration % run.checkpoint_interval as u64 == 0 || finished {
+            Checkpoint {
+                kind: opts.kind.clone(),
+                config_toml: config.to_toml(),
+                seed: opts.seed,
+                iteration,
+                env_steps,
+                network: NetworkRecord::from_network(&ppo.net),
+                adam: ppo.adam.clone(),
+                sampler_word_pos: sampler.get_word_pos(),
+                envs: envs.snapshot(),
+                elapsed_s,
+            }
+            .save(&ckpt_path)?;
+        }
+    }
+    bar.finish();
+    Ok(RunSummary { iterations: iteration, env_steps, last, checkpoint: ckpt_path })
+}
+
+fn append_metrics(path: &Path, m: &IterationMetrics) -> Result<(), String> {
+    let line = serde_json::to_string(m).map_err(|e| e.to_string())?;
+    let mut f = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(path)
+        .map_err(|e| format!("cannot open {}: {e}", path.display()))?;
+    writeln!(f, "{line}").map_err(|e| format!("cannot write {}: {e}", path.display()))
+}
+
+/// Drops metric lines after `iteration` (written after the checkpoint a resume starts from), so
+/// the log has each iteration exactly once.
+fn truncate_metrics(path: &Path, iteration: u64) -> Result<(), String> {
+    let Ok(text) = std::fs::read_to_string(path) else {
+        return Ok(());
+    };
+    let kept: String = text
+        .lines()
+        .filter(|l| serde_json::from_str::<IterationMetrics>(l).is_ok_and(|m| m.iteration <= iteration))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    crate::export::write_atomic(path, kept.as_bytes()).map_err(|e| format!("cannot rewrite {}: {e}", path.display()))
+}
+
+/// Reads a run's metrics (for plots).
+pub fn read_metrics(run: &Path) -> Result<Vec<IterationMetrics>, String> {
+    let path = run.join(METRICS_FILE);
+    let text = std::fs::read_to_string(&path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    text.lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+        .map(|(i, l)| serde_json::from_str(l).map_err(|e| format!("{} line {}: {e}", path.display(), i + 1)))
+        .collect()
+}

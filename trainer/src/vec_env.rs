@@ -1,0 +1,267 @@
+//! Many simulator episodes stepped in lock-step, so the policy runs once per step on all of
+//! them (batched inference), with the environments spread over worker threads.
+//!
+//! Determinism: every environment owns its scene generator (ChaCha8, the run's seed on stream
+//! = env index) and its slot in the output buffers; threads only split the slice of envs, so
+//! the result does not depend on thread count or scheduling.
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use wheelleg_runtime::action::{Action, DIMS};
+use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
+use wheelleg_sim::env::{Env, EnvConfig, Observation, Status};
+use wheelleg_sim::generate::{generate, SceneKind};
+use wheelleg_sim::scenario::Scenario;
+
+/// How a finished episode went.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EpisodeStats {
+    /// Undiscounted sum of rewards.
+    pub return_sum: f32,
+    /// Steps taken.
+    pub steps: u32,
+    /// Reached the target.
+    pub success: bool,
+    /// Collisions (undone actions that would have hit an obstacle).
+    pub collisions: u32,
+}
+
+/// One environment: its episode, the scene generator and the episode's actions so far (a
+/// checkpoint restores an unfinished episode by replaying them; the simulator is exact).
+#[derive(Clone, Debug)]
+pub struct EnvSlot {
+    env: Env,
+    scenario: Scenario,
+    scene_rng: ChaCha8Rng,
+    episode_return: f32,
+    actions: Vec<u8>,
+    episodes_started: u64,
+}
+
+/// What one environment's step returned.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepResult {
+    /// The reward.
+    pub reward: f32,
+    /// Whether the episode ended (the env has already started the next one).
+    pub done: bool,
+    /// The finished episode, when `done`.
+    pub episode: Option<EpisodeStats>,
+}
+
+/// Where an environment stands, for checkpoints.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct EnvSnapshot {
+    /// The scene generator's position (ChaCha word position).
+    pub scene_rng_word_pos: u128,
+    /// The current scenario as scenario-file JSON.
+    pub scenario_json: String,
+    /// Actions of the unfinished episode (action indices).
+    pub actions: Vec<u8>,
+    /// Episodes started so far (names new scenes).
+    pub episodes_started: u64,
+}
+
+/// Lock-step environments on fresh scenes of one kind.
+pub struct VecEnv {
+    slots: Vec<EnvSlot>,
+    kind: SceneKind,
+    config: EnvConfig,
+    threads: usize,
+}
+
+fn new_scene(kind: SceneKind, rng: &mut ChaCha8Rng, env: usize, episode: u64) -> Scenario {
+    generate(kind, rng, format!("{}-e{env}-{episode}", kind.name()))
+}
+
+impl EnvSlot {
+    fn start(scenario: Scenario, config: EnvConfig, scene_rng: ChaCha8Rng, episodes_started: u64) -> Result<EnvSlot, String> {
+        let env = Env::new(&scenario, config).map_err(|e| format!("scenario {}: {e:?}", scenario.name))?;
+        Ok(EnvSlot { env, scenario, scene_rng, episode_return: 0.0, actions: Vec::new(), episodes_started })
+    }
+
+    fn step(&mut self, choices: &[u8], kind: SceneKind, config: EnvConfig, index: usize) -> StepResult {
+        let indices = std::array::from_fn(|h| choices[h] as usize);
+        // Choices come from the policy's 3-way heads, so they are always in range.
+        let action = Action::from_head_indices(indices).unwrap_or_default();
+        let Ok(outcome) = self.env.step(action) else {
+            // Cannot happen: finished episodes are replaced at once below.
+            return StepResult { reward: 0.0, done: true, episode: None };
+        };
+        let reward = outcome.reward.total();
+        self.episode_return += reward;
+        self.actions.push(action.index() as u8);
+        if !outcome.status.is_done() {
+            return StepResult { reward, done: false, episode: None };
+        }
+        let episode = EpisodeStats {
+            return_sum: self.episode_return,
+            steps: self.env.steps(),
+            success: outcome.status == Status::Success,
+            collisions: self.env.collisions(),
+        };
+        self.reset(kind, config, index);
+        StepResult { reward, done: true, episode: Some(episode) }
+    }
+
+    fn reset(&mut self, kind: SceneKind, config: EnvConfig, index: usize) {
+        // Generated scenes are valid by construction; retry on the (unexpected) invalid one.
+        loop {
+            self.episodes_started += 1;
+            let scenario = new_scene(kind, &mut self.scene_rng, index, self.episodes_started);
+            if let Ok(env) = Env::new(&scenario, config) {
+                self.env = env;
+                self.scenario = scenario;
+                self.episode_return = 0.0;
+                self.actions.clear();
+                return;
+            }
+        }
+    }
+}
+
+impl VecEnv {
+    /// `num_envs` environments on fresh `kind` scenes; env `i` draws its scenes from ChaCha8
+    /// seeded with `seed` on stream `i`.
+    pub fn new(kind: SceneKind, num_envs: usize, seed: u64, config: EnvConfig, threads: usize) -> Result<VecEnv, String> {
+        let slots = (0..num_envs)
+            .map(|i| {
+                let mut rng = ChaCha8Rng::seed_from_u64(seed);
+                rng.set_stream(i as u64);
+                let scenario = new_scene(kind, &mut rng, i, 0);
+                EnvSlot::start(scenario, config, rng, 0)
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(VecEnv { slots, kind, config, threads: threads.max(1) })
+    }
+
+    /// Number of environments.
+    pub fn len(&self) -> usize {
+        self.slots.len()
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.slots.is_empty()
+    }
+
+    /// Writes every env's observation: `len * HEIGHT_MAP_CELLS` heights, `len * STATE_LEN` states.
+    pub fn observe(&self, heights_m: &mut [f32], states: &mut [f32]) {
+        let chunk = self.slots.len().div_ceil(self.threads);
+        std::thread::scope(|scope| {
+            for ((slots, h), s) in self
+                .slots
+                .chunks(chunk)
+                .zip(heights_m.chunks_mut(chunk * HEIGHT_MAP_CELLS))
+                .zip(states.chunks_mut(chunk * STATE_LEN))
+            {
+                scope.spawn(move || observe_slots(slots, h, s));
+            }
+        });
+    }
+
+    /// Steps every env with its `DIMS` choices (`len * DIMS`), restarting finished episodes on
+    /// fresh scenes, then writes the new observations.
+    pub fn step(&mut self, choices: &[u8], heights_m: &mut [f32], states: &mut [f32]) -> Vec<StepResult> {
+        let chunk = self.slots.len().div_ceil(self.threads);
+        let (kind, config) = (self.kind, self.config);
+        let mut results = vec![StepResult { reward: 0.0, done: false, episode: None }; self.slots.len()];
+        std::thread::scope(|scope| {
+            for (k, (((slots, r), h), s)) in self
+                .slots
+                .chunks_mut(chunk)
+                .zip(results.chunks_mut(chunk))
+                .zip(heights_m.chunks_mut(chunk * HEIGHT_MAP_CELLS))
+                .zip(states.chunks_mut(chunk * STATE_LEN))
+                .enumerate()
+            {
+                let choices = &choices[k * chunk * DIMS..];
+                scope.spawn(move || {
+                    for (j, (slot, r)) in slots.iter_mut().zip(r.iter_mut()).enumerate() {
+                        *r = slot.step(&choices[j * DIMS..(j + 1) * DIMS], kind, config, k * chunk + j);
+                    }
+                    observe_slots(slots, h, s);
+                });
+            }
+        });
+        results
+    }
+
+    /// Snapshots of every env (for checkpoints).
+    pub fn snapshot(&self) -> Vec<EnvSnapshot> {
+        self.slots
+            .iter()
+            .map(|s| EnvSnapshot {
+                scene_rng_word_pos: s.scene_rng.get_word_pos(),
+                scenario_json: wheelleg_sim::scenario_file::to_json(std::slice::from_ref(&s.scenario)),
+                actions: s.actions.clone(),
+                episodes_started: s.episodes_started,
+            })
+            .collect()
+    }
+
+    /// Rebuilds the envs of a snapshot taken with the same `kind`, `seed` and config, replaying
+    /// each unfinished episode's actions.
+    pub fn restore(&mut self, seed: u64, snapshots: &[EnvSnapshot]) -> Result<(), String> {
+        if snapshots.len() != self.slots.len() {
+            return Err(format!("checkpoint has {} environments, config has {}", snapshots.len(), self.slots.len()));
+        }
+        for (i, (slot, snap)) in self.slots.iter_mut().zip(snapshots).enumerate() {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            rng.set_stream(i as u64);
+            rng.set_word_pos(snap.scene_rng_word_pos);
+            let scenarios = wheelleg_sim::scenario_file::parse(&snap.scenario_json, &wheelleg_runtime::robot::WHEELLEG)
+                .map_err(|e| format!("checkpoint env {i}: {e}"))?;
+            let scenario = scenarios.into_iter().next().ok_or_else(|| format!("checkpoint env {i}: no scenario"))?;
+            let mut restored = EnvSlot::start(scenario, self.config, rng, snap.episodes_started)?;
+            for &a in &snap.actions {
+                let action = Action::from_index(a as usize).ok_or_else(|| format!("checkpoint env {i}: bad action {a}"))?;
+                let outcome = restored.env.step(action).map_err(|_| format!("checkpoint env {i}: replay ran past the episode end"))?;
+                restored.episode_return += outcome.reward.total();
+                restored.actions.push(a);
+            }
+            *slot = restored;
+        }
+        Ok(())
+    }
+}
+
+fn observe_slots(slots: &[EnvSlot], heights_m: &mut [f32], states: &mut [f32]) {
+    let mut obs = Observation::default();
+    for ((slot, h), s) in slots.iter().zip(heights_m.chunks_mut(HEIGHT_MAP_CELLS)).zip(states.chunks_mut(STATE_LEN)) {
+        slot.env.observe(&mut obs);
+        h.copy_from_slice(&obs.height_map);
+        s.copy_from_slice(&obs.state);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use wheelleg_sim::generate::Behaviour;
+
+    fn run(threads: usize, steps: usize, restore_at: Option<usize>) -> (Vec<f32>, Vec<f32>) {
+        let kind = SceneKind::Behaviour(Behaviour::Around);
+        let n = 5;
+        let mut v = VecEnv::new(kind, n, 9, EnvConfig::default(), threads).unwrap();
+        let (mut h, mut s) = (vec![0.0; n * HEIGHT_MAP_CELLS], vec![0.0; n * STATE_LEN]);
+        let mut rewards = Vec::new();
+        for t in 0..steps {
+            if restore_at == Some(t) {
+                let snap = v.snapshot();
+                v = VecEnv::new(kind, n, 9, EnvConfig::default(), threads).unwrap();
+                v.restore(9, &snap).unwrap();
+            }
+            let choices: Vec<u8> = (0..n * DIMS).map(|k| ((k * 7 + t * 3) % 3) as u8).collect();
+            rewards.extend(v.step(&choices, &mut h, &mut s).iter().map(|r| r.reward));
+        }
+        (rewards, s)
+    }
+
+    #[test]
+    fn thread_count_and_restores_do_not_change_results() {
+        let one = run(1, 150, None);
+        assert_eq!(one, run(2, 150, None));
+        assert_eq!(one, run(2, 150, Some(77)));
+    }
+}
