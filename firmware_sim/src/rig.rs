@@ -19,6 +19,7 @@ use nalgebra::Isometry2;
 use std::io::Write;
 use wheelleg_runtime::action::Action;
 use wheelleg_runtime::base::{BaseError, MecanumBase, Odometry};
+use wheelleg_runtime::can::bus_load::frame_bits;
 use wheelleg_runtime::can::host::{CanError, Commander, FeedbackTracker, Health, TxQueue};
 use wheelleg_runtime::can::node_map::{Axis, NodeMap};
 use wheelleg_runtime::can::protocol::AxisState;
@@ -149,6 +150,45 @@ impl StepReport {
     }
 }
 
+/// Traffic the controller put on or heard from the bus since the rig was made: every frame of
+/// the robot's bus passes the controller, so this is the bus's whole traffic.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct TrafficCounts {
+    /// Frames sent and received.
+    pub frames: u64,
+    /// Their bits on the wire without stuff bits (including intermission).
+    pub bits_nominal: u64,
+    /// Their bits on the wire with worst-case stuffing.
+    pub bits_worst_case: u64,
+}
+
+impl TrafficCounts {
+    fn count(&mut self, frame: &CanFrame) {
+        use embedded_can::Frame;
+        // A remote frame carries a DLC but no data bits.
+        let data_len = if frame.is_remote_frame() {
+            0
+        } else {
+            frame.data().len() as u8
+        };
+        let bits = frame_bits(data_len);
+        self.frames += 1;
+        self.bits_nominal += u64::from(bits.nominal);
+        self.bits_worst_case += u64::from(bits.worst_case);
+    }
+}
+
+/// Measured bus load: traffic over elapsed time, as a fraction of the bus's capacity.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MeasuredBusLoad {
+    /// Frames per second.
+    pub frames_per_s: f64,
+    /// Fraction of capacity used, without stuff bits.
+    pub nominal: f64,
+    /// Fraction of capacity used, with worst-case stuffing.
+    pub worst_case: f64,
+}
+
 /// The controller and, on an in-process bus, the simulated motors, stepped together.
 pub struct Rig {
     geometry: RobotGeometry,
@@ -170,6 +210,7 @@ pub struct Rig {
     stopped: Option<StopReason>,
     commands_paused: bool,
     log: Option<CandumpWriter<Box<dyn Write>>>,
+    traffic: TrafficCounts,
 }
 
 impl Rig {
@@ -199,6 +240,7 @@ impl Rig {
             stopped: None,
             commands_paused: false,
             log: None,
+            traffic: TrafficCounts::default(),
         })
     }
 
@@ -229,6 +271,7 @@ impl Rig {
             stopped: None,
             commands_paused: false,
             log: None,
+            traffic: TrafficCounts::default(),
         })
     }
 
@@ -280,6 +323,26 @@ impl Rig {
         self.legs
     }
 
+    /// Everything on the bus so far.
+    pub fn traffic(&self) -> TrafficCounts {
+        self.traffic
+    }
+
+    /// The bus load measured since the rig was made, at `bitrate_bps` (1 Mbit/s for this
+    /// robot); `None` before any time has passed.
+    pub fn bus_load(&self, bitrate_bps: f64) -> Option<MeasuredBusLoad> {
+        if self.now_us == 0 || bitrate_bps <= 0.0 {
+            return None;
+        }
+        let elapsed_s = self.now_us as f64 * 1e-6;
+        let capacity_bits = bitrate_bps * elapsed_s;
+        Some(MeasuredBusLoad {
+            frames_per_s: self.traffic.frames as f64 / elapsed_s,
+            nominal: self.traffic.bits_nominal as f64 / capacity_bits,
+            worst_case: self.traffic.bits_worst_case as f64 / capacity_bits,
+        })
+    }
+
     /// Why the controller stopped the robot, if it did.
     pub fn stopped(&self) -> Option<StopReason> {
         self.stopped
@@ -324,6 +387,7 @@ impl Rig {
             if let Some(log) = &mut self.log {
                 log.log(self.now_us, &frame)?;
             }
+            self.traffic.count(&frame);
             self.tracker.receive(&frame, self.now_us);
         }
         if let (Some(wheels), Some(legs)) = (
@@ -355,6 +419,7 @@ impl Rig {
                 if let Some(log) = &mut self.log {
                     log.log(self.now_us, &frame)?;
                 }
+                self.traffic.count(&frame);
                 self.host.send(&frame, self.now_us)?;
             }
         }
@@ -421,7 +486,19 @@ impl Rig {
     /// Executes one decision: its setpoint stream, then `settle_s` of holding the target.
     pub fn step(&mut self, action: Action) -> Result<StepReport, RigError> {
         let motion = StepMotion::plan(&self.geometry, &self.config.motion, self.legs, action)?;
-        let (ideal_pose, ideal_legs) = ideal_step(self.legs, action);
+        debug_assert_eq!(
+            (motion.displacement().isometry(), motion.target()),
+            ideal_step(self.legs, action)
+        );
+        self.execute(motion)
+    }
+
+    /// Executes any planned motion (a lattice step, or a move off the lattice such as backing
+    /// out of a step the world refused), then `settle_s` of holding its target. The motion
+    /// should start from [`Rig::legs`]; the legs it ends at become the commanded ones.
+    pub fn execute(&mut self, motion: StepMotion) -> Result<StepReport, RigError> {
+        let ideal_pose = motion.displacement().isometry();
+        let ideal_legs = motion.target();
         let start_pose = self.odometry.pose;
         for setpoint in motion {
             self.control_tick(&setpoint, true)?;
@@ -442,6 +519,11 @@ impl Rig {
             achieved_legs,
             stopped: self.stopped,
         })
+    }
+
+    /// Motion settings (control rate, step duration, limits).
+    pub fn motion_config(&self) -> &MotionConfig {
+        &self.config.motion
     }
 }
 

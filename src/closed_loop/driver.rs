@@ -1,0 +1,151 @@
+//! Who decides the next action: the int8 policy from a weights file, or the exact planner.
+//!
+//! Both look at the same world ([`Env`]) and answer with one lattice [`Action`] per decision,
+//! so the closed loop cannot tell them apart. The policy sees exactly what it would see on the
+//! robot: the height map and state in millimetres, the integer units of the runtime's model.
+
+use std::collections::VecDeque;
+use std::fmt;
+use wheelleg_runtime::action::Action;
+use wheelleg_runtime::model::DefaultPolicy;
+use wheelleg_runtime::observation::{HEIGHT_MAP_SIDE, STATE_LEN};
+use wheelleg_sim::env::{Env, Observation};
+use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig};
+
+/// A decision maker of the closed loop.
+pub trait Driver {
+    /// What is driving, for the user (for example "exact planner (21 steps, shortest)").
+    fn describe(&self) -> String;
+    /// The next action in the world as it is now.
+    fn decide(&mut self, env: &Env) -> Result<Action, DriverError>;
+}
+
+/// Why a driver cannot decide.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct DriverError(pub String);
+
+impl fmt::Display for DriverError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for DriverError {}
+
+/// Replays the exact planner's action sequence, planned once from the episode's start.
+///
+/// Replaying open-loop is sound here because the closed loop keeps the world on the lattice
+/// states the planner searched (see the module docs of [`crate::closed_loop`]); if the world
+/// ever left them, the loop reports a tracking fault before this driver is asked again.
+#[derive(Clone, Debug)]
+pub struct PlannerDriver {
+    actions: VecDeque<Action>,
+    planned_steps: usize,
+    shortest: bool,
+}
+
+impl PlannerDriver {
+    /// Plans from `env`'s current state; an error when the planner finds no plan.
+    pub fn new(env: &Env, config: &PlannerConfig) -> Result<PlannerDriver, DriverError> {
+        match plan(env, config).outcome {
+            PlanOutcome::Solved { actions, shortest } => Ok(PlannerDriver {
+                planned_steps: actions.len(),
+                actions: actions.into(),
+                shortest,
+            }),
+            PlanOutcome::Unsolvable => Err(DriverError(
+                "the planner proved the scene unsolvable within the episode rules".to_owned(),
+            )),
+            PlanOutcome::BudgetExceeded => Err(DriverError(format!(
+                "the planner found no plan within {} expansions",
+                config.max_expansions
+            ))),
+        }
+    }
+
+    /// Length of the plan.
+    pub fn planned_steps(&self) -> usize {
+        self.planned_steps
+    }
+
+    /// Whether the plan is proven shortest.
+    pub fn shortest(&self) -> bool {
+        self.shortest
+    }
+}
+
+impl Driver for PlannerDriver {
+    fn describe(&self) -> String {
+        format!(
+            "exact planner's action sequence ({} steps{})",
+            self.planned_steps,
+            if self.shortest { ", shortest" } else { "" }
+        )
+    }
+
+    fn decide(&mut self, _env: &Env) -> Result<Action, DriverError> {
+        self.actions.pop_front().ok_or_else(|| {
+            DriverError("the planner's action sequence ended before the episode did".to_owned())
+        })
+    }
+}
+
+/// The robot's int8 policy, run by the runtime's integer inference on the world's observation.
+#[derive(Clone, Debug)]
+pub struct PolicyDriver<'a> {
+    policy: DefaultPolicy<'a>,
+    label: String,
+    observation: Observation,
+}
+
+impl<'a> PolicyDriver<'a> {
+    /// Loads a `.wlw` weights file's bytes; `label` names the file in messages.
+    pub fn from_bytes(bytes: &'a [u8], label: &str) -> Result<PolicyDriver<'a>, DriverError> {
+        let policy = DefaultPolicy::from_bytes(bytes)
+            .map_err(|e| DriverError(format!("{label}: not a usable policy weights file: {e}")))?;
+        Ok(PolicyDriver {
+            policy,
+            label: label.to_owned(),
+            observation: Observation::default(),
+        })
+    }
+}
+
+impl Driver for PolicyDriver<'_> {
+    fn describe(&self) -> String {
+        format!(
+            "int8 policy {} ({:?} kernel)",
+            self.label,
+            self.policy.kernel()
+        )
+    }
+
+    fn decide(&mut self, env: &Env) -> Result<Action, DriverError> {
+        env.observe(&mut self.observation);
+        let (height_mm, state_mm) = observation_mm(&self.observation);
+        self.policy
+            .act(&height_mm, &state_mm)
+            .map_err(|e| DriverError(format!("{}: inference failed: {e}", self.label)))
+    }
+}
+
+/// The observation in the runtime model's input units: heights in millimetres (i16, row = robot
+/// x ahead first, column = robot y left first, as the simulator renders it) and the state
+/// (clearance, track, target x, target y) in millimetres. Rounded half away from zero, like the
+/// trainer's `quantize::observation_mm`, so the robot sees what calibration saw; `as` saturates,
+/// so an absurd height cannot wrap around.
+pub fn observation_mm(
+    observation: &Observation,
+) -> ([[i16; HEIGHT_MAP_SIDE]; HEIGHT_MAP_SIDE], [i32; STATE_LEN]) {
+    let mut height_mm = [[0i16; HEIGHT_MAP_SIDE]; HEIGHT_MAP_SIDE];
+    for (row_mm, row_m) in height_mm
+        .iter_mut()
+        .zip(observation.height_map.chunks_exact(HEIGHT_MAP_SIDE))
+    {
+        for (mm, m) in row_mm.iter_mut().zip(row_m) {
+            *mm = (m * 1000.0).round() as i16;
+        }
+    }
+    let state_mm = observation.state.map(|m| (m * 1000.0).round() as i32);
+    (height_mm, state_mm)
+}

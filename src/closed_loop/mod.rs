@@ -1,0 +1,595 @@
+//! The whole system in one loop (issue 6, "The closed loop"):
+//!
+//! ```text
+//! world (Env) -> height map + state -> driver (int8 policy or planner) -> Action
+//!   -> runtime: setpoint stream -> ODrive CANSimple frames -> bus
+//!   -> firmware_sim: 16 simulated axes -> encoder estimates -> bus
+//!   -> runtime: measured joint angles (forward kinematics) and wheel speeds (odometry)
+//!   -> achieved pose -> the world moves -> next height map
+//! ```
+//!
+//! Why this lives in the root crate and not in `firmware_sim`: `firmware_sim` stands for the
+//! motor controllers and knows nothing of obstacles or policies; this loop joins the world
+//! simulator, the planner and the policy to the motors, so it belongs to the one crate that
+//! depends on all of them, where both `wheelleg demo` and the whole-system tests reach it.
+//!
+//! # From measured motion back to the world's lattice state
+//!
+//! The world ([`Env`]) keeps the robot on the action lattice (yaw, clearance and track in whole
+//! steps). After each decision the rig reports the achieved pose change (odometry from the
+//! measured wheel speeds) and leg configuration (forward kinematics of the measured joint
+//! angles), both relative to the step's start. The rule:
+//!
+//! - **within [`Tolerance`] of the ideal step** (2 mm, 0.2°, 0.5 mm by default, the tolerances
+//!   of `firmware_sim/tests/closed_loop.rs`): the world *snaps* to the lattice state the action
+//!   leads to. The residual is what the robot's localisation would correct; it is reported per
+//!   step and as the odometry drift over the episode, never silently accumulated in the world.
+//! - **outside tolerance**: a [`Fault::OffTolerance`]; the loop holds the robot (wheels
+//!   stopped, legs at their commanded configuration) and stops, because the world could no
+//!   longer say where the robot is.
+//! - **the controller stopped the robot** (a silent node, an axis error): [`Fault::SafeStop`];
+//!   the rig is already in safe stop (wheels to zero, joints held where measured) and stays so.
+//!
+//! # Collisions and other refused actions
+//!
+//! The simulator judges every executed step at the snapped pose (and its half-way pose), with
+//! the same rules as training. When it refuses the step (collision, leaving the arena), its rule
+//! is that the action is undone; the robot mirrors that physically by backing out along the
+//! exact inverse motion ([`StepKind::Undone`]), also checked against tolerance. An action
+//! whose legs the runtime cannot reach is never sent to the motors ([`StepKind::Refused`]);
+//! the simulator must agree it is impossible, else [`Fault::KinematicsDisagree`].
+
+pub mod driver;
+pub mod success;
+
+use nalgebra::{Isometry2, Vector2};
+use std::fmt;
+use std::io::Write;
+use wheelleg_firmware_sim::bus::Transport;
+use wheelleg_firmware_sim::candump::CandumpWriter;
+use wheelleg_firmware_sim::rig::{
+    MeasuredBusLoad, Rig, RigConfig, RigError, StepReport, StopReason, TrafficCounts,
+};
+use wheelleg_runtime::action::Action;
+use wheelleg_runtime::can::host::{AxisSet, BusStats};
+use wheelleg_runtime::can::node_map::Axis;
+use wheelleg_runtime::motion::{BaseDisplacement, MotionError, StepMotion};
+use wheelleg_runtime::robot::RobotGeometry;
+use wheelleg_sim::env::{Env, EnvConfig, EpisodeOver, Status, StepOutcome};
+use wheelleg_sim::scenario::{Scenario, ScenarioError};
+use wheelleg_sim::state::RobotState;
+
+pub use driver::{Driver, DriverError, PlannerDriver, PolicyDriver};
+
+/// The robot's CAN bit rate.
+pub const BITRATE_BPS: f64 = 1_000_000.0;
+
+/// How far an achieved step may be from the ideal one before the world refuses to follow.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Tolerance {
+    /// Distance between ideal and achieved body position.
+    pub position_m: f32,
+    /// Angle between ideal and achieved heading.
+    pub yaw_rad: f32,
+    /// Largest difference in clearance or track.
+    pub legs_m: f32,
+}
+
+impl Default for Tolerance {
+    /// 2 mm, 0.2°, 0.5 mm: the tolerances `firmware_sim/tests/closed_loop.rs` proves for one
+    /// step on a clean bus (docs/can-protocol.md, "Tolerances of the closed loop"). The lattice
+    /// is 50 mm and 5°, so a snap within them can never pick the wrong lattice state.
+    fn default() -> Self {
+        Tolerance {
+            position_m: 0.002,
+            yaw_rad: 0.2f32.to_radians(),
+            legs_m: 0.0005,
+        }
+    }
+}
+
+/// Settings of the closed loop.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct LoopConfig {
+    /// Motors, bus, control rate, safety timeouts, fault injection.
+    pub rig: RigConfig,
+    /// Episode rules of the world.
+    pub env: EnvConfig,
+    /// How closely an achieved step must match the ideal one.
+    pub tolerance: Tolerance,
+}
+
+/// Errors of one achieved step against its ideal.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct StepError {
+    /// Position error.
+    pub position_m: f32,
+    /// Heading error.
+    pub yaw_rad: f32,
+    /// Largest clearance or track error.
+    pub legs_m: f32,
+}
+
+impl StepError {
+    /// Errors of a rig report.
+    pub fn of(report: &StepReport) -> StepError {
+        StepError {
+            position_m: report.position_error_m(),
+            yaw_rad: report.yaw_error_rad(),
+            legs_m: (report.achieved_legs.clearance_m - report.ideal_legs.clearance_m)
+                .abs()
+                .max((report.achieved_legs.track_m - report.ideal_legs.track_m).abs()),
+        }
+    }
+
+    /// Whether every error is within `tolerance`.
+    pub fn within(&self, tolerance: &Tolerance) -> bool {
+        self.position_m <= tolerance.position_m
+            && self.yaw_rad <= tolerance.yaw_rad
+            && self.legs_m <= tolerance.legs_m
+    }
+
+    fn max(self, other: StepError) -> StepError {
+        StepError {
+            position_m: self.position_m.max(other.position_m),
+            yaw_rad: self.yaw_rad.max(other.yaw_rad),
+            legs_m: self.legs_m.max(other.legs_m),
+        }
+    }
+}
+
+/// Why the loop stopped the robot before the episode ended.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Fault {
+    /// The controller put the robot in safe stop (wheels stopped, legs held).
+    SafeStop {
+        /// Decision index (0-based) during which it happened.
+        step: u32,
+        /// What the controller saw.
+        reason: StopReason,
+    },
+    /// A step (or the move backing out of one) ended too far from its ideal.
+    OffTolerance {
+        /// Decision index (0-based).
+        step: u32,
+        /// The errors measured.
+        error: StepError,
+    },
+    /// The runtime could not reach an action's legs that the simulator accepts.
+    KinematicsDisagree {
+        /// Decision index (0-based).
+        step: u32,
+        /// The action.
+        action: Action,
+    },
+}
+
+fn describe_axes(set: AxisSet) -> String {
+    set.iter()
+        .map(|axis: Axis| format!("node {} ({axis:?})", axis.node_id().get()))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+impl fmt::Display for Fault {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Fault::SafeStop {
+                step,
+                reason: StopReason::Silent(set),
+            } => write!(
+                f,
+                "safe stop during step {}: {} silent (no frames for the health timeout); \
+                 wheels stopped, legs held",
+                step + 1,
+                describe_axes(*set)
+            ),
+            Fault::SafeStop {
+                step,
+                reason: StopReason::AxisError(set),
+            } => write!(
+                f,
+                "safe stop during step {}: {} reported errors; wheels stopped, legs held",
+                step + 1,
+                describe_axes(*set)
+            ),
+            Fault::OffTolerance { step, error } => write!(
+                f,
+                "step {} ended off its ideal by {:.2} mm, {:.3}°, legs {:.2} mm (beyond \
+                 tolerance); robot held",
+                step + 1,
+                1e3 * error.position_m,
+                error.yaw_rad.to_degrees(),
+                1e3 * error.legs_m
+            ),
+            Fault::KinematicsDisagree { step, action } => write!(
+                f,
+                "step {}: the runtime cannot reach the legs of {action:?} but the simulator \
+                 accepts them; robot held",
+                step + 1
+            ),
+        }
+    }
+}
+
+/// Why the loop could not go on at all (as opposed to a [`Fault`], which is the robot stopping
+/// safely and is part of the episode's report).
+#[derive(Debug)]
+pub enum LoopError {
+    /// The scenario is invalid.
+    Scenario(ScenarioError),
+    /// The rig failed (bus, log, start-up, an impossible motion setting).
+    Rig(RigError),
+    /// The driver could not decide.
+    Driver(DriverError),
+    /// A step was asked for after the episode ended or after a fault.
+    Finished,
+}
+
+impl fmt::Display for LoopError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            LoopError::Scenario(e) => write!(f, "{e}"),
+            LoopError::Rig(RigError::StartupFailed(health)) => write!(
+                f,
+                "the motor controllers did not all reach closed loop at start-up \
+                 (silent: {}; errored: {})",
+                or_none(describe_axes(health.silent)),
+                or_none(describe_axes(health.errored))
+            ),
+            LoopError::Rig(e) => write!(f, "rig: {e}"),
+            LoopError::Driver(e) => write!(f, "driver: {e}"),
+            LoopError::Finished => f.write_str("the episode is over"),
+        }
+    }
+}
+
+fn or_none(s: String) -> String {
+    if s.is_empty() {
+        "none".to_owned()
+    } else {
+        s
+    }
+}
+
+impl std::error::Error for LoopError {}
+
+impl From<ScenarioError> for LoopError {
+    fn from(e: ScenarioError) -> Self {
+        LoopError::Scenario(e)
+    }
+}
+
+impl From<RigError> for LoopError {
+    fn from(e: RigError) -> Self {
+        LoopError::Rig(e)
+    }
+}
+
+impl From<MotionError> for LoopError {
+    fn from(e: MotionError) -> Self {
+        LoopError::Rig(RigError::Motion(e))
+    }
+}
+
+impl From<DriverError> for LoopError {
+    fn from(e: DriverError) -> Self {
+        LoopError::Driver(e)
+    }
+}
+
+impl From<EpisodeOver> for LoopError {
+    fn from(_: EpisodeOver) -> Self {
+        LoopError::Finished
+    }
+}
+
+/// What happened to one decision.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StepKind {
+    /// Executed by the motors and accepted by the world.
+    Moved,
+    /// Executed, refused by the world (collision or arena), and backed out of.
+    Undone,
+    /// Never sent to the motors: the legs cannot reach the target.
+    Refused,
+    /// Interrupted by a fault; the world did not move.
+    Faulted,
+}
+
+/// One decision through the loop.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StepRecord {
+    /// The decision.
+    pub action: Action,
+    /// What became of it.
+    pub kind: StepKind,
+    /// The world's verdict (none when the step faulted before the world moved).
+    pub outcome: Option<StepOutcome>,
+    /// The rig's report of the step's motion (none when it was refused).
+    pub report: Option<StepReport>,
+    /// The rig's report of backing out (for [`StepKind::Undone`]).
+    pub retreat: Option<StepReport>,
+}
+
+/// How closely the motors followed, over an episode.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct Tracking {
+    /// Steps executed and accepted.
+    pub moved: u32,
+    /// Steps executed, refused by the world and backed out of.
+    pub undone: u32,
+    /// Steps never sent (unreachable legs).
+    pub refused: u32,
+    /// Largest error of any executed motion (steps and retreats) against its ideal.
+    pub max_error: StepError,
+}
+
+/// The end of an episode through the loop.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EpisodeReport {
+    /// The world's verdict.
+    pub status: Status,
+    /// Decisions taken.
+    pub steps: u32,
+    /// Collisions the world counted.
+    pub collisions: u32,
+    /// Why the robot was stopped early, if it was.
+    pub fault: Option<Fault>,
+    /// How closely the motors followed.
+    pub tracking: Tracking,
+    /// The world's lattice states, from the start, one per accepted step.
+    pub path: Vec<RobotState>,
+    /// Odometry against the world at the end: position difference (the drift a localiser
+    /// would correct; the world itself snaps every step).
+    pub odometry_drift_m: f32,
+    /// Heading difference of odometry against the world at the end.
+    pub odometry_drift_rad: f32,
+    /// Simulated (or, on SocketCAN, real) time since the rig was made.
+    pub elapsed_s: f64,
+    /// Frames and bits on the bus.
+    pub traffic: TrafficCounts,
+    /// Bus load at [`BITRATE_BPS`].
+    pub bus_load: Option<MeasuredBusLoad>,
+    /// What the controller made of the feedback it received.
+    pub feedback: BusStats,
+}
+
+/// The world and the robot's motors, stepped together.
+pub struct ClosedLoop {
+    env: Env,
+    rig: Rig,
+    config: LoopConfig,
+    start_pose: Isometry2<f32>,
+    path: Vec<RobotState>,
+    tracking: Tracking,
+    fault: Option<Fault>,
+}
+
+fn lattice_pose(state: &RobotState) -> Isometry2<f32> {
+    Isometry2::new(
+        Vector2::new(state.position.x, state.position.y),
+        state.yaw_rad(),
+    )
+}
+
+impl ClosedLoop {
+    /// The loop on the in-process bus with simulated motors; not started yet
+    /// ([`ClosedLoop::start`]).
+    pub fn in_process(scenario: &Scenario, config: LoopConfig) -> Result<ClosedLoop, LoopError> {
+        let env = Env::new(scenario, config.env)?;
+        let legs = env.state().leg_config(env.geometry());
+        let rig = Rig::in_process(env.geometry(), config.rig, legs)?;
+        Ok(ClosedLoop::with(env, rig, config))
+    }
+
+    /// The loop talking to motors elsewhere through `transport` (for example
+    /// `firmware_sim --can vcan0` in another process); time is real.
+    pub fn remote(
+        scenario: &Scenario,
+        config: LoopConfig,
+        transport: Box<dyn Transport>,
+    ) -> Result<ClosedLoop, LoopError> {
+        let env = Env::new(scenario, config.env)?;
+        let legs = env.state().leg_config(env.geometry());
+        let rig = Rig::remote(env.geometry(), config.rig, legs, transport)?;
+        Ok(ClosedLoop::with(env, rig, config))
+    }
+
+    fn with(env: Env, rig: Rig, config: LoopConfig) -> ClosedLoop {
+        ClosedLoop {
+            start_pose: lattice_pose(env.state()),
+            path: vec![*env.state()],
+            env,
+            rig,
+            config,
+            tracking: Tracking::default(),
+            fault: None,
+        }
+    }
+
+    /// Logs the bus traffic in `candump -L` format from now on (call before
+    /// [`ClosedLoop::start`] to include the start-up frames).
+    pub fn log_to(&mut self, writer: CandumpWriter<Box<dyn Write>>) {
+        self.rig.log_to(writer);
+    }
+
+    /// Stops logging; returns the flushed writer.
+    pub fn take_log(&mut self) -> Result<Option<Box<dyn Write>>, LoopError> {
+        Ok(self.rig.take_log()?)
+    }
+
+    /// Arms the motors at the scenario's start legs.
+    pub fn start(&mut self) -> Result<(), LoopError> {
+        Ok(self.rig.start_up()?)
+    }
+
+    /// The world.
+    pub fn env(&self) -> &Env {
+        &self.env
+    }
+
+    /// The motors and their controller.
+    pub fn rig(&self) -> &Rig {
+        &self.rig
+    }
+
+    /// The motors and their controller, for fault injection.
+    pub fn rig_mut(&mut self) -> &mut Rig {
+        &mut self.rig
+    }
+
+    /// The fault that stopped the robot, if any.
+    pub fn fault(&self) -> Option<Fault> {
+        self.fault
+    }
+
+    /// Whether no more steps can be taken (episode over or robot stopped).
+    pub fn is_done(&self) -> bool {
+        self.env.status().is_done() || self.fault.is_some()
+    }
+
+    fn geometry(&self) -> RobotGeometry {
+        *self.env.geometry()
+    }
+
+    /// Checks an executed motion; records a fault (and holds the robot) if it went wrong.
+    fn check(&mut self, step: u32, report: &StepReport) -> Result<bool, LoopError> {
+        if let Some(reason) = report.stopped {
+            self.fault = Some(Fault::SafeStop { step, reason });
+            return Ok(false);
+        }
+        let error = StepError::of(report);
+        self.tracking.max_error = self.tracking.max_error.max(error);
+        if !error.within(&self.config.tolerance) {
+            self.fault = Some(Fault::OffTolerance { step, error });
+            // Wheels to zero, legs to their commanded configuration, still supervised.
+            self.rig.hold(self.config.rig.settle_s)?;
+            return Ok(false);
+        }
+        Ok(true)
+    }
+
+    /// Takes one decision through the whole chain. A [`Fault`] is not an error: it is
+    /// recorded, the returned record says [`StepKind::Faulted`], and the loop is done.
+    pub fn step(&mut self, action: Action) -> Result<StepRecord, LoopError> {
+        if self.is_done() {
+            return Err(LoopError::Finished);
+        }
+        let index = self.env.steps();
+        let from = *self.env.state();
+        let faulted = |report| StepRecord {
+            action,
+            kind: StepKind::Faulted,
+            outcome: None,
+            report: Some(report),
+            retreat: None,
+        };
+        let report = match self.rig.step(action) {
+            Ok(report) => report,
+            Err(RigError::Motion(MotionError::Unreachable(_))) => {
+                // The runtime refuses before any frame is sent; the world must agree.
+                let outcome = self.env.step(action)?;
+                if outcome.invalid.is_none() {
+                    self.fault = Some(Fault::KinematicsDisagree {
+                        step: index,
+                        action,
+                    });
+                }
+                self.tracking.refused += 1;
+                return Ok(StepRecord {
+                    action,
+                    kind: StepKind::Refused,
+                    outcome: Some(outcome),
+                    report: None,
+                    retreat: None,
+                });
+            }
+            Err(e) => return Err(e.into()),
+        };
+        if !self.check(index, &report)? {
+            return Ok(faulted(report));
+        }
+        // Within tolerance: the world snaps to the lattice state of the action and judges it.
+        let outcome = self.env.step(action)?;
+        if outcome.invalid.is_none() {
+            self.tracking.moved += 1;
+            self.path.push(*self.env.state());
+            return Ok(StepRecord {
+                action,
+                kind: StepKind::Moved,
+                outcome: Some(outcome),
+                report: Some(report),
+                retreat: None,
+            });
+        }
+        // The world undid the step (collision, arena, legs): back out along the inverse motion.
+        let back = report.ideal_pose.inverse();
+        let displacement = BaseDisplacement {
+            dx_m: back.translation.x,
+            dy_m: back.translation.y,
+            dyaw_rad: back.rotation.angle(),
+        };
+        let geometry = self.geometry();
+        let motion = StepMotion::plan_between(
+            &geometry,
+            self.rig.motion_config(),
+            self.rig.legs(),
+            from.leg_config(&geometry),
+            displacement,
+        )?;
+        let retreat = self.rig.execute(motion)?;
+        if !self.check(index, &retreat)? {
+            return Ok(StepRecord {
+                retreat: Some(retreat),
+                ..faulted(report)
+            });
+        }
+        self.tracking.undone += 1;
+        Ok(StepRecord {
+            action,
+            kind: StepKind::Undone,
+            outcome: Some(outcome),
+            report: Some(report),
+            retreat: Some(retreat),
+        })
+    }
+
+    /// Runs `driver` until the episode ends or a fault stops the robot, then lets the robot
+    /// come to rest and reports.
+    pub fn run(&mut self, driver: &mut dyn Driver) -> Result<EpisodeReport, LoopError> {
+        while !self.is_done() {
+            let action = driver.decide(&self.env)?;
+            self.step(action)?;
+        }
+        self.finish()
+    }
+
+    /// Holds the robot still (wheels stopped, legs held; safe stop if the controller is in
+    /// it) for the settling time, so the episode ends at rest, and reports.
+    pub fn finish(&mut self) -> Result<EpisodeReport, LoopError> {
+        self.rig.hold(self.config.rig.settle_s)?;
+        Ok(self.report())
+    }
+
+    /// The episode so far.
+    pub fn report(&self) -> EpisodeReport {
+        let world = lattice_pose(self.env.state());
+        let odometry = self.start_pose * self.rig.pose();
+        let drift = world.inverse() * odometry;
+        EpisodeReport {
+            status: self.env.status(),
+            steps: self.env.steps(),
+            collisions: self.env.collisions(),
+            fault: self.fault,
+            tracking: self.tracking,
+            path: self.path.clone(),
+            odometry_drift_m: drift.translation.vector.norm(),
+            odometry_drift_rad: drift.rotation.angle().abs(),
+            elapsed_s: self.rig.now_us() as f64 * 1e-6,
+            traffic: self.rig.traffic(),
+            bus_load: self.rig.bus_load(BITRATE_BPS),
+            feedback: self.rig.feedback().stats(),
+        }
+    }
+}
