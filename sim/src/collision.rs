@@ -108,9 +108,7 @@ impl RobotParts {
             };
         }
         let aabbs = parts.map(|p| p.aabb());
-        let aabb = aabbs[1..]
-            .iter()
-            .fold(aabbs[0], |acc, b| acc.merged(b));
+        let aabb = aabbs[1..].iter().fold(aabbs[0], |acc, b| acc.merged(b));
         Ok(RobotParts { parts, aabbs, aabb })
     }
 
@@ -152,7 +150,10 @@ impl ObstacleSet {
                 .iter()
                 .map(|b| Isometry3::from_parts(Translation3::from(b.centre()), Default::default()))
                 .collect(),
-            shapes: boxes.iter().map(|b| Cuboid::new(b.half_extents())).collect(),
+            shapes: boxes
+                .iter()
+                .map(|b| Cuboid::new(b.half_extents()))
+                .collect(),
             boxes,
         }
     }

@@ -137,8 +137,14 @@ impl Env {
         scenario.validate(&geometry)?;
         let start = scenario.start.position;
         let margin = Vector2::repeat(config.arena_margin_m);
-        let arena_min = Point2::new(start.x.min(scenario.target.x), start.y.min(scenario.target.y)) - margin;
-        let arena_max = Point2::new(start.x.max(scenario.target.x), start.y.max(scenario.target.y)) + margin;
+        let arena_min = Point2::new(
+            start.x.min(scenario.target.x),
+            start.y.min(scenario.target.y),
+        ) - margin;
+        let arena_max = Point2::new(
+            start.x.max(scenario.target.x),
+            start.y.max(scenario.target.y),
+        ) + margin;
         let start_distance_m = (scenario.target - start).norm();
         Ok(Env {
             config,
@@ -206,9 +212,17 @@ impl Env {
 
     /// Whether `state` is a valid place for the robot (reachable legs, inside the arena, no
     /// collision), given it comes from `from` in one step.
-    pub fn check_transition(&self, from: &RobotState, to: &RobotState) -> Result<(), InvalidAction> {
+    pub fn check_transition(
+        &self,
+        from: &RobotState,
+        to: &RobotState,
+    ) -> Result<(), InvalidAction> {
         let p = to.position;
-        if p.x < self.arena_min.x || p.y < self.arena_min.y || p.x > self.arena_max.x || p.y > self.arena_max.y {
+        if p.x < self.arena_min.x
+            || p.y < self.arena_min.y
+            || p.x > self.arena_max.x
+            || p.y > self.arena_max.y
+        {
             return Err(InvalidAction::OutOfBounds);
         }
         let legs = to.leg_config(&self.geometry);
@@ -231,10 +245,16 @@ impl Env {
         };
         debug_assert!((legs.track_m - from_legs.track_m).abs() <= TRACK_STEP_M + 1e-6);
         debug_assert!((legs.clearance_m - from_legs.clearance_m).abs() <= CLEARANCE_STEP_M + 1e-6);
-        let yaw_delta = (to.yaw_steps - from.yaw_steps + 1).rem_euclid(crate::state::YAW_STEPS_PER_TURN) - 1;
+        let yaw_delta =
+            (to.yaw_steps - from.yaw_steps + 1).rem_euclid(crate::state::YAW_STEPS_PER_TURN) - 1;
         let mid_yaw = from.yaw_rad() + 0.5 * (yaw_delta as f32 * YAW_STEP_DEG).to_radians();
-        let mid = RobotParts::new(&self.geometry, from.position + 0.5 * (p - from.position), mid_yaw, mid_legs)
-            .map_err(InvalidAction::Impossible)?;
+        let mid = RobotParts::new(
+            &self.geometry,
+            from.position + 0.5 * (p - from.position),
+            mid_yaw,
+            mid_legs,
+        )
+        .map_err(InvalidAction::Impossible)?;
         if self.obstacles.collides(&mid) {
             return Err(InvalidAction::Collision);
         }

@@ -8,10 +8,13 @@
 //!
 //! - lift over: bars lengthwise on every cell; the 0.17 m gaps between bars are narrower than
 //!   the robot at any track, so it must straddle a bar, body lifted above 0.15 m;
-//! - spread over: a slab, then blocks two cells away on either side; the lanes beside the slab
-//!   are too narrow for the robot, so it must straddle the slab with the legs spread;
-//! - squeeze: blocks on every cell but one: a 0.30 m gap that the default pose (0.40 m wide)
-//!   does not fit through;
+//! - spread over: a slab, then blocks two cells away on either side, three rows deep; the lanes
+//!   beside the slab are too narrow for the robot, so it must straddle the slab with the legs
+//!   spread. Three rows because a shallower slab can be straddled at the default track: turned
+//!   sideways over one row's 0.25 m, or diagonally over two rows' 0.5 m;
+//! - squeeze: blocks on every cell but one, two rows deep: a 0.30 m wide corridor that the
+//!   default pose (0.40 m wide) does not fit through (a single 0.20 m row can be threaded
+//!   diagonally, one wheel at a time);
 //! - around: one block, or two side by side, on the straight line to the target;
 //! - straight: no obstacles.
 
@@ -96,7 +99,9 @@ impl SceneKind {
 
 /// The `index`-th point of the robot's start lattice: 0.025 + 0.05 k.
 pub fn on_robot_lattice(index: i32) -> f32 {
-    ((index as f64 + 0.5) * MOVE_STEP_M as f64) as f32
+    // Built as a whole number of 0.1 mm so that the value prints and parses back to the same f32.
+    let tenths_of_mm = ((index as f64 + 0.5) * MOVE_STEP_M as f64 * 1.0e4).round();
+    (tenths_of_mm / 1.0e4) as f32
 }
 
 /// Index of the robot lattice point nearest `value_m`.
@@ -160,7 +165,10 @@ fn target_is_free(scenario: &Scenario) -> bool {
     let poses = [(0.12, 0.36), (0.18, 0.24), (0.08, 0.56), (0.10, 0.16)];
     (0..YAW_STEPS_PER_TURN / 2).step_by(3).any(|yaw| {
         poses.iter().any(|&(clearance_m, track_m)| {
-            let legs = wheelleg_runtime::leg::LegConfig { clearance_m, track_m };
+            let legs = wheelleg_runtime::leg::LegConfig {
+                clearance_m,
+                track_m,
+            };
             crate::collision::RobotParts::new(
                 &WHEELLEG,
                 scenario.target,
@@ -214,18 +222,37 @@ fn behaviour_scene(behaviour: Behaviour, rng: &mut impl Rng, name: String) -> Sc
     let obstacles = match behaviour {
         Behaviour::Straight => Vec::new(),
         Behaviour::Around => {
-            let mut blocks = vec![Obstacle::new(ObstacleKind::Block, fence_x, cell_centre_m(path_cell), ObstacleYaw::Deg0)];
+            let mut blocks = vec![Obstacle::new(
+                ObstacleKind::Block,
+                fence_x,
+                cell_centre_m(path_cell),
+                ObstacleYaw::Deg0,
+            )];
             if rng.random_bool(0.5) {
                 let side = if rng.random_bool(0.5) { 1 } else { -1 };
-                blocks.push(Obstacle::new(ObstacleKind::Block, fence_x, cell_centre_m(path_cell + side), ObstacleYaw::Deg0));
+                blocks.push(Obstacle::new(
+                    ObstacleKind::Block,
+                    fence_x,
+                    cell_centre_m(path_cell + side),
+                    ObstacleYaw::Deg0,
+                ));
             }
             blocks
         }
         Behaviour::LiftOver | Behaviour::SpreadOver | Behaviour::Squeeze => {
             let opening = path_cell + rng.random_range(-1..=1);
-            fence_cells(behaviour)
-                .into_iter()
-                .map(|(m, kind)| Obstacle::new(kind, fence_x, cell_centre_m(opening + m), ObstacleYaw::Deg0))
+            let rows = match behaviour {
+                Behaviour::SpreadOver => 3,
+                Behaviour::Squeeze => 2,
+                _ => 1,
+            };
+            (0..rows)
+                .flat_map(|row| {
+                    fence_cells(behaviour).into_iter().map(move |(m, kind)| {
+                        let x = fence_x + row as f32 * GRID_CELL_M;
+                        Obstacle::new(kind, x, cell_centre_m(opening + m), ObstacleYaw::Deg0)
+                    })
+                })
                 .collect()
         }
     };
@@ -240,7 +267,10 @@ fn behaviour_scene(behaviour: Behaviour, rng: &mut impl Rng, name: String) -> Sc
 fn complex_scene(rng: &mut impl Rng, name: String) -> Scenario {
     let lay = layout(rng, 0.5);
     let count = rng.random_range(1..=8);
-    let (x0, x1) = (cell_index(lay.start.position.x - 0.5), cell_index(lay.target.x + 0.5));
+    let (x0, x1) = (
+        cell_index(lay.start.position.x - 0.5),
+        cell_index(lay.target.x + 0.5),
+    );
     let y_mid = cell_index(lay.start.position.y);
     let mut obstacles = Vec::with_capacity(count);
     let start_obstacles_free = |obstacles: &[Obstacle]| {
@@ -257,10 +287,20 @@ fn complex_scene(rng: &mut impl Rng, name: String) -> Scenario {
     while obstacles.len() < count && attempts < 100 {
         attempts += 1;
         let kind = ObstacleKind::ALL[rng.random_range(0..3)];
-        let yaw = if rng.random_bool(0.5) { ObstacleYaw::Deg0 } else { ObstacleYaw::Deg90 };
-        let cell = (rng.random_range(x0..=x1), rng.random_range(y_mid - 3..=y_mid + 3));
+        let yaw = if rng.random_bool(0.5) {
+            ObstacleYaw::Deg0
+        } else {
+            ObstacleYaw::Deg90
+        };
+        let cell = (
+            rng.random_range(x0..=x1),
+            rng.random_range(y_mid - 3..=y_mid + 3),
+        );
         let candidate = Obstacle::new(kind, cell_centre_m(cell.0), cell_centre_m(cell.1), yaw);
-        if obstacles.iter().any(|o: &Obstacle| o.centre == candidate.centre) {
+        if obstacles
+            .iter()
+            .any(|o: &Obstacle| o.centre == candidate.centre)
+        {
             continue;
         }
         obstacles.push(candidate);

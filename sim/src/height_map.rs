@@ -21,7 +21,12 @@ const REACH_M: f32 = HALF_CELLS * HEIGHT_MAP_CELL_M * core::f32::consts::SQRT_2;
 /// World position of the centre of cell (`row`, `col`) for a robot at `position` with heading
 /// (cos, sin) = `heading`. The renderer uses exactly this arithmetic, so tests can too.
 #[inline]
-pub fn cell_centre_world(position: Point2<f32>, heading: (f32, f32), row: usize, col: usize) -> Point2<f32> {
+pub fn cell_centre_world(
+    position: Point2<f32>,
+    heading: (f32, f32),
+    row: usize,
+    col: usize,
+) -> Point2<f32> {
     let (bx, by, sx, sy) = row_line(position, heading, row);
     Point2::new(bx - col as f32 * sx, by - col as f32 * sy)
 }
@@ -74,7 +79,9 @@ pub fn render(boxes: &[GroundBox], position: Point2<f32>, yaw_rad: f32, out: &mu
             ahead_min = ahead_min.min(ahead);
             ahead_max = ahead_max.max(ahead);
         }
-        let row_first = (HALF_CELLS - ahead_max / HEIGHT_MAP_CELL_M - 1.0).ceil().max(0.0);
+        let row_first = (HALF_CELLS - ahead_max / HEIGHT_MAP_CELL_M - 1.0)
+            .ceil()
+            .max(0.0);
         let row_last = (HALF_CELLS - ahead_min / HEIGHT_MAP_CELL_M + 1.0)
             .floor()
             .min(HEIGHT_MAP_SIDE as f32 - 1.0);

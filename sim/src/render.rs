@@ -28,7 +28,11 @@ pub struct Canvas {
 impl Canvas {
     /// A canvas filled with `colour`.
     pub fn new(width: usize, height: usize, colour: [u8; 3]) -> Self {
-        Canvas { width, height, pixels: vec![colour; width * height] }
+        Canvas {
+            width,
+            height,
+            pixels: vec![colour; width * height],
+        }
     }
 
     /// Width in pixels.
@@ -89,7 +93,9 @@ impl Canvas {
             encoder.set_depth(png::BitDepth::Eight);
             let mut writer = encoder.write_header().map_err(std::io::Error::other)?;
             let flat: Vec<u8> = self.pixels.iter().flatten().copied().collect();
-            writer.write_image_data(&flat).map_err(std::io::Error::other)?;
+            writer
+                .write_image_data(&flat)
+                .map_err(std::io::Error::other)?;
         }
         crate::atomic_write(path, &bytes)
     }
@@ -122,24 +128,41 @@ impl View {
 /// with the footprint at its end.
 pub fn top_view(scenario: &Scenario, geometry: &RobotGeometry, path: &[RobotState]) -> Canvas {
     let margin = 0.6;
-    let mut min = Point2::new(scenario.start.position.x.min(scenario.target.x), scenario.start.position.y.min(scenario.target.y));
-    let mut max = Point2::new(scenario.start.position.x.max(scenario.target.x), scenario.start.position.y.max(scenario.target.y));
+    let mut min = Point2::new(
+        scenario.start.position.x.min(scenario.target.x),
+        scenario.start.position.y.min(scenario.target.y),
+    );
+    let mut max = Point2::new(
+        scenario.start.position.x.max(scenario.target.x),
+        scenario.start.position.y.max(scenario.target.y),
+    );
     min -= Vector2::repeat(margin);
     max += Vector2::repeat(margin);
     let width = ((max.x - min.x) * TOP_VIEW_PX_PER_M).ceil() as usize;
     let height = ((max.y - min.y) * TOP_VIEW_PX_PER_M).ceil() as usize;
-    let view = View { min, height_px: height };
+    let view = View {
+        min,
+        height_px: height,
+    };
     let mut canvas = Canvas::new(width, height, [245, 245, 240]);
     // Grid lines every obstacle cell, for reading positions.
     let cell = crate::obstacle::GRID_CELL_M;
     let mut gx = (min.x / cell).ceil() * cell;
     while gx <= max.x {
-        canvas.line(view.px(Point2::new(gx, min.y)), view.px(Point2::new(gx, max.y)), [225, 225, 220]);
+        canvas.line(
+            view.px(Point2::new(gx, min.y)),
+            view.px(Point2::new(gx, max.y)),
+            [225, 225, 220],
+        );
         gx += cell;
     }
     let mut gy = (min.y / cell).ceil() * cell;
     while gy <= max.y {
-        canvas.line(view.px(Point2::new(min.x, gy)), view.px(Point2::new(max.x, gy)), [225, 225, 220]);
+        canvas.line(
+            view.px(Point2::new(min.x, gy)),
+            view.px(Point2::new(max.x, gy)),
+            [225, 225, 220],
+        );
         gy += cell;
     }
     let mut obstacles = scenario.obstacles.clone();
@@ -148,13 +171,18 @@ pub fn top_view(scenario: &Scenario, geometry: &RobotGeometry, path: &[RobotStat
     for o in &obstacles {
         let b = o.ground_box();
         let shade = 1.0 - 0.5 * (b.height_m / FULL_SCALE_HEIGHT_M).min(1.0);
-        let colour = kind_colour(o.kind).map(|c| (c as f32 * shade + 255.0 * (1.0 - shade) * 0.3) as u8);
+        let colour =
+            kind_colour(o.kind).map(|c| (c as f32 * shade + 255.0 * (1.0 - shade) * 0.3) as u8);
         let (x0, y0) = view.px(Point2::new(b.min_x_m, b.min_y_m));
         let (x1, y1) = view.px(Point2::new(b.max_x_m, b.max_y_m));
         canvas.fill_rect(x0, y0, x1, y1, colour);
     }
     for pair in path.windows(2) {
-        canvas.line(view.px(pair[0].position), view.px(pair[1].position), [240, 140, 20]);
+        canvas.line(
+            view.px(pair[0].position),
+            view.px(pair[1].position),
+            [240, 140, 20],
+        );
     }
     draw_footprint(&mut canvas, &view, geometry, &scenario.start, [30, 60, 220]);
     if let Some(last) = path.last() {
@@ -164,16 +192,31 @@ pub fn top_view(scenario: &Scenario, geometry: &RobotGeometry, path: &[RobotStat
     canvas
 }
 
-fn draw_footprint(canvas: &mut Canvas, view: &View, geometry: &RobotGeometry, state: &RobotState, colour: [u8; 3]) {
+fn draw_footprint(
+    canvas: &mut Canvas,
+    view: &View,
+    geometry: &RobotGeometry,
+    state: &RobotState,
+    colour: [u8; 3],
+) {
     let half_l = 0.5 * geometry.body_length_m;
     let half_w = 0.5 * geometry.body_width_m;
-    let corners = [(half_l, half_w), (half_l, -half_w), (-half_l, -half_w), (-half_l, half_w)]
-        .map(|(x, y)| view.px(state.robot_to_world(Vector2::new(x, y))));
+    let corners = [
+        (half_l, half_w),
+        (half_l, -half_w),
+        (-half_l, -half_w),
+        (-half_l, half_w),
+    ]
+    .map(|(x, y)| view.px(state.robot_to_world(Vector2::new(x, y))));
     for i in 0..4 {
         canvas.line(corners[i], corners[(i + 1) % 4], colour);
     }
     // Heading tick, and the wheels as discs at their contact points.
-    canvas.line(view.px(state.position), view.px(state.robot_to_world(Vector2::new(half_l, 0.0))), colour);
+    canvas.line(
+        view.px(state.position),
+        view.px(state.robot_to_world(Vector2::new(half_l, 0.0))),
+        colour,
+    );
     let track = state.leg_config(geometry).track_m;
     for (fore, side) in [(1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)] {
         let wheel = state.robot_to_world(Vector2::new(fore * geometry.hip_x_m, side * 0.5 * track));
@@ -190,7 +233,11 @@ pub fn height_map_image(map: &HeightMap) -> Canvas {
         for col in 0..HEIGHT_MAP_SIDE {
             let level = (map[row * HEIGHT_MAP_SIDE + col] / FULL_SCALE_HEIGHT_M).clamp(0.0, 1.0);
             let grey = (40.0 + 215.0 * level) as u8;
-            let colour = if map[row * HEIGHT_MAP_SIDE + col] > 0.0 { [grey, grey, grey] } else { [0, 0, 0] };
+            let colour = if map[row * HEIGHT_MAP_SIDE + col] > 0.0 {
+                [grey, grey, grey]
+            } else {
+                [0, 0, 0]
+            };
             let (x0, y0) = ((col * SCALE) as i64, (row * SCALE) as i64);
             canvas.fill_rect(x0, y0, x0 + SCALE as i64 - 1, y0 + SCALE as i64 - 1, colour);
         }

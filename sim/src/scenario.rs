@@ -67,10 +67,16 @@ impl Scenario {
         }
         for (i, o) in self.obstacles.iter().enumerate() {
             if !finite(o.centre.x) {
-                return Err(fail(&format!("obstacles[{i}].x"), "must be a finite number of metres"));
+                return Err(fail(
+                    &format!("obstacles[{i}].x"),
+                    "must be a finite number of metres",
+                ));
             }
             if !finite(o.centre.y) {
-                return Err(fail(&format!("obstacles[{i}].y"), "must be a finite number of metres"));
+                return Err(fail(
+                    &format!("obstacles[{i}].y"),
+                    "must be a finite number of metres",
+                ));
             }
         }
         let legs = self.start.leg_config(geometry);

@@ -80,7 +80,9 @@ impl std::fmt::Display for ScenarioFileError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             ScenarioFileError::Io { path, source } => write!(f, "{path}: {source}"),
-            ScenarioFileError::Syntax { message } => write!(f, "malformed scenario file: {message}"),
+            ScenarioFileError::Syntax { message } => {
+                write!(f, "malformed scenario file: {message}")
+            }
             ScenarioFileError::Invalid(e) => write!(f, "impossible scenario: {e}"),
         }
     }
@@ -152,7 +154,10 @@ fn from_record(index: usize, r: ScenarioRecord) -> Result<Scenario, ScenarioErro
         if v.is_finite() && v.abs() < 1.0e4 {
             Ok(v as f32)
         } else {
-            Err(fail(field.to_string(), "must be a finite number below 10^4"))
+            Err(fail(
+                field.to_string(),
+                "must be a finite number below 10^4",
+            ))
         }
     };
     let yaw_deg = number(r.robot.yaw_deg, "robot.yaw_deg")?;
@@ -167,7 +172,10 @@ fn from_record(index: usize, r: ScenarioRecord) -> Result<Scenario, ScenarioErro
         Point2::new(number(r.robot.x, "robot.x")?, number(r.robot.y, "robot.y")?),
         yaw_steps as i32,
     );
-    let target = Point2::new(number(r.target.x, "target.x")?, number(r.target.y, "target.y")?);
+    let target = Point2::new(
+        number(r.target.x, "target.x")?,
+        number(r.target.y, "target.y")?,
+    );
     let mut obstacles = Vec::with_capacity(r.obstacles.len());
     for (i, o) in r.obstacles.into_iter().enumerate() {
         let kind = ObstacleKind::ALL
@@ -194,7 +202,11 @@ fn from_record(index: usize, r: ScenarioRecord) -> Result<Scenario, ScenarioErro
         ));
     }
     Ok(Scenario {
-        name: if r.name.is_empty() { format!("#{index}") } else { r.name },
+        name: if r.name.is_empty() {
+            format!("#{index}")
+        } else {
+            r.name
+        },
         start,
         target,
         obstacles,

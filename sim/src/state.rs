@@ -6,9 +6,7 @@
 //! lattice; it is `f32`.
 
 use nalgebra::{Isometry3, Point2, Translation3, UnitQuaternion, Vector2, Vector3};
-use wheelleg_runtime::action::{
-    Action, CLEARANCE_STEP_M, MOVE_STEP_M, TRACK_STEP_M, YAW_STEP_DEG,
-};
+use wheelleg_runtime::action::{Action, CLEARANCE_STEP_M, MOVE_STEP_M, TRACK_STEP_M, YAW_STEP_DEG};
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::robot::RobotGeometry;
 

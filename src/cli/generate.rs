@@ -28,7 +28,12 @@ pub fn run(args: Args) -> CliResult {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(args.seed);
     let scenarios = generate_many(kind, &mut rng, args.count);
     wheelleg_sim::scenario_file::save(&args.out, &scenarios)?;
-    println!("wrote {} {} scenes to {}", scenarios.len(), kind.name(), args.out.display());
+    println!(
+        "wrote {} {} scenes to {}",
+        scenarios.len(),
+        kind.name(),
+        args.out.display()
+    );
     Ok(())
 }
 
@@ -36,6 +41,9 @@ pub fn run(args: Args) -> CliResult {
 pub fn parse_kind(name: &str) -> Result<SceneKind, String> {
     SceneKind::from_name(name).ok_or_else(|| {
         let names: Vec<&str> = SceneKind::ALL.iter().map(|k| k.name()).collect();
-        format!("unknown scene kind {name:?}; expected one of {}", names.join(", "))
+        format!(
+            "unknown scene kind {name:?}; expected one of {}",
+            names.join(", ")
+        )
     })
 }

@@ -30,13 +30,18 @@ pub fn run(args: Args) -> CliResult {
     };
     let mut results = Vec::with_capacity(scenarios.len());
     if !args.json {
-        println!("{:<24} {:>9} {:>6} {:>9} {:>10}", "scenario", "solvable", "steps", "shortest", "expanded");
+        println!(
+            "{:<24} {:>9} {:>6} {:>9} {:>10}",
+            "scenario", "solvable", "steps", "shortest", "expanded"
+        );
     }
     for scenario in &scenarios {
         let env = Env::new(scenario, EnvConfig::default())?;
         let found = plan(&env, &config);
         let (solvable, steps, shortest) = match &found.outcome {
-            PlanOutcome::Solved { actions, shortest } => (Some(true), Some(actions.len()), *shortest),
+            PlanOutcome::Solved { actions, shortest } => {
+                (Some(true), Some(actions.len()), *shortest)
+            }
             PlanOutcome::Unsolvable => (Some(false), None, false),
             PlanOutcome::BudgetExceeded => (None, None, false),
         };
@@ -66,7 +71,10 @@ pub fn run(args: Args) -> CliResult {
         }
     }
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&json!({ "results": results }))?);
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&json!({ "results": results }))?
+        );
     }
     Ok(())
 }

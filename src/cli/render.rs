@@ -59,6 +59,12 @@ pub fn run(args: Args) -> CliResult {
 /// A file name from a scenario name: anything but letters, digits, '-' and '_' becomes '_'.
 fn sanitize(name: &str) -> String {
     name.chars()
-        .map(|c| if c.is_ascii_alphanumeric() || c == '-' || c == '_' { c } else { '_' })
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
         .collect()
 }

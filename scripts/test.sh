@@ -1,0 +1,14 @@
+#!/usr/bin/env bash
+# The project's tests: every crate's unit and integration tests (release mode: the simulator and
+# the learning tests are too slow in debug), the no_std proof, and the CAN wire check against
+# ODrive's own DBC.
+set -euo pipefail
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
+
+cargo test --workspace --release
+
+bash runtime/nostd-check/check.sh
+
+log="$(mktemp -d)/bus.log"
+cargo run --quiet --release -p wheelleg-firmware-sim --example closed_loop_log -- "$log"
+python3 tools/check_dbc.py "$log"

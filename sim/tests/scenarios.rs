@@ -1,0 +1,218 @@
+//! Scenario files, generator determinism, and that each behaviour scene needs its behaviour.
+
+use nalgebra::Point2;
+use rand::SeedableRng;
+use wheelleg_runtime::leg::LegConfig;
+use wheelleg_runtime::robot::WHEELLEG;
+use wheelleg_sim::collision::{ObstacleSet, RobotParts};
+use wheelleg_sim::generate::{generate_many, Behaviour, SceneKind};
+use wheelleg_sim::obstacle::ObstacleKind;
+use wheelleg_sim::scenario::Scenario;
+use wheelleg_sim::scenario_file::{self, ScenarioFileError};
+
+fn rng(seed: u64) -> rand_chacha::ChaCha8Rng {
+    rand_chacha::ChaCha8Rng::seed_from_u64(seed)
+}
+
+#[test]
+fn the_same_seed_gives_the_same_scenes() {
+    for kind in SceneKind::ALL {
+        let a = generate_many(kind, &mut rng(11), 20);
+        let b = generate_many(kind, &mut rng(11), 20);
+        let c = generate_many(kind, &mut rng(12), 20);
+        assert_eq!(a, b, "{}", kind.name());
+        assert_ne!(a, c, "{}", kind.name());
+    }
+}
+
+#[test]
+fn scenario_files_round_trip_exactly() {
+    let dir = std::env::temp_dir().join(format!("wheelleg-scenarios-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("scenes.json");
+    for kind in SceneKind::ALL {
+        let scenes = generate_many(kind, &mut rng(3), 25);
+        scenario_file::save(&path, &scenes).unwrap();
+        let loaded = scenario_file::load(&path, &WHEELLEG).unwrap();
+        assert_eq!(loaded, scenes, "{}", kind.name());
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn the_documented_example_file_loads() {
+    let json = r#"{"scenarios":[{"name":"example","robot":{"x":0.0,"y":0.0,"yaw_deg":30.0},
+        "target":{"x":0.8,"y":0.0},
+        "obstacles":[{"kind":"bar","x":0.375,"y":0.125,"yaw_deg":0}]}]}"#;
+    let scenes = scenario_file::parse(json, &WHEELLEG).unwrap();
+    assert_eq!(scenes.len(), 1);
+    assert_eq!(scenes[0].obstacles[0].kind, ObstacleKind::Bar);
+    assert_eq!(scenes[0].start.yaw_steps, 6);
+}
+
+/// Parses `json`, expecting a refusal whose message names every string in `names`.
+fn refused(json: &str, names: &[&str]) {
+    let error = scenario_file::parse(json, &WHEELLEG).expect_err("must be refused");
+    let message = error.to_string();
+    for name in names {
+        assert!(message.contains(name), "{message:?} should name {name:?}");
+    }
+}
+
+fn one(robot: &str, obstacles: &str) -> String {
+    format!(
+        r#"{{"scenarios":[{{"name":"ok","robot":{{"x":0,"y":0,"yaw_deg":0}},"target":{{"x":0.8,"y":0}},"obstacles":[]}},
+        {{"name":"bad","robot":{robot},"target":{{"x":0.8,"y":0}},"obstacles":[{obstacles}]}}]}}"#
+    )
+}
+
+#[test]
+fn bad_files_are_refused_naming_the_scenario_and_field() {
+    let robot = r#"{"x":0,"y":0,"yaw_deg":0}"#;
+    refused(
+        &one(robot, r#"{"kind":"wall","x":1,"y":1,"yaw_deg":0}"#),
+        &["bad", "obstacles[0].kind", "wall"],
+    );
+    refused(
+        &one(robot, r#"{"kind":"block","x":0.125,"y":0.125,"yaw_deg":0}"#),
+        &["bad", "robot", "inside an obstacle"],
+    );
+    refused(
+        &one(r#"{"x":"NaN","y":0,"yaw_deg":0}"#, ""),
+        &["scenarios[1].robot.x"],
+    );
+    refused(
+        &one(r#"{"x":1e999,"y":0,"yaw_deg":0}"#, ""),
+        &["scenarios[1].robot.x"],
+    );
+    refused(
+        &one(r#"{"x":0,"y":0,"yaw_deg":7}"#, ""),
+        &["bad", "robot.yaw_deg", "multiple of 5"],
+    );
+    refused(
+        &one(robot, r#"{"kind":"bar","x":1,"y":1,"yaw_deg":45}"#),
+        &["bad", "obstacles[0].yaw_deg"],
+    );
+    refused(
+        &one(r#"{"x":0,"y":0}"#, ""),
+        &["scenarios[1].robot", "yaw_deg"],
+    );
+    refused("{\"scenarios\": [", &["malformed"]);
+    let missing = scenario_file::load(std::path::Path::new("/nonexistent/scenes.json"), &WHEELLEG);
+    assert!(matches!(missing, Err(ScenarioFileError::Io { .. })));
+}
+
+/// Leg configurations on the action lattice that the legs can reach, filtered.
+fn lattice_legs(keep: impl Fn(i32, i32) -> bool) -> Vec<LegConfig> {
+    let mut out = Vec::new();
+    for clearance_steps in -4..=6 {
+        for track_steps in -10..=10 {
+            let legs = LegConfig {
+                clearance_m: 0.12 + 0.02 * clearance_steps as f32,
+                track_m: 0.36 + 0.02 * track_steps as f32,
+            };
+            if keep(clearance_steps, track_steps) && WHEELLEG.is_reachable(legs) {
+                out.push(legs);
+            }
+        }
+    }
+    out
+}
+
+/// Whether the fence is a barrier for the allowed leg configurations. Any way across the fence
+/// carries the robot's front axle across the fence's first row, and its centre across the
+/// fence's middle. If, with either of those points anywhere in a band one step wide around its
+/// line, every lateral position across the arena (5 mm apart), every yaw and every allowed leg
+/// configuration collides, no sequence of steps gets across.
+fn fence_blocks(scene: &Scenario, legs: &[LegConfig]) -> bool {
+    let first_x = scene
+        .obstacles
+        .iter()
+        .map(|o| o.centre.x)
+        .fold(f32::NAN, f32::min);
+    let last_x = scene
+        .obstacles
+        .iter()
+        .map(|o| o.centre.x)
+        .fold(f32::NAN, f32::max);
+    free_pose_near_line(scene, legs, first_x, WHEELLEG.hip_x_m).is_none()
+        || free_pose_near_line(scene, legs, 0.5 * (first_x + last_x), 0.0).is_none()
+}
+
+/// A pose that does not collide with the robot's point `ahead_m` in front of its centre within
+/// 4 cm of the line x = `line_x`, if any: (that point's x, body centre y, yaw in degrees, legs).
+fn free_pose_near_line(
+    scene: &Scenario,
+    legs: &[LegConfig],
+    line_x: f32,
+    ahead_m: f32,
+) -> Option<(f32, f32, f32, LegConfig)> {
+    let obstacles = ObstacleSet::new(&scene.obstacles);
+    let y0 = scene.start.position.y;
+    for dx in -4..=4 {
+        let x = line_x + 0.01 * dx as f32;
+        for dy in -120..=120 {
+            let y = y0 + 0.005 * dy as f32;
+            for yaw_steps in 0..72 {
+                let yaw = (yaw_steps as f32 * 5.0).to_radians();
+                let centre = Point2::new(x - ahead_m * yaw.cos(), y - ahead_m * yaw.sin());
+                for &l in legs {
+                    let free = RobotParts::new(&WHEELLEG, centre, yaw, l)
+                        .is_ok_and(|p| !obstacles.collides(&p));
+                    if free {
+                        return Some((x, centre.y, yaw_steps as f32 * 5.0, l));
+                    }
+                }
+            }
+        }
+    }
+    None
+}
+
+#[test]
+fn each_fence_needs_its_behaviour() {
+    let cases: [(Behaviour, fn(i32, i32) -> bool, fn(i32, i32) -> bool); 3] = [
+        // Lift over: blocked with the body height frozen, passable lifted.
+        (Behaviour::LiftOver, |c, _| c == 0, |c, _| c >= 2),
+        // Spread over: blocked with the track frozen, passable spread.
+        (Behaviour::SpreadOver, |_, t| t == 0, |_, t| t == 10),
+        // Squeeze: blocked with the track frozen, passable narrowed.
+        (Behaviour::Squeeze, |_, t| t == 0, |_, t| t == -10),
+    ];
+    for (behaviour, frozen, with_behaviour) in cases {
+        for scene in generate_many(SceneKind::Behaviour(behaviour), &mut rng(5), 2) {
+            assert!(
+                fence_blocks(&scene, &lattice_legs(frozen)),
+                "{} must block frozen legs",
+                scene.name
+            );
+            assert!(
+                !fence_blocks(&scene, &lattice_legs(with_behaviour)),
+                "{} must let the behaviour through",
+                scene.name
+            );
+        }
+    }
+}
+
+#[test]
+fn around_scenes_block_the_straight_line() {
+    for scene in generate_many(SceneKind::Behaviour(Behaviour::Around), &mut rng(6), 10) {
+        let obstacles = ObstacleSet::new(&scene.obstacles);
+        let legs = lattice_legs(|_, _| true);
+        // Wherever the straight line crosses a block, no pose of the robot centred there is free.
+        let on_line = scene
+            .obstacles
+            .iter()
+            .map(|o| Point2::new(o.centre.x, scene.start.position.y));
+        let blocked = on_line.into_iter().any(|p| {
+            (0..72).all(|yaw| {
+                legs.iter().all(|&l| {
+                    RobotParts::new(&WHEELLEG, p, (yaw as f32 * 5.0).to_radians(), l)
+                        .is_ok_and(|parts| obstacles.collides(&parts))
+                })
+            })
+        });
+        assert!(blocked, "{}", scene.name);
+    }
+}
