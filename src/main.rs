@@ -10,7 +10,11 @@ use clap::{Parser, Subcommand};
 use std::process::ExitCode;
 
 #[derive(Parser)]
-#[command(name = "wheelleg", version, about = "Wheel-legged robot navigation by deep RL")]
+#[command(
+    name = "wheelleg",
+    version,
+    about = "Wheel-legged robot navigation by deep RL"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -30,6 +34,9 @@ enum Command {
     Eval(cli::eval::Args),
     /// Plot learning curves of runs into a PNG.
     Plot(cli::plot::Args),
+    /// Run the closed loop on one scene: world -> policy (or planner) -> CAN -> simulated
+    /// motors -> measured motion -> world; writes path.png and bus.log (candump -L).
+    Demo(cli::demo::Args),
 }
 
 fn main() -> ExitCode {
@@ -41,6 +48,7 @@ fn main() -> ExitCode {
         Command::Train(args) => cli::train::run(args),
         Command::Eval(args) => cli::eval::run(args),
         Command::Plot(args) => cli::plot::run(args),
+        Command::Demo(args) => cli::demo::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,0 +1,359 @@
+//! `wheelleg demo [--scenario FILE] [--weights FILE] [--can IFACE] [--out DIR] [--seed S]`:
+//! the closed loop (world -> policy or planner -> CAN -> motors -> measured motion -> world) on
+//! one scene, with a picture of the achieved path and the bus traffic as a `candump -L` log.
+//!
+//! Exit status: 0 when the episode ran to its end (success or not: a policy failing a scene is
+//! a result, not an error); non-zero when the robot had to be stopped (a [`Fault`]: silent
+//! node, axis error, step off its ideal) or the loop could not run at all. Outputs are written
+//! in every case where the loop started.
+
+use super::CliResult;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use std::io::Write;
+use std::path::PathBuf;
+use wheelleg::closed_loop::{
+    ClosedLoop, Driver, EpisodeReport, Fault, LoopConfig, LoopError, PlannerDriver, PolicyDriver,
+    BITRATE_BPS,
+};
+use wheelleg_firmware_sim::candump::{CandumpWriter, DEFAULT_EPOCH_US};
+use wheelleg_firmware_sim::rig::RigError;
+use wheelleg_runtime::can::node_map::Axis;
+use wheelleg_runtime::robot::WHEELLEG;
+use wheelleg_sim::env::{Env, Status};
+use wheelleg_sim::generate::{generate, SceneKind};
+use wheelleg_sim::planner::PlannerConfig;
+use wheelleg_sim::render::top_view;
+use wheelleg_sim::scenario::Scenario;
+
+/// Weights the demo uses when `--weights` is not given, if the file exists.
+pub const DEFAULT_WEIGHTS: &str = "weights/policy.wlw";
+
+/// Complex scenes drawn from the seed until the planner solves one: a default scene the demo
+/// cannot finish would demonstrate nothing.
+const MAX_SCENE_DRAWS: u32 = 20;
+
+/// Arguments of `demo`.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Scenario file (JSON); the first scenario, or the one named by --name. Default: a
+    /// generated complex scene (see --seed).
+    #[arg(long)]
+    scenario: Option<PathBuf>,
+    /// Name of the scenario to run from --scenario.
+    #[arg(long, requires = "scenario")]
+    name: Option<String>,
+    /// Policy weights (.wlw). Default: weights/policy.wlw if it exists, else the exact
+    /// planner's action sequence drives.
+    #[arg(long)]
+    weights: Option<PathBuf>,
+    /// SocketCAN interface with the motors on it (for example vcan0, with
+    /// `firmware_sim --can vcan0` running). Default: in-process bus with simulated motors.
+    #[arg(long)]
+    can: Option<String>,
+    /// Output directory for path.png and bus.log (created if missing).
+    #[arg(long, default_value = "out/demo")]
+    out: PathBuf,
+    /// Seed of the generated scene (the default's scene needs 14 steps around two blocks).
+    #[arg(long, default_value_t = 5)]
+    seed: u64,
+    /// Planner effort, in expanded states.
+    #[arg(long, default_value_t = 200_000)]
+    max_expansions: usize,
+    /// Fault injection (in-process bus only): this CAN node id goes silent...
+    #[arg(long, requires = "silent_at_step")]
+    silent_node: Option<u8>,
+    /// ...from this decision on (1-based).
+    #[arg(long, requires = "silent_node")]
+    silent_at_step: Option<u32>,
+}
+
+/// The scene to run and how it was chosen.
+fn scene(args: &Args, planner: &PlannerConfig) -> Result<(Scenario, String), String> {
+    if let Some(path) = &args.scenario {
+        let scenarios = wheelleg_sim::scenario_file::load(path, &WHEELLEG)
+            .map_err(|e| format!("{}: {e}", path.display()))?;
+        let chosen = match &args.name {
+            Some(name) => scenarios
+                .into_iter()
+                .find(|s| &s.name == name)
+                .ok_or_else(|| format!("{}: no scenario named {name:?}", path.display()))?,
+            None => scenarios
+                .into_iter()
+                .next()
+                .ok_or_else(|| format!("{}: contains no scenario", path.display()))?,
+        };
+        let origin = format!("from {}", path.display());
+        return Ok((chosen, origin));
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(args.seed);
+    for draw in 0..MAX_SCENE_DRAWS {
+        let scenario = generate(
+            SceneKind::Complex,
+            &mut rng,
+            format!("complex-seed{}-{draw}", args.seed),
+        );
+        let env = Env::new(&scenario, LoopConfig::default().env).map_err(|e| e.to_string())?;
+        if PlannerDriver::new(&env, planner).is_ok() {
+            let origin = format!(
+                "generated complex scene (seed {}, draw {}: first the planner solves)",
+                args.seed,
+                draw + 1
+            );
+            return Ok((scenario, origin));
+        }
+    }
+    Err(format!(
+        "none of the first {MAX_SCENE_DRAWS} complex scenes of seed {} is solvable within {} \
+         planner expansions; try another --seed or more --max-expansions",
+        args.seed, args.max_expansions
+    ))
+}
+
+/// The weights file to use, if any: `--weights` must exist; the default may be absent.
+fn weights_path(args: &Args) -> Result<Option<PathBuf>, String> {
+    match &args.weights {
+        Some(path) if path.is_file() => Ok(Some(path.clone())),
+        Some(path) => Err(format!("--weights {}: no such file", path.display())),
+        None => Ok(Some(PathBuf::from(DEFAULT_WEIGHTS)).filter(|p| p.is_file())),
+    }
+}
+
+/// The loop on the chosen bus, not started.
+fn closed_loop(args: &Args, scenario: &Scenario) -> Result<ClosedLoop, String> {
+    let config = LoopConfig::default();
+    let Some(iface) = &args.can else {
+        return ClosedLoop::in_process(scenario, config).map_err(|e| e.to_string());
+    };
+    if args.silent_node.is_some() {
+        return Err(
+            "--silent-node needs the in-process bus (on SocketCAN use `firmware_sim \
+                    --silent-node N`)"
+                .to_owned(),
+        );
+    }
+    let transport = open_socketcan(iface)?;
+    ClosedLoop::remote(scenario, config, transport).map_err(|e| e.to_string())
+}
+
+#[cfg(target_os = "linux")]
+fn open_socketcan(iface: &str) -> Result<Box<dyn wheelleg_firmware_sim::bus::Transport>, String> {
+    match wheelleg_firmware_sim::socketcan::SocketCan::open(iface) {
+        Ok(socket) => Ok(Box::new(socket)),
+        Err(e) => Err(format!(
+            "cannot open SocketCAN interface {iface}: {e}. Create a virtual bus with `ip link \
+             add dev {iface} type vcan && ip link set up {iface}` and start the motors on it \
+             with `firmware_sim --can {iface}`, or leave out --can to use the in-process bus"
+        )),
+    }
+}
+
+#[cfg(not(target_os = "linux"))]
+fn open_socketcan(iface: &str) -> Result<Box<dyn wheelleg_firmware_sim::bus::Transport>, String> {
+    Err(format!(
+        "cannot open SocketCAN interface {iface}: SocketCAN exists only on Linux; leave out \
+         --can to use the in-process bus"
+    ))
+}
+
+/// Writes into `dir/.name.tmp`; [`LogFile::commit`] renames it over `dir/name` once complete.
+struct LogFile {
+    tmp: PathBuf,
+    path: PathBuf,
+}
+
+impl LogFile {
+    fn create(path: PathBuf) -> Result<(LogFile, Box<dyn Write>), String> {
+        let name = path.file_name().map_or_else(
+            || "bus.log".to_owned(),
+            |n| n.to_string_lossy().into_owned(),
+        );
+        let tmp = path.with_file_name(format!(".{name}.tmp"));
+        let file = std::fs::File::create(&tmp)
+            .map_err(|e| format!("cannot create {}: {e}", tmp.display()))?;
+        Ok((
+            LogFile { tmp, path },
+            Box::new(std::io::BufWriter::new(file)),
+        ))
+    }
+
+    fn commit(self) -> Result<(), String> {
+        let fail = |e: std::io::Error| format!("cannot write {}: {e}", self.path.display());
+        std::fs::File::open(&self.tmp)
+            .and_then(|f| f.sync_all())
+            .map_err(fail)?;
+        std::fs::rename(&self.tmp, &self.path).map_err(fail)
+    }
+}
+
+/// Runs `demo`.
+pub fn run(args: Args) -> CliResult {
+    let planner = PlannerConfig {
+        max_expansions: args.max_expansions,
+        ..PlannerConfig::default()
+    };
+    let weights = weights_path(&args)?;
+    if let Some(node) = args.silent_node {
+        if !Axis::ALL.iter().any(|a| a.node_id().get() == node) {
+            return Err(format!("--silent-node {node}: the robot's nodes are 1 to 16").into());
+        }
+    }
+    let (scenario, origin) = scene(&args, &planner)?;
+    let mut closed_loop = closed_loop(&args, &scenario)?;
+
+    // Both drivers decide from the world as it is at the start of the episode.
+    let bytes;
+    let mut driver: Box<dyn Driver + '_> = match &weights {
+        Some(path) => {
+            bytes =
+                std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+            Box::new(PolicyDriver::from_bytes(
+                &bytes,
+                &path.display().to_string(),
+            )?)
+        }
+        None => Box::new(
+            PlannerDriver::new(closed_loop.env(), &planner).map_err(|e| {
+                format!(
+                    "no weights file ({DEFAULT_WEIGHTS} does not exist) and the planner cannot \
+                 drive: {e}"
+                )
+            })?,
+        ),
+    };
+    println!(
+        "scene:     {} ({origin}); target {:.2} m away",
+        scenario.name,
+        closed_loop.env().distance_to_target_m()
+    );
+    match &weights {
+        Some(_) => println!("driver:    {}", driver.describe()),
+        None => println!(
+            "driver:    {} (no weights: {DEFAULT_WEIGHTS} does not exist; pass --weights)",
+            driver.describe()
+        ),
+    }
+    match &args.can {
+        None => {
+            println!("bus:       in-process, 16 simulated ODrive axes, 1 Mbit/s, control 100 Hz")
+        }
+        Some(iface) => println!("bus:       SocketCAN {iface}, motors on the bus, real time"),
+    }
+
+    std::fs::create_dir_all(&args.out)
+        .map_err(|e| format!("cannot create {}: {e}", args.out.display()))?;
+    let interface = args.can.as_deref().unwrap_or("can0");
+    let (log_file, writer) = LogFile::create(args.out.join("bus.log"))?;
+    closed_loop.log_to(CandumpWriter::new(writer, interface, DEFAULT_EPOCH_US));
+    let started = closed_loop.start();
+    if let Err(e) = started {
+        let _ = closed_loop.take_log();
+        let _ = std::fs::remove_file(&log_file.tmp);
+        return Err(match (&args.can, e) {
+            (Some(iface), LoopError::Rig(RigError::StartupFailed(_))) => format!(
+                "no motor controllers answered on {iface}: is `firmware_sim --can {iface}` \
+                 running?"
+            )
+            .into(),
+            (_, e) => e.into(),
+        });
+    }
+
+    let wall_clock = std::time::Instant::now();
+    let mut failure: Option<LoopError> = None;
+    while !closed_loop.is_done() {
+        let step = closed_loop.env().steps() + 1;
+        if let (Some(node), Some(at)) = (args.silent_node, args.silent_at_step) {
+            if step == at {
+                inject_silence(&mut closed_loop, node);
+            }
+        }
+        let decided = driver.decide(closed_loop.env()).map_err(LoopError::from);
+        if let Err(e) = decided.and_then(|action| closed_loop.step(action)) {
+            failure = Some(e);
+            break;
+        }
+    }
+    let report = match failure {
+        None => closed_loop.finish()?,
+        // Still write what happened before the loop broke.
+        Some(_) => closed_loop.report(),
+    };
+    closed_loop.take_log()?;
+    log_file.commit()?;
+    let png = args.out.join("path.png");
+    top_view(&scenario, &WHEELLEG, &report.path)
+        .save_png(&png)
+        .map_err(|e| format!("cannot write {}: {e}", png.display()))?;
+
+    print_report(&report, wall_clock.elapsed().as_secs_f64());
+    println!(
+        "wrote:     {} and {} ({} frames)",
+        png.display(),
+        args.out.join("bus.log").display(),
+        report.traffic.frames
+    );
+    if let Some(e) = failure {
+        return Err(e.into());
+    }
+    match report.fault {
+        Some(fault) => Err(format!("robot stopped: {fault}").into()),
+        None => Ok(()),
+    }
+}
+
+fn inject_silence(closed_loop: &mut ClosedLoop, node: u8) {
+    let step = closed_loop.env().steps() + 1;
+    if let Some(axis) = Axis::ALL.into_iter().find(|a| a.node_id().get() == node) {
+        if let Some(sim) = closed_loop.rig_mut().firmware_mut().axis_mut(axis) {
+            println!("inject:    node {node} ({axis:?}) goes silent before step {step}");
+            sim.set_silent(true);
+        }
+    }
+}
+
+fn print_report(report: &EpisodeReport, wall_s: f64) {
+    let result = match (report.status, report.fault) {
+        (_, Some(Fault::SafeStop { .. })) => "stopped safely (fault below)".to_owned(),
+        (_, Some(_)) => "stopped (fault below)".to_owned(),
+        (Status::Success, None) => "SUCCESS: reached the target".to_owned(),
+        (Status::TooFar, None) => "failed: drove too far from the target".to_owned(),
+        (Status::StepLimit, None) => "failed: step limit".to_owned(),
+        (Status::Running, None) => "incomplete".to_owned(),
+    };
+    println!("result:    {result}");
+    let t = &report.tracking;
+    println!(
+        "steps:     {} decisions ({} moved, {} undone by the world, {} refused by the legs), \
+         {} collisions",
+        report.steps, t.moved, t.undone, t.refused, report.collisions
+    );
+    println!(
+        "tracking:  worst step vs ideal {:.4} mm, {:.4}°, legs {:.4} mm (tolerance 2 mm, 0.2°, \
+         0.5 mm); odometry drift {:.3} mm, {:.4}° over the episode",
+        1e3 * t.max_error.position_m,
+        t.max_error.yaw_rad.to_degrees(),
+        1e3 * t.max_error.legs_m,
+        1e3 * report.odometry_drift_m,
+        report.odometry_drift_rad.to_degrees()
+    );
+    if let Some(load) = report.bus_load {
+        println!(
+            "bus load:  {:.1} % nominal, {:.1} % worst-case stuffing at {:.0} Mbit/s \
+             ({:.0} frames/s; {} feedback frames used, {} malformed)",
+            100.0 * load.nominal,
+            100.0 * load.worst_case,
+            BITRATE_BPS / 1e6,
+            load.frames_per_s,
+            report.feedback.accepted,
+            report.feedback.malformed
+        );
+    }
+    println!(
+        "time:      {:.1} s robot time in {:.1} s wall clock",
+        report.elapsed_s, wall_s
+    );
+    if let Some(fault) = report.fault {
+        println!("fault:     {fault}");
+    }
+}
