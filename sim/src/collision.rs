@@ -163,6 +163,17 @@ impl ObstacleSet {
         &self.boxes
     }
 
+    /// Whether any obstacle's footprint comes within `reach_m` of `centre` (as a square test:
+    /// cheap, and conservative).
+    pub fn any_within(&self, centre: Point2<f32>, reach_m: f32) -> bool {
+        self.boxes.iter().any(|b| {
+            b.min_x_m <= centre.x + reach_m
+                && b.max_x_m >= centre.x - reach_m
+                && b.min_y_m <= centre.y + reach_m
+                && b.max_y_m >= centre.y - reach_m
+        })
+    }
+
     /// Whether the box `aabb` overlaps any obstacle's bounding box.
     pub fn may_touch(&self, aabb: &Aabb) -> bool {
         self.aabbs.iter().any(|b| b.intersects(aabb))

@@ -116,6 +116,8 @@ pub struct Env {
     start_distance_m: f32,
     status: Status,
     collisions: u32,
+    /// No part of the robot is ever farther than this from its centre, horizontally.
+    reach_m: f32,
 }
 
 /// Stepping an episode that is over.
@@ -162,6 +164,7 @@ impl Env {
                 Status::Running
             },
             collisions: 0,
+            reach_m: horizontal_reach_m(&geometry),
         })
     }
 
@@ -226,6 +229,16 @@ impl Env {
             return Err(InvalidAction::OutOfBounds);
         }
         let legs = to.leg_config(&self.geometry);
+        self.geometry
+            .leg_ik(legs)
+            .map_err(InvalidAction::Impossible)?;
+        // Most steps are far from every obstacle: one box test then settles them, without
+        // placing the robot's 13 parts.
+        if !self.obstacles.any_within(p, self.reach_m)
+            && !self.obstacles.any_within(from.position, self.reach_m)
+        {
+            return Ok(());
+        }
         let end = RobotParts::new(&self.geometry, p, to.yaw_rad(), legs)
             .map_err(InvalidAction::Impossible)?;
         if !self.obstacles.may_touch(&end.aabb()) {
@@ -304,4 +317,17 @@ impl Env {
         let target = self.state.world_to_robot(self.target);
         out.state = [legs.clearance_m, legs.track_m, target.x, target.y];
     }
+}
+
+/// A bound on how far any robot part reaches horizontally from the body centre, in any pose:
+/// the body's corner, or a wheel at the widest track (the knees stay inside the wheels'
+/// reach: they are at most a thigh's length outboard of the hips), plus the largest part radius.
+fn horizontal_reach_m(geometry: &RobotGeometry) -> f32 {
+    let body = (0.5 * geometry.body_length_m).hypot(0.5 * geometry.body_width_m);
+    let wheel = (geometry.hip_x_m + geometry.wheel_radius_m)
+        .hypot(0.5 * geometry.track_range_m[1] + 0.5 * geometry.wheel_width_m);
+    let knee = geometry
+        .hip_x_m
+        .hypot(geometry.hip_y_m + geometry.thigh_m + geometry.link_radius_m);
+    body.max(wheel).max(knee) + 0.01
 }

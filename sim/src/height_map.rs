@@ -101,12 +101,13 @@ pub fn render(boxes: &[GroundBox], position: Point2<f32>, yaw_rad: f32, out: &mu
             if first > last {
                 continue;
             }
-            let cells = &mut out[row * HEIGHT_MAP_SIDE..(row + 1) * HEIGHT_MAP_SIDE];
-            for col in first as usize..=last as usize {
+            let (first, last) = (first as usize, last as usize);
+            let cells = &mut out[row * HEIGHT_MAP_SIDE + first..=row * HEIGHT_MAP_SIDE + last];
+            for (col, cell) in (first..=last).zip(cells) {
                 let x = bx - col as f32 * sx;
                 let y = by - col as f32 * sy;
-                if b.contains(x, y) && cells[col] < b.height_m {
-                    cells[col] = b.height_m;
+                if b.contains(x, y) && *cell < b.height_m {
+                    *cell = b.height_m;
                 }
             }
         }
