@@ -242,7 +242,10 @@ mod tests {
         let right = g.leg_points(LegId::FrontRight, joints);
         assert!((left.wheel.y + right.wheel.y).abs() < 1e-6);
         assert!((left.wheel.y - 0.18).abs() < 1e-5);
-        assert!(g.is_reachable(config(0.20, 0.36)), "highest default-track pose");
+        assert!(
+            g.is_reachable(config(0.20, 0.36)),
+            "highest default-track pose"
+        );
         // Wheel axle one wheel radius above the ground.
         let ground_z = -g.body_centre_height_m(0.12);
         assert!((left.wheel.z - (ground_z + g.wheel_radius_m)).abs() < 1e-5);
