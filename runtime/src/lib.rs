@@ -8,6 +8,7 @@
 //! - [`robot`]: dimensions of the body, legs and wheels.
 //! - [`leg`]: 3-joint leg inverse and forward kinematics, and the reachable (clearance, track) set.
 //! - [`action`]: the 5-D discrete action and its step sizes.
+//! - [`observation`]: the height map's layout and the state vector the policy sees.
 //! - [`model`]: the int8 policy network: weights file, loader, integer inference (scalar / AVX2).
 //! - [`base`]: mecanum base kinematics, wheel speeds and odometry.
 //! - [`motion`]: one decision as a smooth setpoint stream at the control rate.
@@ -21,4 +22,5 @@ pub mod can;
 pub mod leg;
 pub mod model;
 pub mod motion;
+pub mod observation;
 pub mod robot;
