@@ -80,9 +80,22 @@ impl BackendKind {
 }
 
 /// A fresh policy: He-uniform weights (from `network_f32`), action head scaled down by
-/// [`ACTION_HEAD_INIT_SCALE`], zero head biases. Every number comes from `rng`.
+/// [`ACTION_HEAD_INIT_SCALE`], zero head biases. The first dense layer's columns that read the
+/// state (clearance, track, target) are drawn with the state's own fan-in: with the conv
+/// features' fan-in (516) their weights would be ~0.1 and the target, the one input every
+/// behaviour needs, would start drowned by 512 conv features (measured: straight-line
+/// learning stalled at a few % success). Every number comes from `rng`.
 pub fn init_policy(arch: &Architecture, rng: &mut impl Rng) -> NetworkF32 {
     let mut net = NetworkF32::random(arch, rng);
+    if let Some(first) = net.hidden.first_mut() {
+        let features = arch.features_len();
+        let bound = (6.0 / arch.state_len.max(1) as f32).sqrt();
+        for row in first.weights.chunks_exact_mut(first.in_features) {
+            for w in &mut row[features..] {
+                *w = rng.random_range(-bound..bound);
+            }
+        }
+    }
     net.action_head
         .weights
         .iter_mut()
