@@ -24,6 +24,8 @@ struct Cli {
 enum Command {
     /// Generate scenes of a behaviour or complex scenes into a scenario file.
     Generate(cli::generate::Args),
+    /// Print what a weights file holds, checked as the robot's runtime checks it.
+    Inspect(cli::inspect::Args),
     /// Prove scenarios solvable and find their shortest step counts.
     Plan(cli::plan::Args),
     /// Draw each scenario's top view (with the planner's path) and the robot's height map.
@@ -43,6 +45,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Generate(args) => cli::generate::run(args),
+        Command::Inspect(args) => cli::inspect::run(args),
         Command::Plan(args) => cli::plan::run(args),
         Command::Render(args) => cli::render::run(args),
         Command::Train(args) => cli::train::run(args),

@@ -3,6 +3,7 @@
 pub mod demo;
 pub mod eval;
 pub mod generate;
+pub mod inspect;
 pub mod plan;
 pub mod plot;
 pub mod render;

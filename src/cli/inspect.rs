@@ -1,0 +1,91 @@
+//! `wheelleg inspect FILE`: what a weights file holds, checked exactly as the robot's runtime
+//! checks it (same loader), so a file that inspects cleanly is a file the robot will load.
+
+use super::CliResult;
+use std::path::PathBuf;
+use wheelleg_runtime::model::load::Model;
+
+/// Arguments of `inspect`.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Weights file (.wlw).
+    file: PathBuf,
+}
+
+/// Runs `inspect`.
+pub fn run(args: Args) -> CliResult {
+    let bytes = std::fs::read(&args.file).map_err(|e| format!("{}: {e}", args.file.display()))?;
+    let model = Model::parse(&bytes).map_err(|e| format!("{}: {e}", args.file.display()))?;
+    println!(
+        "{}: {} bytes, checksum and structure valid",
+        args.file.display(),
+        bytes.len()
+    );
+    let input = &model.input;
+    println!(
+        "input     height map {} x {}, {:.3} mm per step, zero point {}",
+        input.rows,
+        input.cols,
+        input.height.scale_m * 1000.0,
+        input.height.zero_point
+    );
+    for (i, s) in model.state.iter().enumerate() {
+        println!(
+            "state[{i}]  {:.3} mm per step, zero point {}",
+            s.scale_m * 1000.0,
+            s.zero_point
+        );
+    }
+    for (i, conv) in model.convs.iter().enumerate() {
+        let r = &conv.record;
+        println!(
+            "conv{i}     {}x{}x{} -> {}x{}x{}  kernel {} stride {} padding {}{}  out scale {:.5} zp {}",
+            conv.in_rows,
+            conv.in_cols,
+            conv.in_channels,
+            conv.out_rows,
+            conv.out_cols,
+            r.out_channels,
+            r.kernel,
+            r.stride,
+            r.padding,
+            if r.relu { " relu" } else { "" },
+            r.output.scale,
+            r.output.zero_point
+        );
+    }
+    println!(
+        "flatten   {} x {} x {} features (CHW) + {} state",
+        model.feature_channels,
+        model.feature_rows,
+        model.feature_cols,
+        model.state.len()
+    );
+    let dense = |name: String, linear: &wheelleg_runtime::model::load::Linear<'_>| {
+        println!(
+            "{name:<9} {} -> {}{}",
+            linear.row_len,
+            linear.rows,
+            if linear.relu { " relu" } else { "" }
+        );
+    };
+    for (i, d) in model.hidden.iter().enumerate() {
+        dense(format!("dense{i}"), &d.linear);
+    }
+    dense("actions".into(), &model.action_head.linear);
+    match &model.value_head {
+        Some(v) => dense("value".into(), &v.linear),
+        None => println!("value     (not stored)"),
+    }
+    println!(
+        "totals    {} parameters, {} multiply-accumulates per decision, {} bytes of tensors",
+        model.parameter_count(),
+        model.macs(),
+        model.tensor_bytes()
+    );
+    println!(
+        "buffers   activations {} x int8, widened row {} x i16",
+        model.requirements.activation_elements, model.requirements.row_elements
+    );
+    Ok(())
+}

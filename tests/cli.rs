@@ -1,0 +1,148 @@
+//! The command line as a user meets it: generate → plan → render, inspect, and clear refusals of
+//! bad input with a non-zero exit status.
+
+use rand::SeedableRng;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use wheelleg_trainer::network_f32::{Architecture, NetworkF32};
+use wheelleg_trainer::quantize::{quantize, Calibration, RangeMethod};
+
+fn wheelleg(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_wheelleg"))
+        .args(args)
+        .output()
+        .expect("the wheelleg binary runs")
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("wheelleg-cli-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn text(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(bytes).into_owned()
+}
+
+#[test]
+fn generate_plan_and_render_a_scenario_file() {
+    let dir = scratch("plan");
+    let file = dir.join("straight.json");
+    let file_arg = file.to_str().unwrap();
+    let out = wheelleg(&[
+        "generate", "--kind", "straight", "--count", "3", "--seed", "2", "--out", file_arg,
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+
+    let out = wheelleg(&["plan", "--scenarios", file_arg, "--json"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let results = json["results"].as_array().unwrap();
+    assert_eq!(results.len(), 3);
+    for r in results {
+        assert_eq!(r["solvable"], serde_json::Value::Bool(true), "{r}");
+        // 0.5 to 1.0 m at most 0.0707 m per step, and no detour is needed.
+        let steps = r["steps"].as_u64().unwrap();
+        assert!((7..=20).contains(&steps), "{r}");
+    }
+
+    let pictures = dir.join("pictures");
+    let out = wheelleg(&[
+        "render",
+        "--scenarios",
+        file_arg,
+        "--out",
+        pictures.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    for name in [
+        "straight-0.png",
+        "straight-0-heightmap.png",
+        "straight-2.png",
+    ] {
+        let png = std::fs::read(pictures.join(name)).unwrap();
+        assert_eq!(&png[1..4], b"PNG", "{name} is a PNG");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn bad_scenario_files_fail_every_command_with_the_reason() {
+    let dir = scratch("bad");
+    let file = dir.join("bad.json");
+    std::fs::write(
+        &file,
+        r#"{"scenarios":[{"name":"oops","robot":{"x":0,"y":0,"yaw_deg":0},"target":{"x":0.8,"y":0},
+            "obstacles":[{"kind":"pyramid","x":0.375,"y":0.125,"yaw_deg":0}]}]}"#,
+    )
+    .unwrap();
+    let file_arg = file.to_str().unwrap();
+    for args in [
+        vec!["plan", "--scenarios", file_arg],
+        vec![
+            "render",
+            "--scenarios",
+            file_arg,
+            "--out",
+            dir.to_str().unwrap(),
+        ],
+    ] {
+        let out = wheelleg(&args);
+        assert!(!out.status.success());
+        let message = text(&out.stderr);
+        assert!(
+            message.contains("oops") && message.contains("obstacles[0].kind"),
+            "{message}"
+        );
+    }
+    let out = wheelleg(&["generate", "--kind", "maze", "--out", file_arg]);
+    assert!(!out.status.success());
+    assert!(text(&out.stderr).contains("unknown scene kind"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+fn random_policy_file(dir: &Path) -> PathBuf {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    let network = NetworkF32::random(&Architecture::default_policy(), &mut rng);
+    let height = vec![0.1f32; 32 * 32];
+    let state = vec![0.12, 0.36, 0.8, 0.0];
+    let calibration =
+        Calibration::from_observations(&network, [(height.as_slice(), state.as_slice())]);
+    let bytes = quantize(&network, &calibration, RangeMethod::MinMax)
+        .unwrap()
+        .to_bytes()
+        .unwrap();
+    let path = dir.join("policy.wlw");
+    std::fs::write(&path, bytes).unwrap();
+    path
+}
+
+#[test]
+fn inspect_shows_the_architecture_and_refuses_damaged_files() {
+    let dir = scratch("inspect");
+    let policy = random_policy_file(&dir);
+    let out = wheelleg(&["inspect", policy.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let report = text(&out.stdout);
+    for expected in [
+        "32x32x1 -> 16x16x16",
+        "516 -> 128 relu",
+        "128 -> 15",
+        "82288 parameters",
+    ] {
+        assert!(report.contains(expected), "{report}");
+    }
+    let mut bytes = std::fs::read(&policy).unwrap();
+    let middle = bytes.len() / 2;
+    bytes[middle] ^= 0x40;
+    let damaged = dir.join("damaged.wlw");
+    std::fs::write(&damaged, &bytes).unwrap();
+    let out = wheelleg(&["inspect", damaged.to_str().unwrap()]);
+    assert!(!out.status.success());
+    assert!(
+        text(&out.stderr).contains("checksum"),
+        "{}",
+        text(&out.stderr)
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
