@@ -1,29 +1,50 @@
-//! Exact shortest-path search over the robot's discrete action set (A*).
+//! Exact shortest-path search over the robot's discrete action set.
 //!
-//! Nodes are robot states; edges are the 242 non-idle actions whose transitions the simulator
-//! accepts (an undone action never helps a shortest path, so invalid transitions are not
-//! edges). Every edge costs one step. The heuristic, the number of steps the straight-line
-//! distance to the success circle needs at the longest possible step (a diagonal move of
-//! 0.05 * sqrt(2) m), never overestimates, so the first goal popped is a shortest plan.
+//! The robot's full state is its base pose (position, yaw) and its leg configuration
+//! (clearance, track). Leg changes ride along with every move for free, so a search over full
+//! states sees every pose in up to ~200 leg variants that all look equally promising, and
+//! explodes. This search collapses the leg dimensions instead:
 //!
-//! Positions are compared at 0.1 mm: the same pose reached by moves in a different order differs
-//! only by float rounding, and merging those keeps the search finite without merging poses
-//! the simulator would treat differently at the scale of any obstacle.
+//! - A node is a base pose with the *set* of leg configurations in which the robot can stand
+//!   there after exactly `g` steps (a bitset over the reachable (clearance, track) lattice).
+//! - An edge is one of the 27 base moves (9 translations x 3 yaw steps, "stay" included). From
+//!   `(pose, L)` the move leads to `(pose', L')` where `L'` holds every configuration one leg step
+//!   (-1/0/+1 per leg dimension) from some member of `L` for which the simulator accepts the
+//!   transition, restricted to the allowed actions. Every edge costs one step.
+//! - Dominance: a node is dropped when the same pose is already known with no more steps and a
+//!   superset of leg configurations; whatever the dropped node could do, that one does as well or
+//!   sooner. Nothing else is pruned, so the search stays exact.
+//!
+//! The heuristic is pose-only and never overestimates (see [`Heuristic`]); the first goal
+//! accepted is therefore a shortest plan. At the goal, a concrete action sequence is rebuilt by
+//! walking back through the parents, choosing for each step a leg configuration of the parent
+//! set from which the transition is valid, and the plan is replayed in a copy of the episode;
+//! a plan that does not replay is a bug in this module, and panics rather than being reported.
+//!
+//! Positions are compared at 0.1 mm: the same pose reached by moves in a different order
+//! differs only by float rounding, and merging those keeps the search finite without merging
+//! poses the simulator would treat differently at the scale of any obstacle.
 //!
 //! The search is bounded by a number of expansions. When exact search runs out, a weighted
-//! search (heuristic inflated) can still prove a scene solvable, without the shortest length.
+//! search (heuristic inflated, [`plan_with_fallback`]) can still prove a scene solvable, without
+//! the shortest length.
 
-use crate::env::{Env, Status};
-use crate::state::RobotState;
-use nalgebra::Point2;
+use crate::collision::{RobotParts, PART_COUNT};
+use crate::env::{Env, InvalidAction, Status};
+use crate::state::{RobotState, YAW_STEPS_PER_TURN};
+use nalgebra::{Point2, Point3, Vector3};
+use parry3d::bounding_volume::{Aabb, BoundingVolume};
 use std::cmp::Ordering;
 use std::collections::{BinaryHeap, HashMap};
-use wheelleg_runtime::action::{Action, COUNT, MOVE_STEP_M};
+use std::hash::{BuildHasherDefault, Hasher};
+use wheelleg_runtime::action::{Action, Step, COUNT, MOVE_STEP_M};
+use wheelleg_runtime::leg::LegConfig;
+use wheelleg_runtime::robot::RobotGeometry;
 
 /// Search settings.
 #[derive(Clone, Copy, Debug)]
 pub struct PlannerConfig {
-    /// Give up after expanding this many states.
+    /// Give up after expanding this many nodes.
     pub max_expansions: usize,
     /// Heuristic weight: 1.0 for shortest plans; above 1 finds plans faster, not shortest.
     pub heuristic_weight: f32,
@@ -73,55 +94,507 @@ pub enum PlanOutcome {
 pub struct Plan {
     /// What was found.
     pub outcome: PlanOutcome,
-    /// States expanded.
+    /// Nodes (base pose with a set of leg configurations) expanded.
     pub expansions: usize,
 }
 
-type Key = (i32, i32, i32, i32, i32);
+/// Heuristic weight of the fallback search in [`plan_with_fallback`]: large enough to dive
+/// through the behaviour scenes in a few thousand expansions, small enough that plans stay
+/// reasonably short.
+pub const FALLBACK_WEIGHT: f32 = 3.0;
 
-fn key(state: &RobotState) -> Key {
-    (
-        (state.position.x * 1.0e4).round() as i32,
-        (state.position.y * 1.0e4).round() as i32,
-        state.yaw_steps,
-        state.clearance_steps,
-        state.track_steps,
-    )
+/// Result of [`plan_with_fallback`]: the exact search, and the weighted one when the exact one
+/// ran out of budget.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FallbackPlan {
+    /// The exact (or, if so configured, weighted) search.
+    pub exact: Plan,
+    /// The weighted search, run only when `exact` exceeded its budget.
+    pub fallback: Option<Plan>,
 }
 
-struct Node {
-    state: RobotState,
-    parent: usize,
+impl FallbackPlan {
+    /// The final answer: the fallback's when it ran, else the exact search's.
+    pub fn outcome(&self) -> &PlanOutcome {
+        self.fallback
+            .as_ref()
+            .map_or(&self.exact.outcome, |p| &p.outcome)
+    }
+
+    /// Nodes expanded by both searches together.
+    pub fn expansions(&self) -> usize {
+        self.exact.expansions + self.fallback.as_ref().map_or(0, |p| p.expansions)
+    }
+}
+
+/// Exact search within the budget; if that runs out, a weighted search
+/// ([`FALLBACK_WEIGHT`]) with the same budget, which can still prove the scene solvable (plan
+/// not shortest) or unsolvable (it explores everything when it fails).
+pub fn plan_with_fallback(env: &Env, config: &PlannerConfig) -> FallbackPlan {
+    let exact = plan(env, config);
+    if exact.outcome != PlanOutcome::BudgetExceeded || config.heuristic_weight >= FALLBACK_WEIGHT {
+        return FallbackPlan {
+            exact,
+            fallback: None,
+        };
+    }
+    let weighted = PlannerConfig {
+        heuristic_weight: FALLBACK_WEIGHT,
+        ..*config
+    };
+    FallbackPlan {
+        exact,
+        fallback: Some(plan(env, &weighted)),
+    }
+}
+
+/// Searches from the episode's current state for a plan to the target within its rules (step
+/// limit, give-up distance, arena).
+///
+/// # Panics
+///
+/// If the plan found does not replay to success in a copy of `env` (a bug in this module), or
+/// if the robot's reachable leg lattice is larger than 16 clearance by 32 track steps.
+pub fn plan(env: &Env, config: &PlannerConfig) -> Plan {
+    match env.status() {
+        Status::Success => {
+            return Plan {
+                outcome: PlanOutcome::Solved {
+                    actions: Vec::new(),
+                    shortest: true,
+                },
+                expansions: 0,
+            }
+        }
+        Status::TooFar | Status::StepLimit => {
+            return Plan {
+                outcome: PlanOutcome::Unsolvable,
+                expansions: 0,
+            }
+        }
+        Status::Running => {}
+    }
+    let mut search = Search::new(env, config);
+    let plan = search.run();
+    if let PlanOutcome::Solved { actions, .. } = &plan.outcome {
+        if let Err(why) = replay(env, actions) {
+            panic!(
+                "planner bug: the plan found ({} steps) does not replay: {why}",
+                actions.len()
+            );
+        }
+    }
+    plan
+}
+
+/// Replays `actions` in a copy of `env`: every action valid, success exactly at the end.
+fn replay(env: &Env, actions: &[Action]) -> Result<(), String> {
+    let mut env = env.clone();
+    for (i, &action) in actions.iter().enumerate() {
+        let outcome = env
+            .step(action)
+            .map_err(|_| format!("episode over before step {i}"))?;
+        if let Some(invalid) = outcome.invalid {
+            return Err(format!("step {i} ({action:?}) is invalid: {invalid:?}"));
+        }
+        if outcome.status.is_done() && i + 1 < actions.len() {
+            return Err(format!("episode ends ({:?}) at step {i}", outcome.status));
+        }
+    }
+    match env.status() {
+        Status::Success => Ok(()),
+        status => Err(format!("ends with {status:?}")),
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Leg configuration sets.
+
+/// Capacity of a [`LegSet`] in clearance steps (rows).
+const LEG_ROWS: usize = 16;
+/// Capacity of a [`LegSet`] in track steps (bits of a row).
+const LEG_COLS: usize = 32;
+
+/// A set of leg configurations: bit `t` of row `r` is (clearance row `r`, track column `t`) of
+/// the [`LegLattice`]. One `u32` per clearance row makes the one-step dilation in either leg
+/// dimension a row shift or a bit shift.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct LegSet([u32; LEG_ROWS]);
+
+impl LegSet {
+    fn contains(&self, row: usize, col: usize) -> bool {
+        self.0[row] >> col & 1 == 1
+    }
+
+    fn insert(&mut self, row: usize, col: usize) {
+        self.0[row] |= 1 << col;
+    }
+
+    fn is_empty(&self) -> bool {
+        self.0.iter().all(|&w| w == 0)
+    }
+
+    fn is_subset_of(&self, other: &LegSet) -> bool {
+        self.0.iter().zip(&other.0).all(|(a, b)| a & !b == 0)
+    }
+
+    fn union_with(&mut self, other: &LegSet) {
+        for (a, b) in self.0.iter_mut().zip(&other.0) {
+            *a |= b;
+        }
+    }
+
+    fn intersection(mut self, other: &LegSet) -> LegSet {
+        for (a, b) in self.0.iter_mut().zip(&other.0) {
+            *a &= b;
+        }
+        self
+    }
+
+    /// The set moved by `dc` rows and `dt` columns (each -1, 0 or +1): contains `(r, t)` when
+    /// `self` contains `(r - dc, t - dt)`. Bits pushed past the lattice are cut by the caller's
+    /// intersection with the reachable set.
+    fn shifted(&self, dc: i32, dt: i32) -> LegSet {
+        let mut out = [0u32; LEG_ROWS];
+        for (row, word) in out.iter_mut().enumerate() {
+            let source = row as i32 - dc;
+            if (0..LEG_ROWS as i32).contains(&source) {
+                let w = self.0[source as usize];
+                *word = match dt {
+                    1 => w << 1,
+                    -1 => w >> 1,
+                    _ => w,
+                };
+            }
+        }
+        LegSet(out)
+    }
+
+    fn iter(&self) -> impl Iterator<Item = (usize, usize)> + '_ {
+        self.0.iter().enumerate().flat_map(|(row, &word)| {
+            let mut rest = word;
+            std::iter::from_fn(move || {
+                if rest == 0 {
+                    return None;
+                }
+                let col = rest.trailing_zeros() as usize;
+                rest &= rest - 1;
+                Some((row, col))
+            })
+        })
+    }
+}
+
+/// The leg configurations the IK can reach, as (clearance, track) step offsets from the
+/// default pose, laid out on the rows and columns of a [`LegSet`].
+struct LegLattice {
+    /// Clearance steps of row 0.
+    clearance0: i32,
+    /// Track steps of column 0.
+    track0: i32,
+    reachable: LegSet,
+}
+
+impl LegLattice {
+    fn new(geometry: &RobotGeometry) -> Self {
+        // Far beyond any sensible robot: 64 steps of 0.02 m is 1.28 m.
+        const SCAN: i32 = 64;
+        let mut found = Vec::new();
+        for clearance_steps in -SCAN..=SCAN {
+            for track_steps in -SCAN..=SCAN {
+                let state = RobotState {
+                    clearance_steps,
+                    track_steps,
+                    ..RobotState::new(Point2::origin(), 0)
+                };
+                // Exactly the test the simulator applies (RobotParts::new runs this IK).
+                if geometry.leg_ik(state.leg_config(geometry)).is_ok() {
+                    found.push((clearance_steps, track_steps));
+                }
+            }
+        }
+        let clearance0 = found.iter().map(|f| f.0).min().unwrap_or(0);
+        let track0 = found.iter().map(|f| f.1).min().unwrap_or(0);
+        let mut reachable = LegSet::default();
+        for (c, t) in found {
+            let (row, col) = ((c - clearance0) as usize, (t - track0) as usize);
+            assert!(
+                row < LEG_ROWS && col < LEG_COLS,
+                "reachable leg lattice exceeds the planner's {LEG_ROWS} x {LEG_COLS} steps"
+            );
+            reachable.insert(row, col);
+        }
+        LegLattice {
+            clearance0,
+            track0,
+            reachable,
+        }
+    }
+
+    /// Row and column of a state's leg configuration, if on the lattice.
+    fn cell(&self, state: &RobotState) -> Option<(usize, usize)> {
+        let row = usize::try_from(state.clearance_steps - self.clearance0).ok()?;
+        let col = usize::try_from(state.track_steps - self.track0).ok()?;
+        (row < LEG_ROWS && col < LEG_COLS && self.reachable.contains(row, col))
+            .then_some((row, col))
+    }
+
+    fn state(&self, pose: &Pose, row: usize, col: usize) -> RobotState {
+        RobotState {
+            position: pose.position,
+            yaw_steps: pose.yaw_steps,
+            clearance_steps: self.clearance0 + row as i32,
+            track_steps: self.track0 + col as i32,
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Moves, poses, bounding boxes.
+
+/// Base pose: where the body centre is and which way it faces.
+#[derive(Clone, Copy, Debug)]
+struct Pose {
+    position: Point2<f32>,
+    yaw_steps: i32,
+}
+
+type PoseKey = (i32, i32, i32);
+
+impl Pose {
+    fn key(&self) -> PoseKey {
+        (
+            (self.position.x * 1.0e4).round() as i32,
+            (self.position.y * 1.0e4).round() as i32,
+            self.yaw_steps,
+        )
+    }
+}
+
+fn step_of(sign: i32) -> Step {
+    match sign {
+        -1 => Step::Minus,
+        1 => Step::Plus,
+        _ => Step::Zero,
+    }
+}
+
+/// One of the 27 base moves, with the leg steps the allowed-action mask permits alongside it.
+struct BaseMove {
+    /// The move with both leg dimensions at zero.
     action: Action,
-    steps: u32,
+    /// Allowed (clearance, track) steps with this move; never the idle action.
+    leg_steps: Vec<(i32, i32)>,
 }
 
-#[derive(PartialEq)]
-struct Open {
-    f: f32,
-    steps: u32,
-    node: usize,
-}
+impl BaseMove {
+    fn all(allowed: &[bool; COUNT]) -> Vec<BaseMove> {
+        let mut moves = Vec::with_capacity(27);
+        for mx in -1..=1 {
+            for my in -1..=1 {
+                for yaw in -1..=1 {
+                    let action = Action {
+                        move_x: step_of(mx),
+                        move_y: step_of(my),
+                        yaw: step_of(yaw),
+                        ..Action::IDLE
+                    };
+                    let leg_steps = (-1..=1)
+                        .flat_map(|dc| (-1..=1).map(move |dt| (dc, dt)))
+                        .filter(|&(dc, dt)| {
+                            let full = Action {
+                                clearance: step_of(dc),
+                                track: step_of(dt),
+                                ..action
+                            };
+                            full != Action::IDLE && allowed[full.index()]
+                        })
+                        .collect();
+                    moves.push(BaseMove { action, leg_steps });
+                }
+            }
+        }
+        moves
+    }
 
-impl Eq for Open {}
-
-impl Ord for Open {
-    fn cmp(&self, other: &Self) -> Ordering {
-        // Smallest f first; among equals, deepest first, then newest first: with a tight
-        // heuristic this dives straight along one shortest plan instead of widening over the
-        // many equally short ones.
-        other
-            .f
-            .total_cmp(&self.f)
-            .then(self.steps.cmp(&other.steps))
-            .then(self.node.cmp(&other.node))
+    fn with_legs(&self, dc: i32, dt: i32) -> Action {
+        Action {
+            clearance: step_of(dc),
+            track: step_of(dt),
+            ..self.action
+        }
     }
 }
 
-impl PartialOrd for Open {
-    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
-        Some(self.cmp(other))
+/// Slack added to precomputed bounding boxes: they are computed at the origin and shifted, which
+/// rounds differently from the simulator's boxes computed in place (by ~1e-7 m). Only ever makes
+/// the fast path fall back to exact checks.
+const AABB_SLACK_M: f32 = 1.0e-4;
+
+/// Bounding boxes of the robot relative to its body centre: the whole robot first, then each
+/// of its parts.
+type PartBoxes = [Aabb; 1 + PART_COUNT];
+
+fn part_boxes(parts: &RobotParts) -> PartBoxes {
+    let mut boxes = [parts.aabb().loosened(AABB_SLACK_M); 1 + PART_COUNT];
+    for (b, part) in boxes[1..].iter_mut().zip(parts.parts()) {
+        *b = part.aabb().loosened(AABB_SLACK_M);
     }
+    boxes
+}
+
+/// Whether robot parts with these boxes, shifted to `position`, surely touch no obstacle: no
+/// part's box meets an obstacle's box. The simulator's exact test only runs on such meeting
+/// pairs, so this never calls a colliding pose clear.
+fn parts_clear(boxes: &PartBoxes, position: Point2<f32>, obstacles: &[Aabb]) -> bool {
+    let whole = shifted(&boxes[0], position);
+    obstacles.iter().filter(|o| o.intersects(&whole)).all(|o| {
+        boxes[1..]
+            .iter()
+            .all(|b| !o.intersects(&shifted(b, position)))
+    })
+}
+
+/// The robot's boxes at one yaw, per leg configuration (indexed `row * LEG_COLS + col`) and the
+/// whole robot over all of them.
+struct YawBoxes {
+    all: Aabb,
+    per_config: Vec<PartBoxes>,
+}
+
+impl YawBoxes {
+    fn new(geometry: &RobotGeometry, lattice: &LegLattice, yaw_steps: i32) -> Self {
+        let origin = Pose {
+            position: Point2::origin(),
+            yaw_steps,
+        };
+        let mut per_config = vec![[Aabb::new_invalid(); 1 + PART_COUNT]; LEG_ROWS * LEG_COLS];
+        let mut all = Aabb::new_invalid();
+        for (row, col) in lattice.reachable.iter() {
+            let state = lattice.state(&origin, row, col);
+            let parts = RobotParts::new(
+                geometry,
+                state.position,
+                state.yaw_rad(),
+                state.leg_config(geometry),
+            )
+            .expect("reachable by construction of the lattice");
+            let boxes = part_boxes(&parts);
+            all.merge(&boxes[0]);
+            per_config[row * LEG_COLS + col] = boxes;
+        }
+        YawBoxes { all, per_config }
+    }
+}
+
+fn shifted(aabb: &Aabb, position: Point2<f32>) -> Aabb {
+    let by = Vector3::new(position.x, position.y, 0.0);
+    Aabb::new(aabb.mins + by, aabb.maxs + by)
+}
+
+/// Key of a half-way pose's shape: yaw in half steps, clearance and track as sums of the two
+/// ends' steps.
+type MidKey = (i32, i32, i32);
+
+/// The robot's boxes at the half-way pose the simulator checks between two states (position,
+/// yaw and leg configuration interpolated), relative to the half-way position; `None` when the
+/// half-way legs are not robustly reachable (then only the simulator can tell).
+fn mid_boxes(geometry: &RobotGeometry, from: &RobotState, to: &RobotState) -> Option<PartBoxes> {
+    let (a, b) = (from.leg_config(geometry), to.leg_config(geometry));
+    let legs = LegConfig {
+        clearance_m: 0.5 * (a.clearance_m + b.clearance_m),
+        track_m: 0.5 * (a.track_m + b.track_m),
+    };
+    // The simulator interpolates with its own rounding; a half-way pose this close to the
+    // reachable boundary is left to it.
+    const NUDGE_M: f32 = 1.0e-6;
+    let robust = [(-1.0, -1.0), (-1.0, 1.0), (1.0, -1.0), (1.0, 1.0)]
+        .iter()
+        .all(|&(dc, dt)| {
+            geometry
+                .leg_ik(LegConfig {
+                    clearance_m: legs.clearance_m + dc * NUDGE_M,
+                    track_m: legs.track_m + dt * NUDGE_M,
+                })
+                .is_ok()
+        });
+    if !robust {
+        return None;
+    }
+    let yaw_delta = (to.yaw_steps - from.yaw_steps + 1).rem_euclid(YAW_STEPS_PER_TURN) - 1;
+    let yaw_rad = from.yaw_rad()
+        + 0.5 * (yaw_delta as f32 * wheelleg_runtime::action::YAW_STEP_DEG).to_radians();
+    RobotParts::new(geometry, Point2::origin(), yaw_rad, legs)
+        .ok()
+        .map(|p| part_boxes(&p))
+}
+
+// ---------------------------------------------------------------------------------------------
+// Heuristic.
+
+/// Length of the longest step (a diagonal move).
+const DIAGONAL_STEP_M: f32 = MOVE_STEP_M * core::f32::consts::SQRT_2;
+
+/// Lower bound on the steps from a pose to success: the larger of two bounds, both pose-only.
+///
+/// - Detour: the remaining travel through the places the body centre can be at all (a distance
+///   field around the blocks, [`DistanceField`]) at the longest possible step.
+/// - Heading: the straight-line progress towards the target. A step's progress along the unit
+///   vector `u` towards the target is at most `0.05 sqrt(2) cos(delta)`, where `delta` is the
+///   angle between `u` and the nearest of the robot's four diagonal move directions (an axis move
+///   gives `0.05 cos(45 deg - delta)`, never more for `delta <= 45 deg`). Yaw turns 5 degrees per
+///   step at most, and the step's move uses the yaw before the turn, so step `i` has
+///   `delta_i >= delta_0 - 5 i` degrees. Reaching the success circle needs a total progress along
+///   `u` of at least the distance minus the success radius.
+struct Heuristic {
+    field: DistanceField,
+    target: Point2<f32>,
+    success_radius_m: f32,
+}
+
+impl Heuristic {
+    fn steps(&self, pose: &Pose) -> u32 {
+        let d = self.target - pose.position;
+        // 1e-4 m of slack keeps the bounds admissible under float rounding.
+        let straight_m = d.norm() - self.success_radius_m - 1.0e-4;
+        if straight_m <= 0.0 {
+            return 0;
+        }
+        let field_m = self.field.lower_bound_m(pose.position) - 1.0e-4;
+        let detour = (field_m / DIAGONAL_STEP_M).ceil().max(0.0);
+        let heading = heading_steps(straight_m, d.y.atan2(d.x) - pose_yaw_rad(pose));
+        if detour.is_infinite() {
+            return u32::MAX / 4;
+        }
+        (detour as u32).max(heading)
+    }
+}
+
+fn pose_yaw_rad(pose: &Pose) -> f32 {
+    RobotState::new(pose.position, pose.yaw_steps).yaw_rad()
+}
+
+/// Fewest steps whose progress along a direction `alpha_rad` (relative to the robot's heading)
+/// can add up to `need_m` (see [`Heuristic`]).
+fn heading_steps(need_m: f32, alpha_rad: f32) -> u32 {
+    use core::f32::consts::{FRAC_PI_2, FRAC_PI_4};
+    let from_diagonal = (alpha_rad - FRAC_PI_4).rem_euclid(FRAC_PI_2);
+    let mut delta = from_diagonal.min(FRAC_PI_2 - from_diagonal);
+    let turn = wheelleg_runtime::action::YAW_STEP_DEG.to_radians();
+    // Tiny relative slack: cos and the sum round; overestimating progress keeps this a bound.
+    let best_step_m = DIAGONAL_STEP_M * (1.0 + 1.0e-5);
+    let mut progress_m = 0.0;
+    let mut steps = 0;
+    while delta > 0.0 {
+        if progress_m >= need_m {
+            return steps;
+        }
+        progress_m += best_step_m * delta.cos();
+        steps += 1;
+        delta -= turn;
+    }
+    let rest_m = (need_m - progress_m).max(0.0);
+    steps + (rest_m / best_step_m).ceil() as u32
 }
 
 /// Lower bound on the distance the body centre must still travel, through the places it can
@@ -147,7 +620,10 @@ impl DistanceField {
     fn new(env: &Env, start: Point2<f32>) -> Self {
         let margin = env.config().arena_margin_m + 0.1;
         let target = env.target();
-        let min = Point2::new(start.x.min(target.x) - margin, start.y.min(target.y) - margin);
+        let min = Point2::new(
+            start.x.min(target.x) - margin,
+            start.y.min(target.y) - margin,
+        );
         let cols = ((start.x.max(target.x) + margin - min.x) / FIELD_CELL_M).ceil() as usize + 1;
         let rows = ((start.y.max(target.y) + margin - min.y) / FIELD_CELL_M).ceil() as usize + 1;
         let half_width_m = 0.5 * env.geometry().body_width_m;
@@ -156,10 +632,17 @@ impl DistanceField {
             .obstacles()
             .boxes()
             .iter()
-            .filter(|b| b.height_m > env.geometry().clearance_range_m[1] + env.geometry().body_thickness_m)
+            .filter(|b| {
+                b.height_m > env.geometry().clearance_range_m[1] + env.geometry().body_thickness_m
+            })
             .copied()
             .collect();
-        let centre = |c: usize, r: usize| Point2::new(min.x + c as f32 * FIELD_CELL_M, min.y + r as f32 * FIELD_CELL_M);
+        let centre = |c: usize, r: usize| {
+            Point2::new(
+                min.x + c as f32 * FIELD_CELL_M,
+                min.y + r as f32 * FIELD_CELL_M,
+            )
+        };
         let blocked: Vec<bool> = (0..rows * cols)
             .map(|i| {
                 let p = centre(i % cols, i / cols);
@@ -173,15 +656,29 @@ impl DistanceField {
         let mut metres = vec![f32::INFINITY; rows * cols];
         let mut queue = BinaryHeap::new();
         let goal_m = env.config().success_radius_m + FIELD_CELL_M;
-        for i in 0..rows * cols {
+        for (i, m) in metres.iter_mut().enumerate() {
             if (centre(i % cols, i / cols) - target).norm() <= goal_m {
-                metres[i] = 0.0;
+                *m = 0.0;
                 queue.push((std::cmp::Reverse(OrderedF32(0.0)), i));
             }
         }
         const MOVES: [(i32, i32); 16] = [
-            (1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1),
-            (2, 1), (2, -1), (-2, 1), (-2, -1), (1, 2), (1, -2), (-1, 2), (-1, -2),
+            (1, 0),
+            (-1, 0),
+            (0, 1),
+            (0, -1),
+            (1, 1),
+            (1, -1),
+            (-1, 1),
+            (-1, -1),
+            (2, 1),
+            (2, -1),
+            (-2, 1),
+            (-2, -1),
+            (1, 2),
+            (1, -2),
+            (-1, 2),
+            (-1, -2),
         ];
         while let Some((std::cmp::Reverse(OrderedF32(d)), i)) = queue.pop() {
             if d > metres[i] {
@@ -204,7 +701,12 @@ impl DistanceField {
                 }
             }
         }
-        DistanceField { min, cols, rows, metres }
+        DistanceField {
+            min,
+            cols,
+            rows,
+            metres,
+        }
     }
 
     /// Lower bound on the remaining travel of the body centre from `p`.
@@ -225,7 +727,7 @@ impl DistanceField {
     }
 }
 
-#[derive(PartialEq, PartialOrd)]
+#[derive(PartialEq)]
 struct OrderedF32(f32);
 impl Eq for OrderedF32 {}
 impl Ord for OrderedF32 {
@@ -233,83 +735,462 @@ impl Ord for OrderedF32 {
         self.0.total_cmp(&other.0)
     }
 }
-
-/// Lower bound on the steps from `state` to success: the remaining travel at the longest
-/// possible step (a diagonal move of 0.05 * sqrt(2) m).
-fn steps_to_go(env: &Env, field: &DistanceField, state: &RobotState) -> f32 {
-    let straight_m = (env.target() - state.position).norm() - env.config().success_radius_m;
-    let travel_m = straight_m.max(field.lower_bound_m(state.position));
-    // 1e-4 m of slack keeps the bound admissible under float rounding.
-    ((travel_m - 1.0e-4) / (MOVE_STEP_M * core::f32::consts::SQRT_2)).ceil().max(0.0)
+impl PartialOrd for OrderedF32 {
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
 }
 
-/// Searches from the episode's current state for a plan to the target within its rules (step
-/// limit, give-up distance, arena).
-pub fn plan(env: &Env, config: &PlannerConfig) -> Plan {
-    let mut actions: Vec<Action> = (0..COUNT)
-        .filter(|&i| config.allowed[i])
-        .filter_map(Action::from_index)
-        .filter(|a| *a != Action::IDLE)
-        .collect();
-    // Successors are queued in this order and popped newest first: plain moves last, so that
-    // leg changes are tried only when moving alone does not do.
-    actions.sort_by_key(|a| core::cmp::Reverse(a.clearance.sign().abs() + a.track.sign().abs()));
-    let start = *env.state();
-    let field = DistanceField::new(env, start.position);
-    let give_up_m = (env.target() - start.position).norm() + env.config().give_up_margin_m;
-    let max_steps = env.config().max_steps.saturating_sub(env.steps());
-    let mut nodes = vec![Node { state: start, parent: 0, action: Action::IDLE, steps: 0 }];
-    let mut best: HashMap<Key, u32> = HashMap::from([(key(&start), 0)]);
-    let mut open = BinaryHeap::from([Open { f: 0.0, steps: 0, node: 0 }]);
-    let mut expansions = 0;
-    if env.status() == Status::Success {
-        return Plan { outcome: PlanOutcome::Solved { actions: Vec::new(), shortest: true }, expansions };
+// ---------------------------------------------------------------------------------------------
+// The search.
+
+/// FxHash-style hasher for the small integer keys of the search: the default SipHash costs more
+/// than the rest of a fast-path successor.
+#[derive(Default)]
+struct FastHasher(u64);
+
+impl Hasher for FastHasher {
+    fn finish(&self) -> u64 {
+        self.0
     }
-    while let Some(Open { node, steps, .. }) = open.pop() {
-        let state = nodes[node].state;
-        if best.get(&key(&state)).is_some_and(|&g| g < steps) {
-            continue; // a shorter way here was found after this entry was queued
+
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.write_u64(b as u64);
         }
-        if expansions >= config.max_expansions {
-            return Plan { outcome: PlanOutcome::BudgetExceeded, expansions };
+    }
+
+    fn write_i32(&mut self, i: i32) {
+        self.write_u64(i as u32 as u64);
+    }
+
+    fn write_u16(&mut self, i: u16) {
+        self.write_u64(i as u64);
+    }
+
+    fn write_u64(&mut self, i: u64) {
+        self.0 = (self.0.rotate_left(5) ^ i).wrapping_mul(0x51_7c_c1_b7_27_22_0a_95);
+    }
+}
+
+type FastMap<K, V> = HashMap<K, V, BuildHasherDefault<FastHasher>>;
+
+struct Node {
+    pose: Pose,
+    legs: LegSet,
+    steps: u32,
+    parent: u32,
+    /// Index into the base moves of the move from the parent.
+    base_move: u8,
+    /// Dominated by a node found later: skipped when popped.
+    dead: bool,
+    /// Within the success radius (queued only to be accepted when it is the best in the queue).
+    goal: bool,
+}
+
+#[derive(PartialEq)]
+struct Open {
+    f: f32,
+    steps: u32,
+    node: u32,
+}
+
+impl Eq for Open {}
+
+impl Ord for Open {
+    fn cmp(&self, other: &Self) -> Ordering {
+        // Smallest f first; among equals, deepest first, then newest first: with a tight
+        // heuristic this dives straight along one shortest plan instead of widening over the
+        // many equally short ones.
+        other
+            .f
+            .total_cmp(&self.f)
+            .then(self.steps.cmp(&other.steps))
+            .then(self.node.cmp(&other.node))
+    }
+}
+
+impl PartialOrd for Open {
+    fn partial_cmp(&self, other: &Self) -> Option<Ordering> {
+        Some(self.cmp(other))
+    }
+}
+
+struct Search<'a> {
+    env: &'a Env,
+    config: &'a PlannerConfig,
+    lattice: LegLattice,
+    moves: Vec<BaseMove>,
+    heuristic: Heuristic,
+    /// Bounding boxes per yaw step, computed when the yaw is first met.
+    boxes: Vec<Option<YawBoxes>>,
+    /// Whether the robot at a pose with a leg configuration (row * LEG_COLS + col) is clear of
+    /// every obstacle; the same end pose is reached from many parents.
+    end_clear: FastMap<(PoseKey, u16), bool>,
+    in_arena: FastMap<PoseKey, bool>,
+    /// Half-way pose boxes, see [`mid_boxes`].
+    mid_boxes: FastMap<MidKey, Option<PartBoxes>>,
+    /// The obstacles' boxes, as the simulator builds them, loosened by the slack.
+    obstacle_boxes: Vec<Aabb>,
+    give_up_m: f32,
+    max_steps: u32,
+    nodes: Vec<Node>,
+    /// Per pose, the live nodes that reached it (for dominance).
+    seen: FastMap<PoseKey, Vec<u32>>,
+    open: BinaryHeap<Open>,
+}
+
+impl<'a> Search<'a> {
+    fn new(env: &'a Env, config: &'a PlannerConfig) -> Self {
+        let start = *env.state();
+        let lattice = LegLattice::new(env.geometry());
+        let heuristic = Heuristic {
+            field: DistanceField::new(env, start.position),
+            target: env.target(),
+            success_radius_m: env.config().success_radius_m,
+        };
+        Search {
+            env,
+            config,
+            moves: BaseMove::all(&config.allowed),
+            heuristic,
+            boxes: (0..YAW_STEPS_PER_TURN).map(|_| None).collect(),
+            end_clear: FastMap::default(),
+            in_arena: FastMap::default(),
+            mid_boxes: FastMap::default(),
+            obstacle_boxes: env
+                .obstacles()
+                .boxes()
+                .iter()
+                .map(|b| {
+                    Aabb::new(
+                        Point3::new(b.min_x_m, b.min_y_m, 0.0),
+                        Point3::new(b.max_x_m, b.max_y_m, b.height_m),
+                    )
+                    .loosened(AABB_SLACK_M)
+                })
+                .collect(),
+            // The episode gives up beyond its start distance plus the margin; the planner starts
+            // from the current state, which is the start for every caller that plans a scene.
+            give_up_m: (env.target() - start.position).norm() + env.config().give_up_margin_m,
+            max_steps: env.config().max_steps.saturating_sub(env.steps()),
+            lattice,
+            nodes: Vec::new(),
+            seen: FastMap::default(),
+            open: BinaryHeap::new(),
         }
-        expansions += 1;
-        if steps >= max_steps {
-            continue;
-        }
-        for &action in &actions {
-            let next = state.after(action);
-            let distance_m = (env.target() - next.position).norm();
-            if distance_m > give_up_m || env.check_transition(&state, &next).is_err() {
+    }
+
+    fn run(&mut self) -> Plan {
+        let start = *self.env.state();
+        let Some((row, col)) = self.lattice.cell(&start) else {
+            // The simulator never lets the robot stand in an unreachable leg pose.
+            return Plan {
+                outcome: PlanOutcome::Unsolvable,
+                expansions: 0,
+            };
+        };
+        let mut legs = LegSet::default();
+        legs.insert(row, col);
+        let pose = Pose {
+            position: start.position,
+            yaw_steps: start.yaw_steps,
+        };
+        self.nodes.push(Node {
+            pose,
+            legs,
+            steps: 0,
+            parent: 0,
+            base_move: 0,
+            dead: false,
+            goal: false,
+        });
+        self.seen.insert(pose.key(), vec![0]);
+        self.open.push(Open {
+            f: 0.0,
+            steps: 0,
+            node: 0,
+        });
+        let mut expansions = 0;
+        let shortest = self.config.heuristic_weight <= 1.0;
+        while let Some(Open { f, node, .. }) = self.open.pop() {
+            if self.nodes[node as usize].dead {
                 continue;
             }
+            if self.nodes[node as usize].goal {
+                return self.solved(node, shortest, expansions);
+            }
+            if expansions >= self.config.max_expansions {
+                return Plan {
+                    outcome: PlanOutcome::BudgetExceeded,
+                    expansions,
+                };
+            }
+            expansions += 1;
+            if self.nodes[node as usize].steps >= self.max_steps {
+                continue;
+            }
+            if let Some(goal) = self.expand(node, f) {
+                return self.solved(goal, shortest, expansions);
+            }
+        }
+        Plan {
+            outcome: PlanOutcome::Unsolvable,
+            expansions,
+        }
+    }
+
+    fn solved(&self, goal: u32, shortest: bool, expansions: usize) -> Plan {
+        Plan {
+            outcome: PlanOutcome::Solved {
+                actions: self.actions_to(goal),
+                shortest,
+            },
+            expansions,
+        }
+    }
+
+    /// Queues the successors of `node` (popped with priority `f`); returns a goal node that can
+    /// be accepted at once.
+    fn expand(&mut self, node: u32, f: f32) -> Option<u32> {
+        let (pose, legs, steps) = {
+            let n = &self.nodes[node as usize];
+            (n.pose, n.legs, n.steps)
+        };
+        let from = RobotState::new(pose.position, pose.yaw_steps);
+        for m in 0..self.moves.len() {
+            let next = from.after(self.moves[m].action);
+            let next_pose = Pose {
+                position: next.position,
+                yaw_steps: next.yaw_steps,
+            };
+            let key = next_pose.key();
+            let distance_m = (self.env.target() - next_pose.position).norm();
+            if distance_m > self.give_up_m || !self.inside_arena(&next_pose, key) {
+                continue;
+            }
+            let mut candidates = LegSet::default();
+            for &(dc, dt) in &self.moves[m].leg_steps {
+                candidates.union_with(&legs.shifted(dc, dt));
+            }
+            let candidates = candidates.intersection(&self.lattice.reachable);
             let next_steps = steps + 1;
-            let k = key(&next);
-            if best.get(&k).is_some_and(|&g| g <= next_steps) {
+            let goal = distance_m <= self.env.config().success_radius_m;
+            let h = if goal {
+                0
+            } else {
+                self.heuristic.steps(&next_pose)
+            };
+            if next_steps.saturating_add(h) > self.max_steps {
+                // Even the most optimistic continuation runs past the step limit; dropping it
+                // loses nothing and lets small step limits prove scenes unsolvable quickly.
                 continue;
             }
-            best.insert(k, next_steps);
-            nodes.push(Node { state: next, parent: node, action, steps: next_steps });
-            let index = nodes.len() - 1;
-            if distance_m <= env.config().success_radius_m {
-                // Goal test on generation is exact here: all edges cost the same, and the
-                // heuristic is consistent, so no shorter plan can still be in the queue.
-                let shortest = config.heuristic_weight <= 1.0;
-                return Plan { outcome: PlanOutcome::Solved { actions: unwind(&nodes, index), shortest }, expansions };
+            // The valid set is a subset of the candidates: if they are dominated, so is it, and
+            // the collision checks can be skipped.
+            if candidates.is_empty() || self.is_dominated(key, next_steps, &candidates) {
+                continue;
             }
-            let f = next_steps as f32 + config.heuristic_weight * steps_to_go(env, &field, &next);
-            open.push(Open { f, steps: next_steps, node: index });
+            let next_legs = self.valid_subset(&pose, &legs, m, &next_pose, key, &candidates);
+            if next_legs.is_empty() || self.is_dominated(key, next_steps, &next_legs) {
+                continue;
+            }
+            self.retire_dominated(key, next_steps, &next_legs);
+            let index = self.nodes.len() as u32;
+            self.nodes.push(Node {
+                pose: next_pose,
+                legs: next_legs,
+                steps: next_steps,
+                parent: node,
+                base_move: m as u8,
+                dead: false,
+                goal,
+            });
+            self.seen.entry(key).or_default().push(index);
+            if goal && (self.config.heuristic_weight > 1.0 || next_steps as f32 <= f) {
+                // Every plan still queued costs at least the popped f (the heuristic never
+                // overestimates), so a goal no deeper than f is shortest. A deeper goal waits in
+                // the queue at f = its steps until nothing better is left.
+                return Some(index);
+            }
+            let f = next_steps as f32 + self.config.heuristic_weight * h as f32;
+            self.open.push(Open {
+                f,
+                steps: next_steps,
+                node: index,
+            });
         }
+        None
     }
-    Plan { outcome: PlanOutcome::Unsolvable, expansions }
-}
 
-fn unwind(nodes: &[Node], mut index: usize) -> Vec<Action> {
-    let mut actions = Vec::with_capacity(nodes[index].steps as usize);
-    while index != 0 {
-        actions.push(nodes[index].action);
-        index = nodes[index].parent;
+    /// Whether `pose` is inside the arena. The simulator checks the arena before anything else,
+    /// so a transition to an unreachable leg pose answers exactly that question, cheaply.
+    fn inside_arena(&mut self, pose: &Pose, key: PoseKey) -> bool {
+        let env = self.env;
+        *self.in_arena.entry(key).or_insert_with(|| {
+            let here = RobotState::new(pose.position, pose.yaw_steps);
+            let probe = RobotState {
+                track_steps: i32::MAX / 4,
+                ..here
+            };
+            env.check_transition(&here, &probe) != Err(InvalidAction::OutOfBounds)
+        })
     }
-    actions.reverse();
-    actions
+
+    /// The members of `candidates` the robot can take at `next` by move `m` from some member
+    /// of `legs` at `pose`.
+    ///
+    /// Mirrors the simulator's `check_transition` with cheap sufficient tests first, and asks
+    /// the simulator itself whenever they do not settle a case, so it never accepts a
+    /// transition the simulator would refuse (the replay of every plan checks this):
+    /// - the simulator accepts a reachable leg pose in the arena without any collision test
+    ///   when the robot's box at the end pose meets no obstacle's box: first tested for the box
+    ///   over all leg configurations at this yaw, then per candidate;
+    /// - otherwise it tests the end pose and the half-way pose exactly, and those exact tests
+    ///   only look at part/obstacle pairs whose boxes meet: when no part box meets an obstacle
+    ///   box, the pose is clear.
+    fn valid_subset(
+        &mut self,
+        pose: &Pose,
+        legs: &LegSet,
+        m: usize,
+        next: &Pose,
+        key: PoseKey,
+        candidates: &LegSet,
+    ) -> LegSet {
+        let env = self.env;
+        let geometry = env.geometry();
+        let yaw = next.yaw_steps as usize;
+        if self.boxes[yaw].is_none() {
+            self.boxes[yaw] = Some(YawBoxes::new(geometry, &self.lattice, next.yaw_steps));
+        }
+        let all = shifted(
+            &self.boxes[yaw].as_ref().expect("just filled").all,
+            next.position,
+        );
+        let near: Vec<Aabb> = self
+            .obstacle_boxes
+            .iter()
+            .filter(|o| o.intersects(&all))
+            .copied()
+            .collect();
+        if near.is_empty() {
+            return *candidates;
+        }
+        let mid_position = pose.position + 0.5 * (next.position - pose.position);
+        let mut valid = LegSet::default();
+        for (row, col) in candidates.iter() {
+            let cell = row * LEG_COLS + col;
+            let end_boxes = &self.boxes[yaw].as_ref().expect("just filled").per_config[cell];
+            let end_whole = shifted(&end_boxes[0], next.position);
+            if !near.iter().any(|o| o.intersects(&end_whole)) {
+                valid.insert(row, col);
+                continue;
+            }
+            let to = self.lattice.state(next, row, col);
+            let end_clear = parts_clear(end_boxes, next.position, &near)
+                || *self.end_clear.entry((key, cell as u16)).or_insert_with(|| {
+                    RobotParts::new(geometry, to.position, to.yaw_rad(), to.leg_config(geometry))
+                        .is_ok_and(|parts| !env.obstacles().collides(&parts))
+                });
+            if !end_clear {
+                continue;
+            }
+            for &(dc, dt) in &self.moves[m].leg_steps {
+                let (r, c) = (row as i32 - dc, col as i32 - dt);
+                if r < 0 || c < 0 || !legs.contains(r as usize, c as usize) {
+                    continue;
+                }
+                let from = self.lattice.state(pose, r as usize, c as usize);
+                let mid_key: MidKey = (
+                    2 * pose.yaw_steps
+                        + (next.yaw_steps - pose.yaw_steps + 1).rem_euclid(YAW_STEPS_PER_TURN)
+                        - 1,
+                    from.clearance_steps + to.clearance_steps,
+                    from.track_steps + to.track_steps,
+                );
+                let mid = *self
+                    .mid_boxes
+                    .entry(mid_key)
+                    .or_insert_with(|| mid_boxes(geometry, &from, &to));
+                let ok = mid.is_some_and(|b| parts_clear(&b, mid_position, &self.obstacle_boxes))
+                    || env.check_transition(&from, &to).is_ok();
+                if ok {
+                    valid.insert(row, col);
+                    break;
+                }
+            }
+        }
+        valid
+    }
+
+    /// Whether a node already known at the pose has no more steps and a superset of the leg
+    /// configurations: whatever a new node could do, that one does as well or sooner.
+    fn is_dominated(&self, key: PoseKey, steps: u32, legs: &LegSet) -> bool {
+        self.seen.get(&key).is_some_and(|known| {
+            known.iter().any(|&k| {
+                let n = &self.nodes[k as usize];
+                n.steps <= steps && legs.is_subset_of(&n.legs)
+            })
+        })
+    }
+
+    /// Retires the known nodes at the pose that a new node with `steps` and `legs` dominates.
+    fn retire_dominated(&mut self, key: PoseKey, steps: u32, legs: &LegSet) {
+        let Some(known) = self.seen.get_mut(&key) else {
+            return;
+        };
+        let nodes = &mut self.nodes;
+        known.retain(|&k| {
+            let n = &mut nodes[k as usize];
+            let worse = steps <= n.steps && n.legs.is_subset_of(legs);
+            n.dead |= worse;
+            !worse
+        });
+    }
+
+    /// The actions from the start to `goal`: walking back from any leg configuration of the
+    /// goal, each step picks a configuration of the parent's set from which the simulator
+    /// accepts the transition (one exists: that is how the configuration got into the set).
+    fn actions_to(&self, goal: u32) -> Vec<Action> {
+        let mut node = goal;
+        let (mut row, mut col) = self.nodes[node as usize]
+            .legs
+            .iter()
+            .next()
+            .expect("nodes are never empty");
+        let mut actions = Vec::with_capacity(self.nodes[node as usize].steps as usize);
+        while node != 0 {
+            let n = &self.nodes[node as usize];
+            let parent = &self.nodes[n.parent as usize];
+            let base = &self.moves[n.base_move as usize];
+            let to = self.lattice.state(&n.pose, row, col);
+            let (dc, dt) = base
+                .leg_steps
+                .iter()
+                .copied()
+                .find(|&(dc, dt)| {
+                    let (r, c) = (row as i32 - dc, col as i32 - dt);
+                    r >= 0
+                        && c >= 0
+                        && parent.legs.contains(r as usize, c as usize)
+                        && self
+                            .env
+                            .check_transition(
+                                &self.lattice.state(&parent.pose, r as usize, c as usize),
+                                &to,
+                            )
+                            .is_ok()
+                })
+                .unwrap_or_else(|| {
+                    panic!("planner bug: no valid predecessor for step {}", n.steps)
+                });
+            actions.push(base.with_legs(dc, dt));
+            row = (row as i32 - dc) as usize;
+            col = (col as i32 - dt) as usize;
+            node = n.parent;
+        }
+        actions.reverse();
+        actions
+    }
 }
