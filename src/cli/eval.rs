@@ -46,7 +46,9 @@ pub fn run(args: Args) -> CliResult {
         (Some(file), _, _) => wheelleg_sim::scenario_file::load(file, &WHEELLEG)?,
         (None, Some(n), Some(kind)) => {
             let kind = SceneKind::from_name(kind).ok_or_else(|| {
-                format!("unknown --kind {kind:?} (straight, around, lift, spread, squeeze, complex)")
+                format!(
+                    "unknown --kind {kind:?} (straight, around, lift, spread, squeeze, complex)"
+                )
             })?;
             generate_many(kind, &mut ChaCha8Rng::seed_from_u64(args.seed), n)
         }
@@ -68,7 +70,10 @@ pub fn run(args: Args) -> CliResult {
         println!("{}", serde_json::to_string_pretty(&report)?);
         return Ok(());
     }
-    println!("{:<28} {:>8} {:>9} {:>6} {:>10} {:>8}", "scenario", "success", "coll-free", "steps", "collisions", "planner");
+    println!(
+        "{:<28} {:>8} {:>9} {:>6} {:>10} {:>8}",
+        "scenario", "success", "coll-free", "steps", "collisions", "planner"
+    );
     for r in &report.scenarios {
         println!(
             "{:<28} {:>8} {:>9} {:>6} {:>10} {:>8}",
@@ -80,11 +85,15 @@ pub fn run(args: Args) -> CliResult {
             r.planner_steps.map_or("-".to_string(), |s| s.to_string())
         );
     }
-    let opt = |v: Option<f32>, digits: usize| v.map_or("-".to_string(), |v| format!("{v:.digits$}"));
+    let opt =
+        |v: Option<f32>, digits: usize| v.map_or("-".to_string(), |v| format!("{v:.digits$}"));
     println!();
     println!("scenarios            {}", report.scenarios.len());
     println!("success rate         {:.1}%", 100.0 * report.success_rate);
-    println!("collision-free rate  {:.1}%", 100.0 * report.collision_free_rate);
+    println!(
+        "collision-free rate  {:.1}%",
+        100.0 * report.collision_free_rate
+    );
     println!("mean steps (success) {}", opt(report.mean_steps, 1));
     println!(
         "steps vs shortest    {} ({} successes without a planner result, excluded)",

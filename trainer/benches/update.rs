@@ -4,6 +4,8 @@
 //! `cargo bench -p wheelleg-trainer --bench update`; backend from `WHEELLEG_BACKEND` (flex by
 //! default; others need their cargo feature). Figures: docs/decisions.md, docs/results.md.
 
+#![allow(missing_docs)] // criterion_group! generates an undocumented function.
+
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -26,8 +28,12 @@ fn backend() -> BackendKind {
 
 fn random_batch(n: usize, rng: &mut ChaCha8Rng) -> Batch {
     Batch {
-        heights_m: (0..n * HEIGHT_MAP_CELLS).map(|_| rng.random_range(0.0..0.3)).collect(),
-        states: (0..n * STATE_LEN).map(|_| rng.random_range(-1.0..1.0)).collect(),
+        heights_m: (0..n * HEIGHT_MAP_CELLS)
+            .map(|_| rng.random_range(0.0..0.3))
+            .collect(),
+        states: (0..n * STATE_LEN)
+            .map(|_| rng.random_range(-1.0..1.0))
+            .collect(),
         actions: (0..n * DIMS).map(|_| rng.random_range(0..3u8)).collect(),
         old_log_probs: vec![-5.5; n],
         advantages: (0..n).map(|_| rng.random_range(-1.0..1.0)).collect(),
@@ -45,10 +51,17 @@ fn update_step(c: &mut Criterion) {
     let mut group = c.benchmark_group("ppo");
     group.throughput(Throughput::Elements(MINIBATCH as u64));
     group.measurement_time(Duration::from_secs(10));
-    group.bench_function("update_minibatch_256", |b| b.iter(|| ppo.minibatch_step(&batch, &idx).expect("step")));
+    group.bench_function("update_minibatch_256", |b| {
+        b.iter(|| ppo.minibatch_step(&batch, &idx).expect("step"))
+    });
     let infer = random_batch(64, &mut rng);
     group.throughput(Throughput::Elements(64));
-    group.bench_function("forward_batch_64", |b| b.iter(|| ppo.evaluate(&infer.heights_m, &infer.states, 64).expect("eval")));
+    group.bench_function("forward_batch_64", |b| {
+        b.iter(|| {
+            ppo.evaluate(&infer.heights_m, &infer.states, 64)
+                .expect("eval")
+        })
+    });
     group.finish();
 }
 
@@ -67,7 +80,14 @@ fn training_iteration(c: &mut Criterion) {
     group.bench_function("iteration_2000_env_steps_complex", |b| {
         b.iter(|| {
             let _ = std::fs::remove_dir_all(&dir);
-            let opts = RunOptions { out: dir.clone(), seed: 1, resume: false, progress: false, max_iterations: None, kind: "bench".into() };
+            let opts = RunOptions {
+                out: dir.clone(),
+                seed: 1,
+                resume: false,
+                progress: false,
+                max_iterations: None,
+                kind: "bench".into(),
+            };
             train(&config, &opts).expect("train")
         })
     });

@@ -35,7 +35,11 @@ impl ArchRecord {
         ArchRecord {
             height: (a.height_rows, a.height_cols),
             state_len: a.state_len,
-            convs: a.convs.iter().map(|c| (c.in_channels, c.out_channels, c.kernel, c.stride, c.padding)).collect(),
+            convs: a
+                .convs
+                .iter()
+                .map(|c| (c.in_channels, c.out_channels, c.kernel, c.stride, c.padding))
+                .collect(),
             hidden: a.hidden.clone(),
             value_head: a.value_head,
         }
@@ -50,7 +54,15 @@ impl ArchRecord {
             convs: self
                 .convs
                 .iter()
-                .map(|&(in_channels, out_channels, kernel, stride, padding)| ConvSpec { in_channels, out_channels, kernel, stride, padding })
+                .map(
+                    |&(in_channels, out_channels, kernel, stride, padding)| ConvSpec {
+                        in_channels,
+                        out_channels,
+                        kernel,
+                        stride,
+                        padding,
+                    },
+                )
                 .collect(),
             hidden: self.hidden.clone(),
             value_head: self.value_head,
@@ -72,7 +84,10 @@ impl NetworkRecord {
     pub fn from_network(net: &NetworkF32) -> Self {
         NetworkRecord {
             arch: ArchRecord::from_arch(&net.arch),
-            tensors: crate::network::parameters(net).into_iter().map(<[f32]>::to_vec).collect(),
+            tensors: crate::network::parameters(net)
+                .into_iter()
+                .map(<[f32]>::to_vec)
+                .collect(),
         }
     }
 
@@ -81,17 +96,29 @@ impl NetworkRecord {
         let arch = self.arch.to_arch();
         let mut t = self.tensors.iter();
         let mut take = |len: usize, what: &str| -> Result<Vec<f32>, String> {
-            let v = t.next().ok_or_else(|| format!("checkpoint network is missing tensor {what}"))?;
+            let v = t
+                .next()
+                .ok_or_else(|| format!("checkpoint network is missing tensor {what}"))?;
             if v.len() != len {
-                return Err(format!("checkpoint tensor {what} has {} values, the architecture needs {len}", v.len()));
+                return Err(format!(
+                    "checkpoint tensor {what} has {} values, the architecture needs {len}",
+                    v.len()
+                ));
             }
             Ok(v.clone())
         };
         let mut convs = Vec::new();
         for (i, &spec) in arch.convs.iter().enumerate() {
-            let weights = take(spec.out_channels * spec.in_channels * spec.kernel * spec.kernel, &format!("conv{i}.weight"))?;
+            let weights = take(
+                spec.out_channels * spec.in_channels * spec.kernel * spec.kernel,
+                &format!("conv{i}.weight"),
+            )?;
             let bias = take(spec.out_channels, &format!("conv{i}.bias"))?;
-            convs.push(Conv2dF32 { spec, weights, bias });
+            convs.push(Conv2dF32 {
+                spec,
+                weights,
+                bias,
+            });
         }
         let mut width = arch.concat_len();
         let mut dense = |out: usize, name: &str, width: usize| -> Result<DenseF32, String> {
@@ -108,11 +135,21 @@ impl NetworkRecord {
             width = out;
         }
         let action_head = dense(crate::network_f32::ACTION_LOGITS, "action_head", width)?;
-        let value_head = if arch.value_head { Some(dense(1, "value_head", width)?) } else { None };
+        let value_head = if arch.value_head {
+            Some(dense(1, "value_head", width)?)
+        } else {
+            None
+        };
         if t.next().is_some() {
             return Err("checkpoint network has more tensors than its architecture".into());
         }
-        Ok(NetworkF32 { arch, convs, hidden, action_head, value_head })
+        Ok(NetworkF32 {
+            arch,
+            convs,
+            hidden,
+            action_head,
+            value_head,
+        })
     }
 }
 
@@ -142,13 +179,16 @@ pub struct Checkpoint {
 }
 
 fn fnv1a(bytes: &[u8]) -> u64 {
-    bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| (h ^ b as u64).wrapping_mul(0x0100_0000_01b3))
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| {
+        (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
+    })
 }
 
 impl Checkpoint {
     /// Encodes the file bytes.
     pub fn to_bytes(&self) -> Result<Vec<u8>, String> {
-        let payload = postcard::to_allocvec(self).map_err(|e| format!("cannot encode checkpoint: {e}"))?;
+        let payload =
+            postcard::to_allocvec(self).map_err(|e| format!("cannot encode checkpoint: {e}"))?;
         let mut out = Vec::with_capacity(HEADER_LEN + payload.len());
         out.extend_from_slice(MAGIC);
         out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
@@ -166,12 +206,16 @@ impl Checkpoint {
         let sum = u64::from_le_bytes(bytes[16..24].try_into().unwrap_or_default());
         let payload = &bytes[HEADER_LEN..];
         if payload.len() != len {
-            return Err(format!("checkpoint truncated or padded: payload is {} bytes, header says {len}", payload.len()));
+            return Err(format!(
+                "checkpoint truncated or padded: payload is {} bytes, header says {len}",
+                payload.len()
+            ));
         }
         if fnv1a(payload) != sum {
             return Err("checkpoint corrupt: checksum mismatch".into());
         }
-        let c: Checkpoint = postcard::from_bytes(payload).map_err(|e| format!("checkpoint corrupt: {e}"))?;
+        let c: Checkpoint =
+            postcard::from_bytes(payload).map_err(|e| format!("checkpoint corrupt: {e}"))?;
         let net = c.network.to_network()?;
         if !c.adam.fits(&net) {
             return Err("checkpoint optimizer state does not match its network".into());
@@ -182,12 +226,14 @@ impl Checkpoint {
     /// Writes the checkpoint atomically (temporary file + rename).
     pub fn save(&self, path: &Path) -> Result<(), String> {
         let bytes = self.to_bytes()?;
-        crate::export::write_atomic(path, &bytes).map_err(|e| format!("cannot write checkpoint {}: {e}", path.display()))
+        crate::export::write_atomic(path, &bytes)
+            .map_err(|e| format!("cannot write checkpoint {}: {e}", path.display()))
     }
 
     /// Reads and validates a checkpoint file.
     pub fn load(path: &Path) -> Result<Checkpoint, String> {
-        let bytes = std::fs::read(path).map_err(|e| format!("cannot read checkpoint {}: {e}", path.display()))?;
+        let bytes = std::fs::read(path)
+            .map_err(|e| format!("cannot read checkpoint {}: {e}", path.display()))?;
         Checkpoint::from_bytes(&bytes).map_err(|e| format!("{}: {e}", path.display()))
     }
 }
@@ -204,7 +250,10 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
 
     fn sample() -> Checkpoint {
-        let net = crate::network::init_policy(&Architecture::default_policy(), &mut ChaCha8Rng::seed_from_u64(1));
+        let net = crate::network::init_policy(
+            &Architecture::default_policy(),
+            &mut ChaCha8Rng::seed_from_u64(1),
+        );
         Checkpoint {
             kind: "baseline".into(),
             config_toml: "x".into(),
@@ -224,13 +273,23 @@ mod tests {
         let c = sample();
         let bytes = c.to_bytes().unwrap();
         assert_eq!(Checkpoint::from_bytes(&bytes).unwrap(), c);
-        assert_eq!(c.network.to_network().unwrap(), crate::network::init_policy(&Architecture::default_policy(), &mut ChaCha8Rng::seed_from_u64(1)));
+        assert_eq!(
+            c.network.to_network().unwrap(),
+            crate::network::init_policy(
+                &Architecture::default_policy(),
+                &mut ChaCha8Rng::seed_from_u64(1)
+            )
+        );
         let e = Checkpoint::from_bytes(&bytes[..bytes.len() - 10]).unwrap_err();
         assert!(e.contains("truncated"), "{e}");
         let mut bad = bytes.clone();
         bad[100] ^= 1;
-        assert!(Checkpoint::from_bytes(&bad).unwrap_err().contains("checksum"));
-        assert!(Checkpoint::from_bytes(b"hello world, this is not it").unwrap_err().contains("magic"));
+        assert!(Checkpoint::from_bytes(&bad)
+            .unwrap_err()
+            .contains("checksum"));
+        assert!(Checkpoint::from_bytes(b"hello world, this is not it")
+            .unwrap_err()
+            .contains("magic"));
     }
 
     #[test]

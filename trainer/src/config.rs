@@ -163,20 +163,36 @@ impl TrainConfig {
             r.steps_per_iteration >= r.num_envs,
             "run.steps_per_iteration must be at least run.num_envs",
         )?;
-        check(r.max_episode_steps >= 1, "run.max_episode_steps must be at least 1")?;
-        check(r.checkpoint_interval >= 1, "run.checkpoint_interval must be at least 1")?;
+        check(
+            r.max_episode_steps >= 1,
+            "run.max_episode_steps must be at least 1",
+        )?;
+        check(
+            r.checkpoint_interval >= 1,
+            "run.checkpoint_interval must be at least 1",
+        )?;
         check(r.threads >= 1, "run.threads must be at least 1")?;
         crate::network::BackendKind::from_name(&r.backend).map(|_| ())?;
         check(p.learning_rate > 0.0, "ppo.learning_rate must be positive")?;
-        check((0.0..=1.0).contains(&p.gamma), "ppo.gamma must be in [0, 1]")?;
-        check((0.0..=1.0).contains(&p.gae_lambda), "ppo.gae_lambda must be in [0, 1]")?;
+        check(
+            (0.0..=1.0).contains(&p.gamma),
+            "ppo.gamma must be in [0, 1]",
+        )?;
+        check(
+            (0.0..=1.0).contains(&p.gae_lambda),
+            "ppo.gae_lambda must be in [0, 1]",
+        )?;
         check(p.clip_epsilon > 0.0, "ppo.clip_epsilon must be positive")?;
         check(p.epochs >= 1, "ppo.epochs must be at least 1")?;
-        check(p.minibatch_size >= 2, "ppo.minibatch_size must be at least 2")?;
+        check(
+            p.minibatch_size >= 2,
+            "ppo.minibatch_size must be at least 2",
+        )?;
         check(p.max_grad_norm >= 0.0, "ppo.max_grad_norm must be >= 0")?;
         check(p.target_kl >= 0.0, "ppo.target_kl must be >= 0")?;
         check(
-            !self.network.conv_channels.is_empty() && self.network.conv_channels.iter().all(|&c| c > 0),
+            !self.network.conv_channels.is_empty()
+                && self.network.conv_channels.iter().all(|&c| c > 0),
             "network.conv_channels must be non-empty positive widths",
         )?;
         check(
@@ -225,7 +241,10 @@ mod tests {
     fn defaults_follow_the_paper_and_round_trip() {
         let c = TrainConfig::default();
         assert_eq!(c.run.steps_per_iteration, 10_000);
-        assert_eq!(c.architecture(), crate::network_f32::Architecture::default_policy());
+        assert_eq!(
+            c.architecture(),
+            crate::network_f32::Architecture::default_policy()
+        );
         assert_eq!(TrainConfig::from_toml(&c.to_toml()).unwrap(), c);
     }
 

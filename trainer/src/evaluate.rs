@@ -65,7 +65,11 @@ pub struct EvalOptions {
 
 impl Default for EvalOptions {
     fn default() -> Self {
-        EvalOptions { stochastic: false, planner_expansions: 20_000, env_config: EnvConfig::default() }
+        EvalOptions {
+            stochastic: false,
+            planner_expansions: 20_000,
+            env_config: EnvConfig::default(),
+        }
     }
 }
 
@@ -84,7 +88,9 @@ pub fn evaluate(
         .collect::<Result<Vec<_>, _>>()?;
     let mut obs = Observation::default();
     loop {
-        let running: Vec<usize> = (0..envs.len()).filter(|&i| !envs[i].status().is_done()).collect();
+        let running: Vec<usize> = (0..envs.len())
+            .filter(|&i| !envs[i].status().is_done())
+            .collect();
         if running.is_empty() {
             break;
         }
@@ -96,19 +102,33 @@ pub fn evaluate(
             states.extend_from_slice(&obs.state);
         }
         let f = burn_net.forward(heights, states, running.len());
-        let out = PolicyOutput { log_probs: crate::network::to_vec(f.log_probs), values: vec![] };
+        let out = PolicyOutput {
+            log_probs: crate::network::to_vec(f.log_probs),
+            values: vec![],
+        };
         for (k, &i) in running.iter().enumerate() {
-            let choices = if options.stochastic { out.sample(k, rng) } else { out.greedy(k) };
-            let action = Action::from_head_indices(std::array::from_fn(|h| choices[h] as usize)).unwrap_or_default();
-            envs[i].step(action).map_err(|_| "stepped a finished episode".to_string())?;
+            let choices = if options.stochastic {
+                out.sample(k, rng)
+            } else {
+                out.greedy(k)
+            };
+            let action = Action::from_head_indices(std::array::from_fn(|h| choices[h] as usize))
+                .unwrap_or_default();
+            envs[i]
+                .step(action)
+                .map_err(|_| "stepped a finished episode".to_string())?;
         }
     }
-    let planner = PlannerConfig { max_expansions: options.planner_expansions, ..PlannerConfig::default() };
+    let planner = PlannerConfig {
+        max_expansions: options.planner_expansions,
+        ..PlannerConfig::default()
+    };
     let mut results = Vec::with_capacity(scenarios.len());
     for (s, env) in scenarios.iter().zip(&envs) {
         let success = env.status() == Status::Success;
         let planner_steps = if success && options.planner_expansions > 0 {
-            let fresh = Env::new(s, options.env_config).map_err(|e| format!("scenario {}: {e:?}", s.name))?;
+            let fresh = Env::new(s, options.env_config)
+                .map_err(|e| format!("scenario {}: {e:?}", s.name))?;
             match plan(&fresh, &planner).outcome {
                 PlanOutcome::Solved { actions, .. } => Some(actions.len()),
                 _ => None,
@@ -128,18 +148,29 @@ pub fn evaluate(
     }
     let n = results.len().max(1) as f32;
     let successes: Vec<&ScenarioResult> = results.iter().filter(|r| r.success).collect();
-    let mean_steps =
-        (!successes.is_empty()).then(|| successes.iter().map(|r| r.steps as f32).sum::<f32>() / successes.len() as f32);
-    let both: Vec<&&ScenarioResult> = successes.iter().filter(|r| r.planner_steps.is_some()).collect();
+    let mean_steps = (!successes.is_empty())
+        .then(|| successes.iter().map(|r| r.steps as f32).sum::<f32>() / successes.len() as f32);
+    let both: Vec<&&ScenarioResult> = successes
+        .iter()
+        .filter(|r| r.planner_steps.is_some())
+        .collect();
     let steps_vs_shortest = (!both.is_empty()).then(|| {
-        both.iter().map(|r| r.steps as f32).sum::<f32>() / both.iter().map(|r| r.planner_steps.unwrap_or(1) as f32).sum::<f32>()
+        both.iter().map(|r| r.steps as f32).sum::<f32>()
+            / both
+                .iter()
+                .map(|r| r.planner_steps.unwrap_or(1) as f32)
+                .sum::<f32>()
     });
     Ok(EvalReport {
         success_rate: successes.len() as f32 / n,
         collision_free_rate: results.iter().filter(|r| r.collision_free).count() as f32 / n,
         mean_steps,
         steps_vs_shortest,
-        planner_budget_exceeded: if options.planner_expansions > 0 { successes.len() - both.len() } else { 0 },
+        planner_budget_exceeded: if options.planner_expansions > 0 {
+            successes.len() - both.len()
+        } else {
+            0
+        },
         scenarios: results,
     })
 }

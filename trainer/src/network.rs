@@ -182,22 +182,32 @@ impl Net {
             let s = c.spec;
             ConvT {
                 weight: leaf(
-                    TensorData::new(c.weights.clone(), [s.out_channels, s.in_channels, s.kernel, s.kernel]),
+                    TensorData::new(
+                        c.weights.clone(),
+                        [s.out_channels, s.in_channels, s.kernel, s.kernel],
+                    ),
                     device,
                     track_grad,
                 ),
-                bias: leaf(TensorData::new(c.bias.clone(), [s.out_channels]), device, track_grad),
-                options: ConvOptions::new(
-                    [s.stride, s.stride],
-                    [s.padding, s.padding],
-                    [1, 1],
-                    1,
+                bias: leaf(
+                    TensorData::new(c.bias.clone(), [s.out_channels]),
+                    device,
+                    track_grad,
                 ),
+                options: ConvOptions::new([s.stride, s.stride], [s.padding, s.padding], [1, 1], 1),
             }
         };
         let dense = |d: &DenseF32| DenseT {
-            weight: leaf(TensorData::new(d.weights.clone(), [d.out_features, d.in_features]), device, track_grad),
-            bias: leaf(TensorData::new(d.bias.clone(), [d.out_features]), device, track_grad),
+            weight: leaf(
+                TensorData::new(d.weights.clone(), [d.out_features, d.in_features]),
+                device,
+                track_grad,
+            ),
+            bias: leaf(
+                TensorData::new(d.bias.clone(), [d.out_features]),
+                device,
+                track_grad,
+            ),
         };
         Ok(Net {
             arch: net.arch.clone(),
@@ -231,10 +241,8 @@ impl Net {
             ));
         }
         let features: Tensor<2> = x.reshape([batch, a.features_len()]);
-        let state: Tensor<2> = Tensor::from_data(
-            TensorData::new(state, [batch, a.state_len]),
-            &self.device,
-        );
+        let state: Tensor<2> =
+            Tensor::from_data(TensorData::new(state, [batch, a.state_len]), &self.device);
         let mut h = Tensor::cat(vec![features, state], 1);
         for d in &self.hidden {
             h = relu(dense_forward(d, h));
@@ -248,7 +256,8 @@ impl Net {
     /// Gradients of every parameter in [`parameters`] order (zeros where none flowed).
     pub fn gradients(&self, grads: &Gradients) -> Vec<Vec<f32>> {
         let mut out = Vec::new();
-        let mut push = |g: Option<Vec<f32>>, len: usize| out.push(g.unwrap_or_else(|| vec![0.0; len]));
+        let mut push =
+            |g: Option<Vec<f32>>, len: usize| out.push(g.unwrap_or_else(|| vec![0.0; len]));
         for c in &self.convs {
             push(grad_vec(&c.weight, grads), c.weight.shape().num_elements());
             push(grad_vec(&c.bias, grads), c.bias.shape().num_elements());
@@ -289,7 +298,11 @@ pub fn to_vec<const D: usize>(t: Tensor<D>) -> Vec<f32> {
     let data = t.into_data();
     match data.as_slice::<f32>() {
         Ok(s) => s.to_vec(),
-        Err(_) => data.convert::<f32>().as_slice::<f32>().map(<[f32]>::to_vec).unwrap_or_default(),
+        Err(_) => data
+            .convert::<f32>()
+            .as_slice::<f32>()
+            .map(<[f32]>::to_vec)
+            .unwrap_or_default(),
     }
 }
 
@@ -323,15 +336,25 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         let net = NetworkF32::random(&arch, &mut rng);
         let batch = 3;
-        let maps: Vec<f32> = (0..batch * 1024).map(|_| rng.random_range(0.0..0.3)).collect();
-        let states: Vec<f32> = (0..batch * 4).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let maps: Vec<f32> = (0..batch * 1024)
+            .map(|_| rng.random_range(0.0..0.3))
+            .collect();
+        let states: Vec<f32> = (0..batch * 4)
+            .map(|_| rng.random_range(-1.0..1.0))
+            .collect();
         let burn_net = Net::new(&net, &device(), false).unwrap();
         let out = burn_net.forward(maps.clone(), states.clone(), batch);
         let log_probs = to_vec(out.log_probs);
         let values = to_vec(out.values);
         for b in 0..batch {
-            let (logits, value) = net.forward(&maps[b * 1024..(b + 1) * 1024], &states[b * 4..(b + 1) * 4]);
-            assert!((values[b] - value.unwrap()).abs() < 1e-3, "{} vs {:?}", values[b], value);
+            let (logits, value) =
+                net.forward(&maps[b * 1024..(b + 1) * 1024], &states[b * 4..(b + 1) * 4]);
+            assert!(
+                (values[b] - value.unwrap()).abs() < 1e-3,
+                "{} vs {:?}",
+                values[b],
+                value
+            );
             for head in 0..DIMS {
                 let l = &logits[head * 3..head * 3 + 3];
                 let max = l.iter().cloned().fold(f32::MIN, f32::max);

@@ -36,8 +36,15 @@ pub struct Adam {
 impl Adam {
     /// Zero state for `net`'s parameters.
     pub fn new(net: &NetworkF32) -> Adam {
-        let zeros: Vec<Vec<f32>> = network::parameters(net).iter().map(|p| vec![0.0; p.len()]).collect();
-        Adam { step: 0, m: zeros.clone(), v: zeros }
+        let zeros: Vec<Vec<f32>> = network::parameters(net)
+            .iter()
+            .map(|p| vec![0.0; p.len()])
+            .collect();
+        Adam {
+            step: 0,
+            m: zeros.clone(),
+            v: zeros,
+        }
     }
 
     /// Whether the state fits `net`'s parameter shapes.
@@ -45,7 +52,11 @@ impl Adam {
         let params = network::parameters(net);
         params.len() == self.m.len()
             && params.len() == self.v.len()
-            && params.iter().zip(&self.m).zip(&self.v).all(|((p, m), v)| p.len() == m.len() && p.len() == v.len())
+            && params
+                .iter()
+                .zip(&self.m)
+                .zip(&self.v)
+                .all(|((p, m), v)| p.len() == m.len() && p.len() == v.len())
     }
 
     /// One Adam step on `net` with `grads` (already clipped).
@@ -58,7 +69,12 @@ impl Adam {
         let step_size = (lr / bias1) as f32;
         let bias2_sqrt = bias2.sqrt() as f32;
         let eps = epsilon as f32;
-        for (((p, g), m), v) in network::parameters_mut(net).into_iter().zip(grads).zip(&mut self.m).zip(&mut self.v) {
+        for (((p, g), m), v) in network::parameters_mut(net)
+            .into_iter()
+            .zip(grads)
+            .zip(&mut self.m)
+            .zip(&mut self.v)
+        {
             for i in 0..p.len() {
                 m[i] = BETA1 as f32 * m[i] + (1.0 - BETA1 as f32) * g[i];
                 v[i] = BETA2 as f32 * v[i] + (1.0 - BETA2 as f32) * g[i] * g[i];
@@ -99,7 +115,9 @@ pub struct PolicyOutput {
 impl PolicyOutput {
     /// Log-probability of `actions` (`DIMS` choices) for sample `i`.
     pub fn action_log_prob(&self, i: usize, actions: &[u8]) -> f32 {
-        (0..DIMS).map(|h| self.log_probs[(i * DIMS + h) * CHOICES + actions[h] as usize]).sum()
+        (0..DIMS)
+            .map(|h| self.log_probs[(i * DIMS + h) * CHOICES + actions[h] as usize])
+            .sum()
     }
 
     /// Samples one choice per head for sample `i` (inverse CDF on one uniform draw per head).
@@ -138,6 +156,17 @@ impl PolicyOutput {
     }
 }
 
+/// Actions sampled for a batch of observations.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Acted {
+    /// `n * DIMS` chosen choice per head.
+    pub choices: Vec<u8>,
+    /// `n` log-probabilities of the chosen actions.
+    pub log_probs: Vec<f32>,
+    /// `n` state values.
+    pub values: Vec<f32>,
+}
+
 /// The PPO learner: the policy's parameters, their Adam state and the hyperparameters.
 pub struct Ppo {
     /// Hyperparameters.
@@ -157,7 +186,12 @@ impl Ppo {
     pub fn new(net: NetworkF32, config: PpoConfig, device: Device) -> Result<Ppo, String> {
         network::check_policy_shape(&net)?;
         let adam = Adam::new(&net);
-        Ok(Ppo { config, net, adam, device })
+        Ok(Ppo {
+            config,
+            net,
+            adam,
+            device,
+        })
     }
 
     /// The device.
@@ -166,9 +200,17 @@ impl Ppo {
     }
 
     /// Log-probabilities and values of `n` observations under the current parameters.
-    pub fn evaluate(&self, heights_m: &[f32], states: &[f32], n: usize) -> Result<PolicyOutput, String> {
+    pub fn evaluate(
+        &self,
+        heights_m: &[f32],
+        states: &[f32],
+        n: usize,
+    ) -> Result<PolicyOutput, String> {
         let net = Net::new(&self.net, &self.device, false)?;
-        let mut out = PolicyOutput { log_probs: Vec::with_capacity(n * DIMS * CHOICES), values: Vec::with_capacity(n) };
+        let mut out = PolicyOutput {
+            log_probs: Vec::with_capacity(n * DIMS * CHOICES),
+            values: Vec::with_capacity(n),
+        };
         let mut start = 0;
         while start < n {
             let end = (start + EVAL_CHUNK).min(n);
@@ -184,24 +226,26 @@ impl Ppo {
         Ok(out)
     }
 
-    /// Samples actions for `n` observations: (choices `n * DIMS`, their log-probabilities,
-    /// values).
+    /// Samples actions for `n` observations with the current policy.
     pub fn act(
         &self,
         heights_m: &[f32],
         states: &[f32],
         n: usize,
         rng: &mut impl Rng,
-    ) -> Result<(Vec<u8>, Vec<f32>, Vec<f32>), String> {
+    ) -> Result<Acted, String> {
         let out = self.evaluate(heights_m, states, n)?;
-        let mut actions = Vec::with_capacity(n * DIMS);
-        let mut log_probs = Vec::with_capacity(n);
+        let mut acted = Acted {
+            choices: Vec::with_capacity(n * DIMS),
+            log_probs: Vec::with_capacity(n),
+            values: out.values.clone(),
+        };
         for i in 0..n {
             let a = out.sample(i, rng);
-            log_probs.push(out.action_log_prob(i, &a));
-            actions.extend_from_slice(&a);
+            acted.log_probs.push(out.action_log_prob(i, &a));
+            acted.choices.extend_from_slice(&a);
         }
-        Ok((actions, log_probs, out.values))
+        Ok(acted)
     }
 
     /// `config.epochs` passes over `batch` in shuffled minibatches; stops early when the
@@ -256,7 +300,9 @@ impl Ppo {
         let mut adv = Vec::with_capacity(b);
         let mut ret = Vec::with_capacity(b);
         for (k, &i) in idx.iter().enumerate() {
-            heights.extend_from_slice(&batch.heights_m[i * HEIGHT_MAP_CELLS..(i + 1) * HEIGHT_MAP_CELLS]);
+            heights.extend_from_slice(
+                &batch.heights_m[i * HEIGHT_MAP_CELLS..(i + 1) * HEIGHT_MAP_CELLS],
+            );
             states.extend_from_slice(&batch.states[i * STATE_LEN..(i + 1) * STATE_LEN]);
             for h in 0..DIMS {
                 one_hot[(k * DIMS + h) * CHOICES + batch.actions[i * DIMS + h] as usize] = 1.0;
@@ -279,17 +325,27 @@ impl Ppo {
         let (old_lp, adv, ret) = (data1(old_lp), data1(adv), data1(ret));
 
         // psi = pi(a|s) / pi_old(a|s), from the sum of the five heads' log-probabilities.
-        let new_lp: Tensor<1> = (fwd.log_probs.clone() * one_hot).sum_dim(2).sum_dim(1).reshape([b]);
+        let new_lp: Tensor<1> = (fwd.log_probs.clone() * one_hot)
+            .sum_dim(2)
+            .sum_dim(1)
+            .reshape([b]);
         let log_ratio = new_lp - old_lp;
         let ratio = log_ratio.clone().exp();
         // Eq. 1: min(Z(psi) A, psi A); negated because Adam minimises.
         let unclipped = ratio.clone() * adv.clone();
-        let clipped = ratio.clone().clamp(1.0 - c.clip_epsilon, 1.0 + c.clip_epsilon) * adv;
+        let clipped = ratio
+            .clone()
+            .clamp(1.0 - c.clip_epsilon, 1.0 + c.clip_epsilon)
+            * adv;
         let policy_loss = unclipped.min_pair(clipped).mean().neg();
         // L_v: squared error of the value against the return target.
         let value_loss = (fwd.values - ret).square().mean();
         // Entropy of the factorised distribution: the sum of the heads' entropies.
-        let entropy = (fwd.log_probs.clone().exp() * fwd.log_probs).sum_dim(2).sum_dim(1).mean().neg();
+        let entropy = (fwd.log_probs.clone().exp() * fwd.log_probs)
+            .sum_dim(2)
+            .sum_dim(1)
+            .mean()
+            .neg();
         let loss = policy_loss.clone().mul_scalar(c.policy_coef)
             + value_loss.clone().mul_scalar(c.value_coef)
             - entropy.clone().mul_scalar(c.entropy_coef);
@@ -299,9 +355,17 @@ impl Ppo {
         // Diagnostics, without gradients: approx KL (Schulman's k3 estimator) and clip fraction.
         let log_ratio = network::to_vec(log_ratio.detach());
         let approx_kl = log_ratio.iter().map(|lr| lr.exp() - 1.0 - lr).sum::<f32>() / b as f32;
-        let clip_fraction =
-            log_ratio.iter().filter(|lr| (lr.exp() - 1.0).abs() > c.clip_epsilon).count() as f32 / b as f32;
-        let scalar = |t: Tensor<1>| network::to_vec(t.detach()).first().copied().unwrap_or(f32::NAN);
+        let clip_fraction = log_ratio
+            .iter()
+            .filter(|lr| (lr.exp() - 1.0).abs() > c.clip_epsilon)
+            .count() as f32
+            / b as f32;
+        let scalar = |t: Tensor<1>| {
+            network::to_vec(t.detach())
+                .first()
+                .copied()
+                .unwrap_or(f32::NAN)
+        };
         let stats = UpdateStats {
             policy_loss: scalar(policy_loss),
             value_loss: scalar(value_loss),
@@ -318,7 +382,8 @@ impl Ppo {
             ));
         }
         clip_global_norm(&mut g, c.max_grad_norm);
-        self.adam.apply(&mut self.net, &g, c.learning_rate, c.adam_epsilon);
+        self.adam
+            .apply(&mut self.net, &g, c.learning_rate, c.adam_epsilon);
         Ok(stats)
     }
 }
@@ -356,11 +421,16 @@ mod tests {
         for _ in 0..DIMS {
             log_probs.extend(lp([0.1, 0.2, 0.7]));
         }
-        let out = PolicyOutput { log_probs, values: vec![0.0] };
+        let out = PolicyOutput {
+            log_probs,
+            values: vec![0.0],
+        };
         assert_eq!(out.greedy(0), [2; DIMS]);
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let draws = 5000;
-        let twos = (0..draws).filter(|_| out.sample(0, &mut rng)[0] == 2).count();
+        let twos = (0..draws)
+            .filter(|_| out.sample(0, &mut rng)[0] == 2)
+            .count();
         assert!((twos as f32 / draws as f32 - 0.7).abs() < 0.03);
     }
 
@@ -368,22 +438,44 @@ mod tests {
     fn an_update_raises_the_probability_of_advantaged_actions() {
         let arch = Architecture::default_policy();
         let net = init_policy(&arch, &mut ChaCha8Rng::seed_from_u64(2));
-        let config = PpoConfig { epochs: 8, minibatch_size: 16, target_kl: 0.0, learning_rate: 1e-3, normalize_advantages: false, ..PpoConfig::default() };
+        let config = PpoConfig {
+            epochs: 8,
+            minibatch_size: 16,
+            target_kl: 0.0,
+            learning_rate: 1e-3,
+            normalize_advantages: false,
+            ..PpoConfig::default()
+        };
         let mut ppo = Ppo::new(net, config, BackendKind::Flex.device().unwrap()).unwrap();
         let n = 32;
         let mut rng = ChaCha8Rng::seed_from_u64(5);
-        let heights: Vec<f32> = (0..n * HEIGHT_MAP_CELLS).map(|_| rng.random_range(0.0..0.1)).collect();
-        let states: Vec<f32> = (0..n * STATE_LEN).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let heights: Vec<f32> = (0..n * HEIGHT_MAP_CELLS)
+            .map(|_| rng.random_range(0.0..0.1))
+            .collect();
+        let states: Vec<f32> = (0..n * STATE_LEN)
+            .map(|_| rng.random_range(-1.0..1.0))
+            .collect();
         let before = ppo.evaluate(&heights, &states, n).unwrap();
         // Action "all heads choose 2" is good for every sample.
         let actions = vec![2u8; n * DIMS];
-        let old: Vec<f32> = (0..n).map(|i| before.action_log_prob(i, &actions[i * DIMS..])).collect();
+        let old: Vec<f32> = (0..n)
+            .map(|i| before.action_log_prob(i, &actions[i * DIMS..]))
+            .collect();
         let adv: Vec<f32> = (0..n).map(|i| if i % 2 == 0 { 1.0 } else { 0.5 }).collect();
-        let batch = Batch { heights_m: heights.clone(), states: states.clone(), actions: actions.clone(), old_log_probs: old.clone(), advantages: adv, returns: vec![1.0; n] };
+        let batch = Batch {
+            heights_m: heights.clone(),
+            states: states.clone(),
+            actions: actions.clone(),
+            old_log_probs: old.clone(),
+            advantages: adv,
+            returns: vec![1.0; n],
+        };
         let stats = ppo.update(&batch, &mut rng).unwrap();
         assert_eq!(stats.gradient_steps, 16);
         let after = ppo.evaluate(&heights, &states, n).unwrap();
-        let gained = (0..n).filter(|&i| after.action_log_prob(i, &actions[i * DIMS..]) > old[i]).count();
+        let gained = (0..n)
+            .filter(|&i| after.action_log_prob(i, &actions[i * DIMS..]) > old[i])
+            .count();
         assert!(gained > n * 3 / 4, "only {gained} of {n} gained");
     }
 }

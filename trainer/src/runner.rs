@@ -101,10 +101,14 @@ pub fn train(config: &TrainConfig, opts: &RunOptions) -> Result<RunSummary, Stri
     let run = &config.run;
     let kind = SceneKind::from_name(&run.scene_kind).ok_or("bad run.scene_kind")?;
     let device = BackendKind::from_name(&run.backend)?.device()?;
-    std::fs::create_dir_all(&opts.out).map_err(|e| format!("cannot create {}: {e}", opts.out.display()))?;
+    std::fs::create_dir_all(&opts.out)
+        .map_err(|e| format!("cannot create {}: {e}", opts.out.display()))?;
     let ckpt_path = opts.out.join(CHECKPOINT_FILE);
     let metrics_path = opts.out.join(METRICS_FILE);
-    let env_config = EnvConfig { max_steps: run.max_episode_steps, ..EnvConfig::default() };
+    let env_config = EnvConfig {
+        max_steps: run.max_episode_steps,
+        ..EnvConfig::default()
+    };
     let steps_per_env = config.steps_per_env();
     let n = run.num_envs;
 
@@ -114,9 +118,16 @@ pub fn train(config: &TrainConfig, opts: &RunOptions) -> Result<RunSummary, Stri
     sampler.set_stream(1);
     let mut init_rng = ChaCha8Rng::seed_from_u64(opts.seed);
     init_rng.set_stream(2);
-    let env_seed = opts.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15).wrapping_add(3);
+    let env_seed = opts
+        .seed
+        .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        .wrapping_add(3);
     let mut envs = VecEnv::new(kind, n, env_seed, env_config, run.threads)?;
-    let mut ppo = Ppo::new(init_policy(&config.architecture(), &mut init_rng), config.ppo.clone(), device)?;
+    let mut ppo = Ppo::new(
+        init_policy(&config.architecture(), &mut init_rng),
+        config.ppo.clone(),
+        device,
+    )?;
     let (mut iteration, mut env_steps, mut elapsed_before) = (0u64, 0u64, 0.0f64);
 
     if opts.resume {
@@ -129,7 +140,12 @@ pub fn train(config: &TrainConfig, opts: &RunOptions) -> Result<RunSummary, Stri
             ));
         }
         if c.seed != opts.seed {
-            return Err(format!("{} belongs to seed {}, not {}", ckpt_path.display(), c.seed, opts.seed));
+            return Err(format!(
+                "{} belongs to seed {}, not {}",
+                ckpt_path.display(),
+                c.seed,
+                opts.seed
+            ));
         }
         ppo.net = c.network.to_network()?;
         ppo.adam = c.adam;
@@ -149,11 +165,17 @@ pub fn train(config: &TrainConfig, opts: &RunOptions) -> Result<RunSummary, Stri
         let _ = std::fs::remove_file(&metrics_path);
     }
 
-    let bar = if opts.progress { ProgressBar::new(run.total_env_steps) } else { ProgressBar::hidden() };
+    let bar = if opts.progress {
+        ProgressBar::new(run.total_env_steps)
+    } else {
+        ProgressBar::hidden()
+    };
     bar.set_style(
-        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {human_pos}/{human_len} steps, ETA {eta} | {msg}")
-            .map_err(|e| e.to_string())?
-            .progress_chars("=> "),
+        ProgressStyle::with_template(
+            "{elapsed_precise} [{bar:30}] {human_pos}/{human_len} steps, ETA {eta} | {msg}",
+        )
+        .map_err(|e| e.to_string())?
+        .progress_chars("=> "),
     );
     bar.set_position(env_steps);
 
@@ -164,19 +186,28 @@ pub fn train(config: &TrainConfig, opts: &RunOptions) -> Result<RunSummary, Stri
     let start = Instant::now();
     let mut last = None;
     let mut iterations_here = 0;
-    while env_steps < run.total_env_steps && opts.max_iterations.is_none_or(|m| iterations_here < m) {
+    while env_steps < run.total_env_steps && opts.max_iterations.is_none_or(|m| iterations_here < m)
+    {
         let iter_start = Instant::now();
         // 1. Sample trajectories with the current policy.
         storage.clear();
         let mut episodes = Vec::new();
         for _ in 0..steps_per_env {
-            let (actions, log_probs, values) = ppo.act(&heights, &states, n, &mut sampler)?;
+            let acted = ppo.act(&heights, &states, n, &mut sampler)?;
             let (obs_h, obs_s) = (heights.clone(), states.clone());
-            let results = envs.step(&actions, &mut heights, &mut states);
+            let results = envs.step(&acted.choices, &mut heights, &mut states);
             let rewards: Vec<f32> = results.iter().map(|r| r.reward).collect();
             let dones: Vec<bool> = results.iter().map(|r| r.done).collect();
             episodes.extend(results.iter().filter_map(|r| r.episode));
-            storage.push_step(&obs_h, &obs_s, &actions, &log_probs, &values, &rewards, &dones);
+            storage.push_step(
+                &obs_h,
+                &obs_s,
+                &acted.choices,
+                &acted.log_probs,
+                &acted.values,
+                &rewards,
+                &dones,
+            );
         }
         // 2. Returns and advantages (GAE), bootstrapped with the value of where each env stands.
         let last_values = ppo.evaluate(&heights, &states, n)?.values;
@@ -188,7 +219,8 @@ pub fn train(config: &TrainConfig, opts: &RunOptions) -> Result<RunSummary, Stri
         iterations_here += 1;
         env_steps += (n * steps_per_env) as u64;
         let elapsed_s = elapsed_before + start.elapsed().as_secs_f64();
-        let (mean_return, success_rate, collision_free_rate, mean_success_steps) = summarise(&episodes);
+        let (mean_return, success_rate, collision_free_rate, mean_success_steps) =
+            summarise(&episodes);
         let m = IterationMetrics {
             iteration,
             env_steps,
@@ -211,7 +243,8 @@ pub fn train(config: &TrainConfig, opts: &RunOptions) -> Result<RunSummary, Stri
             m.steps_per_s
         ));
         last = Some(m);
-        let finished = env_steps >= run.total_env_steps || opts.max_iterations.is_some_and(|mx| iterations_here >= mx);
+        let finished = env_steps >= run.total_env_steps
+            || opts.max_iterations.is_some_and(|mx| iterations_here >= mx);
         if iteration % run.checkpoint_interval as u64 == 0 || finished {
             Checkpoint {
                 kind: opts.kind.clone(),
@@ -229,7 +262,12 @@ pub fn train(config: &TrainConfig, opts: &RunOptions) -> Result<RunSummary, Stri
         }
     }
     bar.finish();
-    Ok(RunSummary { iterations: iteration, env_steps, last, checkpoint: ckpt_path })
+    Ok(RunSummary {
+        iterations: iteration,
+        env_steps,
+        last,
+        checkpoint: ckpt_path,
+    })
 }
 
 fn append_metrics(path: &Path, m: &IterationMetrics) -> Result<(), String> {
@@ -250,19 +288,25 @@ fn truncate_metrics(path: &Path, iteration: u64) -> Result<(), String> {
     };
     let kept: String = text
         .lines()
-        .filter(|l| serde_json::from_str::<IterationMetrics>(l).is_ok_and(|m| m.iteration <= iteration))
+        .filter(|l| {
+            serde_json::from_str::<IterationMetrics>(l).is_ok_and(|m| m.iteration <= iteration)
+        })
         .map(|l| format!("{l}\n"))
         .collect();
-    crate::export::write_atomic(path, kept.as_bytes()).map_err(|e| format!("cannot rewrite {}: {e}", path.display()))
+    crate::export::write_atomic(path, kept.as_bytes())
+        .map_err(|e| format!("cannot rewrite {}: {e}", path.display()))
 }
 
 /// Reads a run's metrics (for plots).
 pub fn read_metrics(run: &Path) -> Result<Vec<IterationMetrics>, String> {
     let path = run.join(METRICS_FILE);
-    let text = std::fs::read_to_string(&path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    let text = std::fs::read_to_string(&path)
+        .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
     text.lines()
         .enumerate()
         .filter(|(_, l)| !l.trim().is_empty())
-        .map(|(i, l)| serde_json::from_str(l).map_err(|e| format!("{} line {}: {e}", path.display(), i + 1)))
+        .map(|(i, l)| {
+            serde_json::from_str(l).map_err(|e| format!("{} line {}: {e}", path.display(), i + 1))
+        })
         .collect()
 }

@@ -90,7 +90,13 @@ impl RolloutStorage {
     pub fn clear(&mut self) {
         self.len = 0;
         let s = &mut self.samples;
-        for v in [&mut s.heights_m, &mut s.states, &mut s.old_log_probs, &mut s.advantages, &mut s.returns] {
+        for v in [
+            &mut s.heights_m,
+            &mut s.states,
+            &mut s.old_log_probs,
+            &mut s.advantages,
+            &mut s.returns,
+        ] {
             v.clear();
         }
         s.actions.clear();
@@ -142,9 +148,9 @@ impl RolloutStorage {
         let n = self.num_envs;
         let steps = self.len / n;
         let mut advantages = vec![0.0f32; self.len];
-        for e in 0..n {
+        for (e, &last_value) in last_values.iter().enumerate().take(n) {
             let mut next_advantage = 0.0;
-            let mut next_value = last_values[e];
+            let mut next_value = last_value;
             for t in (0..steps).rev() {
                 let i = t * n + e;
                 let not_done = if self.dones[i] { 0.0 } else { 1.0 };
@@ -154,7 +160,11 @@ impl RolloutStorage {
                 next_value = self.values[i];
             }
         }
-        self.samples.returns = advantages.iter().zip(&self.values).map(|(a, v)| a + v).collect();
+        self.samples.returns = advantages
+            .iter()
+            .zip(&self.values)
+            .map(|(a, v)| a + v)
+            .collect();
         self.samples.advantages = advantages;
     }
 }

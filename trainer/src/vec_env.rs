@@ -75,24 +75,51 @@ fn new_scene(kind: SceneKind, rng: &mut ChaCha8Rng, env: usize, episode: u64) ->
 }
 
 impl EnvSlot {
-    fn start(scenario: Scenario, config: EnvConfig, scene_rng: ChaCha8Rng, episodes_started: u64) -> Result<EnvSlot, String> {
-        let env = Env::new(&scenario, config).map_err(|e| format!("scenario {}: {e:?}", scenario.name))?;
-        Ok(EnvSlot { env, scenario, scene_rng, episode_return: 0.0, actions: Vec::new(), episodes_started })
+    fn start(
+        scenario: Scenario,
+        config: EnvConfig,
+        scene_rng: ChaCha8Rng,
+        episodes_started: u64,
+    ) -> Result<EnvSlot, String> {
+        let env = Env::new(&scenario, config)
+            .map_err(|e| format!("scenario {}: {e:?}", scenario.name))?;
+        Ok(EnvSlot {
+            env,
+            scenario,
+            scene_rng,
+            episode_return: 0.0,
+            actions: Vec::new(),
+            episodes_started,
+        })
     }
 
-    fn step(&mut self, choices: &[u8], kind: SceneKind, config: EnvConfig, index: usize) -> StepResult {
+    fn step(
+        &mut self,
+        choices: &[u8],
+        kind: SceneKind,
+        config: EnvConfig,
+        index: usize,
+    ) -> StepResult {
         let indices = std::array::from_fn(|h| choices[h] as usize);
         // Choices come from the policy's 3-way heads, so they are always in range.
         let action = Action::from_head_indices(indices).unwrap_or_default();
         let Ok(outcome) = self.env.step(action) else {
             // Cannot happen: finished episodes are replaced at once below.
-            return StepResult { reward: 0.0, done: true, episode: None };
+            return StepResult {
+                reward: 0.0,
+                done: true,
+                episode: None,
+            };
         };
         let reward = outcome.reward.total();
         self.episode_return += reward;
         self.actions.push(action.index() as u8);
         if !outcome.status.is_done() {
-            return StepResult { reward, done: false, episode: None };
+            return StepResult {
+                reward,
+                done: false,
+                episode: None,
+            };
         }
         let episode = EpisodeStats {
             return_sum: self.episode_return,
@@ -101,7 +128,11 @@ impl EnvSlot {
             collisions: self.env.collisions(),
         };
         self.reset(kind, config, index);
-        StepResult { reward, done: true, episode: Some(episode) }
+        StepResult {
+            reward,
+            done: true,
+            episode: Some(episode),
+        }
     }
 
     fn reset(&mut self, kind: SceneKind, config: EnvConfig, index: usize) {
@@ -123,7 +154,13 @@ impl EnvSlot {
 impl VecEnv {
     /// `num_envs` environments on fresh `kind` scenes; env `i` draws its scenes from ChaCha8
     /// seeded with `seed` on stream `i`.
-    pub fn new(kind: SceneKind, num_envs: usize, seed: u64, config: EnvConfig, threads: usize) -> Result<VecEnv, String> {
+    pub fn new(
+        kind: SceneKind,
+        num_envs: usize,
+        seed: u64,
+        config: EnvConfig,
+        threads: usize,
+    ) -> Result<VecEnv, String> {
         let slots = (0..num_envs)
             .map(|i| {
                 let mut rng = ChaCha8Rng::seed_from_u64(seed);
@@ -132,7 +169,12 @@ impl VecEnv {
                 EnvSlot::start(scenario, config, rng, 0)
             })
             .collect::<Result<Vec<_>, _>>()?;
-        Ok(VecEnv { slots, kind, config, threads: threads.max(1) })
+        Ok(VecEnv {
+            slots,
+            kind,
+            config,
+            threads: threads.max(1),
+        })
     }
 
     /// Number of environments.
@@ -162,10 +204,22 @@ impl VecEnv {
 
     /// Steps every env with its `DIMS` choices (`len * DIMS`), restarting finished episodes on
     /// fresh scenes, then writes the new observations.
-    pub fn step(&mut self, choices: &[u8], heights_m: &mut [f32], states: &mut [f32]) -> Vec<StepResult> {
+    pub fn step(
+        &mut self,
+        choices: &[u8],
+        heights_m: &mut [f32],
+        states: &mut [f32],
+    ) -> Vec<StepResult> {
         let chunk = self.slots.len().div_ceil(self.threads);
         let (kind, config) = (self.kind, self.config);
-        let mut results = vec![StepResult { reward: 0.0, done: false, episode: None }; self.slots.len()];
+        let mut results = vec![
+            StepResult {
+                reward: 0.0,
+                done: false,
+                episode: None
+            };
+            self.slots.len()
+        ];
         std::thread::scope(|scope| {
             for (k, (((slots, r), h), s)) in self
                 .slots
@@ -178,7 +232,12 @@ impl VecEnv {
                 let choices = &choices[k * chunk * DIMS..];
                 scope.spawn(move || {
                     for (j, (slot, r)) in slots.iter_mut().zip(r.iter_mut()).enumerate() {
-                        *r = slot.step(&choices[j * DIMS..(j + 1) * DIMS], kind, config, k * chunk + j);
+                        *r = slot.step(
+                            &choices[j * DIMS..(j + 1) * DIMS],
+                            kind,
+                            config,
+                            k * chunk + j,
+                        );
                     }
                     observe_slots(slots, h, s);
                 });
@@ -193,7 +252,9 @@ impl VecEnv {
             .iter()
             .map(|s| EnvSnapshot {
                 scene_rng_word_pos: s.scene_rng.get_word_pos(),
-                scenario_json: wheelleg_sim::scenario_file::to_json(std::slice::from_ref(&s.scenario)),
+                scenario_json: wheelleg_sim::scenario_file::to_json(std::slice::from_ref(
+                    &s.scenario,
+                )),
                 actions: s.actions.clone(),
                 episodes_started: s.episodes_started,
             })
@@ -204,19 +265,33 @@ impl VecEnv {
     /// each unfinished episode's actions.
     pub fn restore(&mut self, seed: u64, snapshots: &[EnvSnapshot]) -> Result<(), String> {
         if snapshots.len() != self.slots.len() {
-            return Err(format!("checkpoint has {} environments, config has {}", snapshots.len(), self.slots.len()));
+            return Err(format!(
+                "checkpoint has {} environments, config has {}",
+                snapshots.len(),
+                self.slots.len()
+            ));
         }
         for (i, (slot, snap)) in self.slots.iter_mut().zip(snapshots).enumerate() {
             let mut rng = ChaCha8Rng::seed_from_u64(seed);
             rng.set_stream(i as u64);
             rng.set_word_pos(snap.scene_rng_word_pos);
-            let scenarios = wheelleg_sim::scenario_file::parse(&snap.scenario_json, &wheelleg_runtime::robot::WHEELLEG)
-                .map_err(|e| format!("checkpoint env {i}: {e}"))?;
-            let scenario = scenarios.into_iter().next().ok_or_else(|| format!("checkpoint env {i}: no scenario"))?;
+            let scenarios = wheelleg_sim::scenario_file::parse(
+                &snap.scenario_json,
+                &wheelleg_runtime::robot::WHEELLEG,
+            )
+            .map_err(|e| format!("checkpoint env {i}: {e}"))?;
+            let scenario = scenarios
+                .into_iter()
+                .next()
+                .ok_or_else(|| format!("checkpoint env {i}: no scenario"))?;
             let mut restored = EnvSlot::start(scenario, self.config, rng, snap.episodes_started)?;
             for &a in &snap.actions {
-                let action = Action::from_index(a as usize).ok_or_else(|| format!("checkpoint env {i}: bad action {a}"))?;
-                let outcome = restored.env.step(action).map_err(|_| format!("checkpoint env {i}: replay ran past the episode end"))?;
+                let action = Action::from_index(a as usize)
+                    .ok_or_else(|| format!("checkpoint env {i}: bad action {a}"))?;
+                let outcome = restored
+                    .env
+                    .step(action)
+                    .map_err(|_| format!("checkpoint env {i}: replay ran past the episode end"))?;
                 restored.episode_return += outcome.reward.total();
                 restored.actions.push(a);
             }
@@ -228,7 +303,11 @@ impl VecEnv {
 
 fn observe_slots(slots: &[EnvSlot], heights_m: &mut [f32], states: &mut [f32]) {
     let mut obs = Observation::default();
-    for ((slot, h), s) in slots.iter().zip(heights_m.chunks_mut(HEIGHT_MAP_CELLS)).zip(states.chunks_mut(STATE_LEN)) {
+    for ((slot, h), s) in slots
+        .iter()
+        .zip(heights_m.chunks_mut(HEIGHT_MAP_CELLS))
+        .zip(states.chunks_mut(STATE_LEN))
+    {
         slot.env.observe(&mut obs);
         h.copy_from_slice(&obs.height_map);
         s.copy_from_slice(&obs.state);

@@ -26,7 +26,14 @@ fn smoke_config() -> TrainConfig {
 }
 
 fn opts(out: PathBuf, resume: bool, max_iterations: Option<u64>) -> RunOptions {
-    RunOptions { out, seed: 7, resume, progress: false, max_iterations, kind: "test".into() }
+    RunOptions {
+        out,
+        seed: 7,
+        resume,
+        progress: false,
+        max_iterations,
+        kind: "test".into(),
+    }
 }
 
 #[test]
@@ -34,12 +41,30 @@ fn ppo_learns_to_drive_straight_to_the_target() {
     let config = smoke_config();
     let dir = temp_dir("learning");
     let summary = train(&config, &opts(dir.clone(), false, None)).unwrap();
-    let net = Checkpoint::load(&summary.checkpoint).unwrap().network.to_network().unwrap();
+    let net = Checkpoint::load(&summary.checkpoint)
+        .unwrap()
+        .network
+        .to_network()
+        .unwrap();
     // Held-out scenes: a seed never used in training.
-    let scenes = generate_many(SceneKind::Behaviour(Behaviour::Straight), &mut ChaCha8Rng::seed_from_u64(424_242), 100);
-    let options = EvalOptions { planner_expansions: 0, ..EvalOptions::default() };
+    let scenes = generate_many(
+        SceneKind::Behaviour(Behaviour::Straight),
+        &mut ChaCha8Rng::seed_from_u64(424_242),
+        100,
+    );
+    let options = EvalOptions {
+        planner_expansions: 0,
+        ..EvalOptions::default()
+    };
     let device = BackendKind::Flex.device().unwrap();
-    let report = evaluate(&net, &device, &scenes, &options, &mut ChaCha8Rng::seed_from_u64(0)).unwrap();
+    let report = evaluate(
+        &net,
+        &device,
+        &scenes,
+        &options,
+        &mut ChaCha8Rng::seed_from_u64(0),
+    )
+    .unwrap();
     let metrics = read_metrics(&dir).unwrap();
     eprintln!(
         "greedy success {:.2}, collision-free {:.2}, mean steps {:?}; training success by iteration: {:?}",
@@ -48,7 +73,11 @@ fn ppo_learns_to_drive_straight_to_the_target() {
         report.mean_steps,
         metrics.iter().map(|m| (m.success_rate * 100.0).round()).collect::<Vec<_>>()
     );
-    assert!(report.success_rate >= 0.9, "greedy success {}", report.success_rate);
+    assert!(
+        report.success_rate >= 0.9,
+        "greedy success {}",
+        report.success_rate
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -67,11 +96,20 @@ fn a_resumed_run_matches_an_uninterrupted_one() {
     let refused = train(&config, &opts(split.clone(), false, None)).unwrap_err();
     assert!(refused.contains("--resume"), "{refused}");
     let b = train(&config, &opts(split.clone(), true, None)).unwrap();
-    let (ca, cb) = (Checkpoint::load(&a.checkpoint).unwrap(), Checkpoint::load(&b.checkpoint).unwrap());
+    let (ca, cb) = (
+        Checkpoint::load(&a.checkpoint).unwrap(),
+        Checkpoint::load(&b.checkpoint).unwrap(),
+    );
     assert_eq!(ca.network, cb.network);
     assert_eq!(ca.adam, cb.adam);
     assert_eq!(ca.env_steps, cb.env_steps);
-    let strip = |d: &PathBuf| read_metrics(d).unwrap().into_iter().map(|m| (m.iteration, m.mean_return, m.update.policy_loss)).collect::<Vec<_>>();
+    let strip = |d: &PathBuf| {
+        read_metrics(d)
+            .unwrap()
+            .into_iter()
+            .map(|m| (m.iteration, m.mean_return, m.update.policy_loss))
+            .collect::<Vec<_>>()
+    };
     assert_eq!(strip(&whole), strip(&split));
     // A different config is refused.
     let mut other = config.clone();
