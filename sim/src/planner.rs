@@ -29,7 +29,7 @@
 //! search (heuristic inflated, [`plan_with_fallback`]) can still prove a scene solvable, without
 //! the shortest length.
 
-use crate::collision::{RobotParts, PART_COUNT};
+use crate::collision::{Part, RobotParts, PART_COUNT};
 use crate::env::{Env, InvalidAction, Status};
 use crate::state::{RobotState, YAW_STEPS_PER_TURN};
 use nalgebra::{Point2, Point3, Vector3};
@@ -431,35 +431,200 @@ impl BaseMove {
 /// the fast path fall back to exact checks.
 const AABB_SLACK_M: f32 = 1.0e-4;
 
-/// Bounding boxes of the robot relative to its body centre: the whole robot first, then each
-/// of its parts.
-type PartBoxes = [Aabb; 1 + PART_COUNT];
-
-fn part_boxes(parts: &RobotParts) -> PartBoxes {
-    let mut boxes = [parts.aabb().loosened(AABB_SLACK_M); 1 + PART_COUNT];
-    for (b, part) in boxes[1..].iter_mut().zip(parts.parts()) {
-        *b = part.aabb().loosened(AABB_SLACK_M);
-    }
-    boxes
+/// One convex robot part, placed relative to the body centre's ground point.
+#[derive(Clone, Copy, Debug)]
+enum Convex {
+    /// A box: centre, unit axes, half extents along them.
+    Cuboid {
+        centre: Vector3<f32>,
+        axes: [Vector3<f32>; 3],
+        half: [f32; 3],
+    },
+    /// A cylinder: centre, unit axle, half length, radius.
+    Cylinder {
+        centre: Vector3<f32>,
+        axle: Vector3<f32>,
+        half_length: f32,
+        radius: f32,
+    },
+    /// A capsule: segment end points, radius.
+    Capsule {
+        a: Vector3<f32>,
+        b: Vector3<f32>,
+        radius: f32,
+    },
 }
 
-/// Whether robot parts with these boxes, shifted to `position`, surely touch no obstacle: no
-/// part's box meets an obstacle's box. The simulator's exact test only runs on such meeting
-/// pairs, so this never calls a colliding pose clear.
-fn parts_clear(boxes: &PartBoxes, position: Point2<f32>, obstacles: &[Aabb]) -> bool {
-    let whole = shifted(&boxes[0], position);
-    obstacles.iter().filter(|o| o.intersects(&whole)).all(|o| {
-        boxes[1..]
+impl Convex {
+    fn from_part(part: &Part) -> Self {
+        match part {
+            Part::Body { pose, shape } => Convex::Cuboid {
+                centre: pose.translation.vector,
+                axes: [
+                    pose.rotation * Vector3::x(),
+                    pose.rotation * Vector3::y(),
+                    pose.rotation * Vector3::z(),
+                ],
+                half: shape.half_extents.into(),
+            },
+            // parry's cylinders stand along their local y axis, here the axle.
+            Part::Wheel { pose, shape } => Convex::Cylinder {
+                centre: pose.translation.vector,
+                axle: pose.rotation * Vector3::y(),
+                half_length: shape.half_height,
+                radius: shape.radius,
+            },
+            Part::Link(capsule) => Convex::Capsule {
+                a: capsule.segment.a.coords,
+                b: capsule.segment.b.coords,
+                radius: capsule.radius,
+            },
+        }
+    }
+
+    /// Centre and half width of the part's projection on the unit vector `n`.
+    fn projection(&self, n: &Vector3<f32>) -> (f32, f32) {
+        match self {
+            Convex::Cuboid { centre, axes, half } => (
+                centre.dot(n),
+                (0..3).map(|i| half[i] * axes[i].dot(n).abs()).sum(),
+            ),
+            Convex::Cylinder {
+                centre,
+                axle,
+                half_length,
+                radius,
+            } => {
+                let along = axle.dot(n);
+                (
+                    centre.dot(n),
+                    half_length * along.abs() + radius * (1.0 - along * along).max(0.0).sqrt(),
+                )
+            }
+            Convex::Capsule { a, b, radius } => {
+                (0.5 * (a + b).dot(n), 0.5 * (b - a).dot(n).abs() + radius)
+            }
+        }
+    }
+}
+
+/// An obstacle's box, for the separating-axis filter.
+#[derive(Clone, Copy, Debug)]
+struct ObstacleBox {
+    /// As the simulator builds it, loosened by the slack.
+    aabb: Aabb,
+    centre: Vector3<f32>,
+    half: Vector3<f32>,
+}
+
+impl ObstacleBox {
+    /// The largest gap between the projections of `part`, shifted by `by`, and of this box
+    /// over the axes tried (world x, y, z, the body's horizontal axes, a link's horizontal
+    /// normal): positive means a separating axis, so they do not touch (both are convex).
+    fn gap(&self, part: &Convex, by: &Vector3<f32>, body_axes: &[Vector3<f32>; 2]) -> f32 {
+        let gap = |n: &Vector3<f32>| {
+            let (centre, half) = part.projection(n);
+            let own = self.half.x * n.x.abs() + self.half.y * n.y.abs() + self.half.z * n.z.abs();
+            (centre + by.dot(n) - self.centre.dot(n)).abs() - half - own
+        };
+        let world = [Vector3::x(), Vector3::y(), Vector3::z()];
+        let mut best = world
             .iter()
-            .all(|b| !o.intersects(&shifted(b, position)))
-    })
+            .chain(body_axes)
+            .map(gap)
+            .fold(f32::NEG_INFINITY, f32::max);
+        if let Convex::Capsule { a, b, .. } = part {
+            let d = b - a;
+            let normal = Vector3::new(-d.y, d.x, 0.0);
+            if normal.norm() > 1.0e-6 {
+                best = best.max(gap(&normal.normalize()));
+            }
+        }
+        best
+    }
+}
+
+/// The robot's parts at one pose relative to its body centre's ground point, with bounding
+/// boxes: the whole robot's, and each part's.
+#[derive(Clone, Copy, Debug)]
+struct PartBoxes {
+    whole: Aabb,
+    boxes: [Aabb; PART_COUNT],
+    parts: [Convex; PART_COUNT],
+    /// The body's horizontal axes.
+    body_axes: [Vector3<f32>; 2],
+}
+
+fn part_boxes(parts: &RobotParts) -> PartBoxes {
+    let convex = parts.parts().map(|p| Convex::from_part(&p));
+    let body_axes = match convex[0] {
+        Convex::Cuboid { axes, .. } => [axes[0], axes[1]],
+        _ => [Vector3::x(), Vector3::y()],
+    };
+    PartBoxes {
+        whole: parts.aabb().loosened(AABB_SLACK_M),
+        boxes: parts.parts().map(|p| p.aabb().loosened(AABB_SLACK_M)),
+        parts: convex,
+        body_axes,
+    }
+}
+
+/// What the cheap geometric tests can tell about a pose, before the simulator's exact test.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Contact {
+    /// Surely touches no obstacle.
+    Clear,
+    /// Surely collides: the body box overlaps an obstacle box.
+    Collides,
+    /// Within a hair of touching: only the exact test can tell.
+    Unknown,
+}
+
+/// Classifies the robot's parts, shifted to `position`, against the obstacles.
+///
+/// The simulator's exact test only looks at part/obstacle pairs whose boxes meet; for those,
+/// a separating axis with room to spare proves the pair apart. The body is a box turned about
+/// the vertical only, so against an axis-aligned obstacle box the five axes tried (world x, y,
+/// z, body x, y) are all the separating-axis theorem needs: overlap on all five, with room to
+/// spare, proves a collision. Only what is within the slack of touching is left to the exact
+/// test.
+fn classify(boxes: &PartBoxes, position: Point2<f32>, obstacles: &[ObstacleBox]) -> Contact {
+    let by = Vector3::new(position.x, position.y, 0.0);
+    let whole = shifted(&boxes.whole, position);
+    let mut unknown = false;
+    for o in obstacles.iter().filter(|o| o.aabb.intersects(&whole)) {
+        for (index, (b, part)) in boxes.boxes.iter().zip(&boxes.parts).enumerate() {
+            if !o.aabb.intersects(&shifted(b, position)) {
+                continue;
+            }
+            match o.gap(part, &by, &boxes.body_axes) {
+                gap if gap > AABB_SLACK_M => {}
+                gap if index == 0 && gap < -AABB_SLACK_M => return Contact::Collides,
+                _ => unknown = true,
+            }
+        }
+    }
+    if unknown {
+        Contact::Unknown
+    } else {
+        Contact::Clear
+    }
 }
 
 /// The robot's boxes at one yaw, per leg configuration (indexed `row * LEG_COLS + col`) and the
 /// whole robot over all of them.
 struct YawBoxes {
     all: Aabb,
+    /// Reachable configurations only, in the order of `ordinal`.
     per_config: Vec<PartBoxes>,
+    /// Index into `per_config` of cell `row * LEG_COLS + col`.
+    ordinal: Vec<u16>,
+}
+
+impl YawBoxes {
+    fn get(&self, row: usize, col: usize) -> &PartBoxes {
+        &self.per_config[self.ordinal[row * LEG_COLS + col] as usize]
+    }
 }
 
 impl YawBoxes {
@@ -468,7 +633,8 @@ impl YawBoxes {
             position: Point2::origin(),
             yaw_steps,
         };
-        let mut per_config = vec![[Aabb::new_invalid(); 1 + PART_COUNT]; LEG_ROWS * LEG_COLS];
+        let mut per_config = Vec::with_capacity(LEG_ROWS * LEG_COLS);
+        let mut ordinal = vec![u16::MAX; LEG_ROWS * LEG_COLS];
         let mut all = Aabb::new_invalid();
         for (row, col) in lattice.reachable.iter() {
             let state = lattice.state(&origin, row, col);
@@ -480,10 +646,15 @@ impl YawBoxes {
             )
             .expect("reachable by construction of the lattice");
             let boxes = part_boxes(&parts);
-            all.merge(&boxes[0]);
-            per_config[row * LEG_COLS + col] = boxes;
+            all.merge(&boxes.whole);
+            ordinal[row * LEG_COLS + col] = per_config.len() as u16;
+            per_config.push(boxes);
         }
-        YawBoxes { all, per_config }
+        YawBoxes {
+            all,
+            per_config,
+            ordinal,
+        }
     }
 }
 
@@ -831,7 +1002,7 @@ struct Search<'a> {
     /// Half-way pose boxes, see [`mid_boxes`].
     mid_boxes: FastMap<MidKey, Option<PartBoxes>>,
     /// The obstacles' boxes, as the simulator builds them, loosened by the slack.
-    obstacle_boxes: Vec<Aabb>,
+    obstacle_boxes: Vec<ObstacleBox>,
     give_up_m: f32,
     max_steps: u32,
     nodes: Vec<Node>,
@@ -862,12 +1033,14 @@ impl<'a> Search<'a> {
                 .obstacles()
                 .boxes()
                 .iter()
-                .map(|b| {
-                    Aabb::new(
+                .map(|b| ObstacleBox {
+                    aabb: Aabb::new(
                         Point3::new(b.min_x_m, b.min_y_m, 0.0),
                         Point3::new(b.max_x_m, b.max_y_m, b.height_m),
                     )
-                    .loosened(AABB_SLACK_M)
+                    .loosened(AABB_SLACK_M),
+                    centre: b.centre(),
+                    half: b.half_extents(),
                 })
                 .collect(),
             // The episode gives up beyond its start distance plus the margin; the planner starts
@@ -1068,10 +1241,10 @@ impl<'a> Search<'a> {
             &self.boxes[yaw].as_ref().expect("just filled").all,
             next.position,
         );
-        let near: Vec<Aabb> = self
+        let near: Vec<ObstacleBox> = self
             .obstacle_boxes
             .iter()
-            .filter(|o| o.intersects(&all))
+            .filter(|o| o.aabb.intersects(&all))
             .copied()
             .collect();
         if near.is_empty() {
@@ -1081,18 +1254,28 @@ impl<'a> Search<'a> {
         let mut valid = LegSet::default();
         for (row, col) in candidates.iter() {
             let cell = row * LEG_COLS + col;
-            let end_boxes = &self.boxes[yaw].as_ref().expect("just filled").per_config[cell];
-            let end_whole = shifted(&end_boxes[0], next.position);
-            if !near.iter().any(|o| o.intersects(&end_whole)) {
+            let end_boxes = self.boxes[yaw].as_ref().expect("just filled").get(row, col);
+            let end_whole = shifted(&end_boxes.whole, next.position);
+            if !near.iter().any(|o| o.aabb.intersects(&end_whole)) {
                 valid.insert(row, col);
                 continue;
             }
             let to = self.lattice.state(next, row, col);
-            let end_clear = parts_clear(end_boxes, next.position, &near)
-                || *self.end_clear.entry((key, cell as u16)).or_insert_with(|| {
-                    RobotParts::new(geometry, to.position, to.yaw_rad(), to.leg_config(geometry))
+            let end_clear = match classify(end_boxes, next.position, &near) {
+                Contact::Clear => true,
+                Contact::Collides => false,
+                Contact::Unknown => {
+                    *self.end_clear.entry((key, cell as u16)).or_insert_with(|| {
+                        RobotParts::new(
+                            geometry,
+                            to.position,
+                            to.yaw_rad(),
+                            to.leg_config(geometry),
+                        )
                         .is_ok_and(|parts| !env.obstacles().collides(&parts))
-                });
+                    })
+                }
+            };
             if !end_clear {
                 continue;
             }
@@ -1113,8 +1296,13 @@ impl<'a> Search<'a> {
                     .mid_boxes
                     .entry(mid_key)
                     .or_insert_with(|| mid_boxes(geometry, &from, &to));
-                let ok = mid.is_some_and(|b| parts_clear(&b, mid_position, &self.obstacle_boxes))
-                    || env.check_transition(&from, &to).is_ok();
+                // A half-way body overlapping an obstacle fails whatever the legs (a collision,
+                // or an unreachable half-way pose); else ask the simulator unless surely clear.
+                let ok = match mid.map(|b| classify(&b, mid_position, &self.obstacle_boxes)) {
+                    Some(Contact::Clear) => true,
+                    Some(Contact::Collides) => false,
+                    _ => env.check_transition(&from, &to).is_ok(),
+                };
                 if ok {
                     valid.insert(row, col);
                     break;
