@@ -102,6 +102,9 @@ fn bad_files_are_refused_naming_the_scenario_and_field() {
     assert!(matches!(missing, Err(ScenarioFileError::Io { .. })));
 }
 
+/// Which (clearance steps, track steps) leg configurations a test allows.
+type LegFilter = fn(i32, i32) -> bool;
+
 /// Leg configurations on the action lattice that the legs can reach, filtered.
 fn lattice_legs(keep: impl Fn(i32, i32) -> bool) -> Vec<LegConfig> {
     let mut out = Vec::new();
@@ -171,7 +174,7 @@ fn free_pose_near_line(
 
 #[test]
 fn each_fence_needs_its_behaviour() {
-    let cases: [(Behaviour, fn(i32, i32) -> bool, fn(i32, i32) -> bool); 3] = [
+    let cases: [(Behaviour, LegFilter, LegFilter); 3] = [
         // Lift over: blocked with the body height frozen, passable lifted.
         (Behaviour::LiftOver, |c, _| c == 0, |c, _| c >= 2),
         // Spread over: blocked with the track frozen, passable spread.
