@@ -489,3 +489,27 @@ fn demo_on_socketcan_runs_when_a_vcan_exists() {
     assert!(stderr.contains("firmware_sim"), "{stderr}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn trained_policy_closed_loop_success_is_within_2_points_of_simulation() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("weights/policy.wlw");
+    let Ok(bytes) = std::fs::read(&path) else {
+        eprintln!(
+            "SKIPPED trained_policy_closed_loop_success_is_within_2_points_of_simulation: no \
+             trained weights at {}",
+            path.display()
+        );
+        return;
+    };
+    // Held out: a seed no training configuration uses for complex scenes.
+    let mut rng = ChaCha8Rng::seed_from_u64(9_000);
+    let scenes: Vec<Scenario> = (0..50)
+        .map(|i| generate(SceneKind::Complex, &mut rng, format!("held-out-{i}")))
+        .collect();
+    let comparison = compare_success(&scenes, &LoopConfig::default(), |_| {
+        PolicyDriver::from_bytes(&bytes, "weights/policy.wlw")
+    })
+    .unwrap();
+    eprintln!("{comparison:?}");
+    assert!(comparison.gap_points() <= 2.0, "{comparison:?}");
+}
