@@ -4,7 +4,7 @@ use super::CliResult;
 use std::path::PathBuf;
 use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::env::{Env, EnvConfig, Observation};
-use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig};
+use wheelleg_sim::planner::{plan_with_fallback, PlanOutcome, PlannerConfig};
 use wheelleg_sim::render::{height_map_image, top_view};
 
 /// Arguments of `render`.
@@ -17,7 +17,7 @@ pub struct Args {
     #[arg(long)]
     out: PathBuf,
     /// Planner effort per scenario, in expanded states (0: draw no path).
-    #[arg(long, default_value_t = 50_000)]
+    #[arg(long, default_value_t = 5_000)]
     max_expansions: usize,
 }
 
@@ -34,7 +34,9 @@ pub fn run(args: Args) -> CliResult {
                 max_expansions: args.max_expansions,
                 ..PlannerConfig::default()
             };
-            if let PlanOutcome::Solved { actions, .. } = plan(&env, &config).outcome {
+            if let PlanOutcome::Solved { actions, .. } =
+                plan_with_fallback(&env, &config).outcome().clone()
+            {
                 let mut replay = env.clone();
                 for action in actions {
                     if replay.step(action).is_err() {
