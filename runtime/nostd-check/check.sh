@@ -12,7 +12,7 @@ mkdir -p "$out"
 expected="$(cd "$root" && cargo run --quiet --release -p wheelleg-runtime --example random_policy -- "$out/policy.wlw")"
 
 # The binary itself (its own workspace, panic = "abort").
-(cd "$here" && WHEELLEG_POLICY="$out/policy.wlw" cargo build --quiet --release)
+(cd "$here" && CARGO_TARGET_DIR="$here/target" WHEELLEG_POLICY="$out/policy.wlw" cargo build --quiet --release)
 binary="$here/target/release/wheelleg-nostd-check"
 
 # Belt and braces: no std, no allocator shims in what was linked.
