@@ -6,8 +6,9 @@
 //! lattice; it is `f32`.
 
 use nalgebra::{Isometry3, Point2, Translation3, UnitQuaternion, Vector2, Vector3};
-use wheelleg_runtime::action::{Action, CLEARANCE_STEP_M, MOVE_STEP_M, TRACK_STEP_M, YAW_STEP_DEG};
+use wheelleg_runtime::action::{Action, CLEARANCE_STEP_M, TRACK_STEP_M, YAW_STEP_DEG};
 use wheelleg_runtime::leg::LegConfig;
+use wheelleg_runtime::motion::BaseDisplacement;
 use wheelleg_runtime::robot::RobotGeometry;
 
 /// Number of yaw steps in a full turn.
@@ -61,8 +62,10 @@ impl RobotState {
     /// The translation is along the robot's axes as they were when the decision was taken.
     pub fn after(&self, action: Action) -> RobotState {
         let (sin, cos) = self.yaw_rad().sin_cos();
-        let dx = action.move_x.sign() as f32 * MOVE_STEP_M;
-        let dy = action.move_y.sign() as f32 * MOVE_STEP_M;
+        // The controller's definition of a step (runtime::motion), so both sides agree.
+        let BaseDisplacement {
+            dx_m: dx, dy_m: dy, ..
+        } = BaseDisplacement::of_action(action);
         RobotState {
             position: self.position + Vector2::new(cos * dx - sin * dy, sin * dx + cos * dy),
             yaw_steps: (self.yaw_steps + action.yaw.sign() as i32).rem_euclid(YAW_STEPS_PER_TURN),

@@ -395,3 +395,25 @@ fn the_fast_height_map_equals_the_exact_point_sampling() {
         assert_eq!(fast, naive, "{obstacles:?} at {position:?} yaw {yaw}");
     }
 }
+
+#[test]
+fn a_simulated_step_is_the_controllers_ideal_step() {
+    use nalgebra::{Isometry2, Vector2};
+    for yaw_steps in [0, 7, 18, 41, 66] {
+        let start = RobotState::new(Point2::new(0.3, -0.2), yaw_steps);
+        let start_pose = Isometry2::new(Vector2::new(0.3, -0.2), start.yaw_rad());
+        let legs = start.leg_config(&WHEELLEG);
+        for index in 0..wheelleg_runtime::action::COUNT {
+            let action = Action::from_index(index).unwrap();
+            let (delta, end_legs) = wheelleg_runtime::motion::ideal_step(legs, action);
+            let want = start_pose * delta;
+            let got = start.after(action);
+            assert!((got.position.coords - want.translation.vector).norm() < 1e-6);
+            let yaw_error =
+                (got.yaw_rad() - want.rotation.angle()).rem_euclid(std::f32::consts::TAU);
+            let wrapped = yaw_error.min(std::f32::consts::TAU - yaw_error);
+            assert!(wrapped < 1e-5, "yaw off by {wrapped} rad");
+            assert_eq!(got.leg_config(&WHEELLEG), end_legs);
+        }
+    }
+}
