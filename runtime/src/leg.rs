@@ -253,3 +253,42 @@ mod tests {
         assert!(left.knee.y > left.hip.y);
     }
 }
+
+#[cfg(test)]
+mod reachable_set {
+    use super::*;
+    use crate::robot::WHEELLEG;
+
+    /// Lowest and highest lattice clearance (0.04 + 0.02 k) the legs reach at `track_m`.
+    fn clearance_span(track_m: f32) -> (f32, f32) {
+        let reachable: [f32; 11] = core::array::from_fn(|k| 0.04 + 0.02 * k as f32);
+        let mut span = (f32::INFINITY, f32::NEG_INFINITY);
+        for clearance_m in reachable {
+            if WHEELLEG.is_reachable(LegConfig {
+                clearance_m,
+                track_m,
+            }) {
+                span = (span.0.min(clearance_m), span.1.max(clearance_m));
+            }
+        }
+        span
+    }
+
+    /// The figures docs/robot.md states about the reachable set.
+    #[test]
+    fn documented_clearance_spans_hold() {
+        let close = |a: f32, b: f32| (a - b).abs() < 1e-4;
+        let full = clearance_span(0.56);
+        assert!(
+            full.0 <= 0.06 + 1e-4 && close(full.1, 0.10),
+            "full track {full:?}"
+        );
+        let default = clearance_span(0.36);
+        assert!(close(default.1, 0.20), "default track {default:?}");
+        let narrow = clearance_span(0.16);
+        assert!(
+            close(narrow.0, 0.10) && close(narrow.1, 0.24),
+            "narrowest track {narrow:?}"
+        );
+    }
+}
