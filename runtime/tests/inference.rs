@@ -190,3 +190,146 @@ fn detection_picks_a_supported_kernel() {
         assert_eq!(policy.set_kernel(kernel).is_ok(), kernel.is_supported());
     }
 }
+
+/// A random layer's tensors (as the loader would borrow them) for kernel tests.
+struct RandomLayer {
+    weights: Vec<u8>,
+    bias: Vec<u8>,
+    multipliers: Vec<u8>,
+    shifts: Vec<u8>,
+    rows: usize,
+    row_len: usize,
+    output_zero_point: i8,
+    relu: bool,
+}
+
+impl RandomLayer {
+    fn new(rng: &mut ChaCha8Rng, rows: usize, row_len: usize, extreme: bool) -> Self {
+        let le = |v: Vec<i32>| -> Vec<u8> { v.into_iter().flat_map(i32::to_le_bytes).collect() };
+        RandomLayer {
+            weights: (0..rows * row_len)
+                .map(|_| if extreme { 0x80 } else { rng.random() })
+                .collect(),
+            bias: le((0..rows)
+                .map(|_| rng.random_range(-(1 << 30)..=(1 << 30)))
+                .collect()),
+            multipliers: le((0..rows).map(|_| rng.random_range(0..i32::MAX)).collect()),
+            shifts: (0..rows)
+                .map(|_| rng.random_range(-31i8..=30) as u8)
+                .collect(),
+            rows,
+            row_len,
+            output_zero_point: rng.random(),
+            relu: rng.random_bool(0.5),
+        }
+    }
+
+    fn linear(&self) -> Linear<'_> {
+        Linear {
+            weights: &self.weights,
+            bias: &self.bias,
+            multipliers: &self.multipliers,
+            shifts: &self.shifts,
+            rows: self.rows,
+            row_len: self.row_len,
+            input_zero_point: 0,
+            output_zero_point: self.output_zero_point,
+            relu: self.relu,
+        }
+    }
+}
+
+/// The batched kernel (several conv pixels per call, padded strides with garbage in the
+/// padding, the short-row path of first conv layers) against the scalar kernel, row by row.
+#[test]
+fn batched_simd_kernel_equals_scalar_kernel() {
+    if !Kernel::Avx2.is_supported() {
+        eprintln!("AVX2 not available on this CPU: batched AVX2 kernel not tested here");
+        return;
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(4242);
+    for case in 0..2000 {
+        let short = case % 2 == 0;
+        let rows = rng.random_range(1..=40);
+        let row_len = if short {
+            rng.random_range(1..=12)
+        } else {
+            rng.random_range(1..=300)
+        };
+        let stride = match rng.random_range(0..3) {
+            0 => row_len,
+            1 => kernel::padded_row_len(row_len),
+            _ => row_len + rng.random_range(0..20),
+        };
+        let count = rng.random_range(1..=9);
+        let extreme = case % 5 == 0;
+        let layer = RandomLayer::new(&mut rng, rows, row_len, extreme);
+        let linear = layer.linear();
+        // Garbage between row_len and stride: a correct kernel never reads it into a sum.
+        let inputs: Vec<i16> = (0..(count - 1) * stride + row_len)
+            .map(|i| {
+                if i % stride >= row_len {
+                    rng.random()
+                } else if extreme {
+                    if rng.random_bool(0.5) {
+                        255
+                    } else {
+                        -255
+                    }
+                } else {
+                    rng.random_range(-255..=255)
+                }
+            })
+            .collect();
+        let mut scalar = vec![0i8; count * rows];
+        let mut simd = vec![0i8; count * rows];
+        kernel::linear_batch(Kernel::Scalar, &linear, &inputs, stride, &mut scalar);
+        kernel::linear_batch(Kernel::Avx2, &linear, &inputs, stride, &mut simd);
+        assert_eq!(
+            scalar, simd,
+            "case {case}: rows {rows} row_len {row_len} stride {stride} count {count}"
+        );
+        for pixel in 0..count {
+            let mut one = vec![0i8; rows];
+            let input = &inputs[pixel * stride..pixel * stride + row_len];
+            kernel::linear(Kernel::Scalar, &linear, input, &mut one);
+            assert_eq!(one, scalar[pixel * rows..(pixel + 1) * rows], "case {case}");
+        }
+    }
+}
+
+/// Vectorized input quantization (the height map) against the scalar one, over the whole i16
+/// range and every multiplier / shift combination class.
+#[test]
+fn simd_input_quantization_equals_scalar() {
+    if !Kernel::Avx2.is_supported() {
+        eprintln!("AVX2 not available on this CPU: AVX2 input quantization not tested here");
+        return;
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(77);
+    for case in 0..500 {
+        let quant = wheelleg_runtime::model::format::InputQuantRecord {
+            scale_m: 0.001,
+            zero_point: rng.random(),
+            multiplier: if case % 7 == 0 {
+                i32::MAX
+            } else {
+                rng.random_range(0..i32::MAX)
+            },
+            shift: rng.random_range(-31i8..=30),
+        };
+        let len = rng.random_range(0..100);
+        let values: Vec<i16> = (0..len)
+            .map(|i| match (case + i) % 4 {
+                0 => i16::MIN,
+                1 => i16::MAX,
+                _ => rng.random(),
+            })
+            .collect();
+        let mut scalar = vec![0i8; len];
+        let mut simd = vec![0i8; len];
+        kernel::quantize_inputs(Kernel::Scalar, &quant, &values, &mut scalar);
+        kernel::quantize_inputs(Kernel::Avx2, &quant, &values, &mut simd);
+        assert_eq!(scalar, simd, "case {case}: {quant:?}");
+    }
+}

@@ -8,8 +8,8 @@
 
 use core::mem;
 
-use super::kernel::{linear, Kernel};
-use super::load::{Linear, Model, ACTION_LOGITS};
+use super::kernel::{linear_batch, padded_row_len, quantize_inputs, Kernel};
+use super::load::{ConvLayer, Linear, Model, ACTION_LOGITS};
 use super::quant::quantize_mm;
 
 /// Why a decision could not be computed.
@@ -92,6 +92,7 @@ pub struct Outputs {
 }
 
 /// Widens `input` minus `zero_point` into `row` (which must be as long).
+#[inline(always)]
 fn widen(input: &[i8], zero_point: i8, row: &mut [i16]) {
     for (out, &q) in row.iter_mut().zip(input) {
         *out = i16::from(q) - i16::from(zero_point);
@@ -105,18 +106,127 @@ fn layer(
     row: &mut [i16],
     output: &mut [i8],
 ) -> Result<(), InferError> {
-    let input = input
-        .get(..linear_layer.row_len)
-        .ok_or(InferError::Internal)?;
-    let row = row
-        .get_mut(..linear_layer.row_len)
-        .ok_or(InferError::Internal)?;
+    let row_len = linear_layer.row_len;
+    let input = input.get(..row_len).ok_or(InferError::Internal)?;
     let output = output
         .get_mut(..linear_layer.rows)
         .ok_or(InferError::Internal)?;
-    widen(input, linear_layer.input_zero_point, row);
-    linear(kernel, linear_layer, row, output);
+    // Hand the kernel the padded row when the buffer has room, so that it reads the last,
+    // partial block directly instead of copying it.
+    let padded = padded_row_len(row_len).min(row.len());
+    let row = row.get_mut(..padded).ok_or(InferError::Internal)?;
+    let (values, _) = row
+        .split_at_mut_checked(row_len)
+        .ok_or(InferError::Internal)?;
+    widen(input, linear_layer.input_zero_point, values);
+    linear_batch(kernel, linear_layer, row, row_len, output);
     Ok(())
+}
+
+/// Gathers the patches of output pixels `first..` into `patches`, one every `stride` elements
+/// (as many as fit), with the kernel's instruction set: the same code, compiled for AVX2 by
+/// [`super::simd_x86::gather_avx2`], widens 16 inputs per instruction.
+fn gather_patches(
+    kernel: Kernel,
+    conv: &ConvLayer<'_>,
+    src: &[i8],
+    first: usize,
+    patches: &mut [i16],
+    stride: usize,
+) {
+    match kernel {
+        #[cfg(target_arch = "x86_64")]
+        Kernel::Avx2 => super::simd_x86::gather_avx2(conv, src, first, patches, stride),
+        _ => gather_pixels(conv, src, first, patches, stride),
+    }
+}
+
+/// [`gather_patches`]'s portable body.
+#[inline(always)]
+pub(super) fn gather_pixels(
+    conv: &ConvLayer<'_>,
+    src: &[i8],
+    first: usize,
+    patches: &mut [i16],
+    stride: usize,
+) {
+    let cols = conv.out_cols.max(1);
+    for (offset, patch) in patches.chunks_exact_mut(stride.max(1)).enumerate() {
+        let pixel = first + offset;
+        gather(conv, src, pixel / cols, pixel % cols, patch);
+    }
+}
+
+/// Gathers the patch of output pixel (`oy`, `ox`) into `patch` (at least `row_len` long):
+/// `kernel` runs of `kernel x channels` inputs minus the zero point, one per kernel row, each a
+/// contiguous run of the HWC input clipped to the map; padding cells stand for real 0, i.e. 0
+/// after the subtraction.
+#[inline(always)]
+fn gather(conv: &ConvLayer<'_>, src: &[i8], oy: usize, ox: usize, patch: &mut [i16]) {
+    let channels = conv.in_channels;
+    let side = usize::from(conv.record.kernel);
+    let stride = usize::from(conv.record.stride);
+    let padding = usize::from(conv.record.padding);
+    let zero_point = conv.linear.input_zero_point;
+    let run = side * channels;
+    let (y0, x0) = (oy * stride, ox * stride);
+    if y0 >= padding
+        && x0 >= padding
+        && y0 + side <= conv.in_rows + padding
+        && x0 + side <= conv.in_cols + padding
+    {
+        // Interior pixel (most of them): every run is whole, no clipping arithmetic.
+        let pitch = conv.in_cols * channels;
+        let base = ((y0 - padding) * conv.in_cols + (x0 - padding)) * channels;
+        for (ky, segment) in patch.chunks_exact_mut(run).take(side).enumerate() {
+            let start = base + ky * pitch;
+            if let Some(pixels) = src.get(start..start + run) {
+                // A first layer's 3-cell runs (one channel): straight-line code instead of a
+                // vectorized loop whose set-up costs more than the 3 elements.
+                match (
+                    <&[i8; 3]>::try_from(pixels),
+                    <&mut [i16; 3]>::try_from(&mut *segment),
+                ) {
+                    (Ok(pixels), Ok(segment)) => widen(pixels, zero_point, segment),
+                    _ => widen(pixels, zero_point, segment),
+                }
+            }
+        }
+        return;
+    }
+    // Kernel columns inside the map: ix = ox * stride + kx - padding in [0, in_cols).
+    let first = padding.saturating_sub(x0).min(side);
+    let last = (conv.in_cols + padding)
+        .saturating_sub(x0)
+        .clamp(first, side);
+    for (ky, segment) in patch.chunks_exact_mut(run).take(side).enumerate() {
+        let iy = (y0 + ky).checked_sub(padding);
+        let source = iy.filter(|&iy| iy < conv.in_rows).and_then(|iy| {
+            // First input cell of the clipped run: ix = x0 + first - padding >= 0.
+            let ix = (x0 + first).checked_sub(padding)?;
+            let start = (iy * conv.in_cols + ix) * channels;
+            src.get(start..start + (last - first) * channels)
+        });
+        let split = source.and_then(|pixels| {
+            let (before, rest) = segment.split_at_mut_checked(first * channels)?;
+            let (inside, after) = rest.split_at_mut_checked(pixels.len())?;
+            Some((pixels, before, inside, after))
+        });
+        match split {
+            Some((pixels, before, inside, after)) => {
+                // Only border pixels have cells outside the map; a `fill` of nothing would
+                // still cost a `memset` call per run.
+                if !before.is_empty() {
+                    before.fill(0);
+                }
+                widen(pixels, zero_point, inside);
+                if !after.is_empty() {
+                    after.fill(0);
+                }
+            }
+            None => segment.fill(0),
+        }
+    }
 }
 
 /// Runs the network on a row-major height map in millimetres and a state in millimetres.
@@ -146,57 +256,31 @@ pub fn forward<const ACT: usize, const ROW: usize>(
     let mut dst: &mut [i8] = pong;
 
     // Input: one channel, so HWC is plain row-major.
-    let height = &model.input.height;
-    for (q, &mm) in src.iter_mut().zip(height_mm) {
-        *q = quantize_mm(
-            i32::from(mm),
-            height.multiplier,
-            height.shift,
-            height.zero_point,
-        );
-    }
+    let cells = src.get_mut(..rows * cols).ok_or(InferError::Internal)?;
+    quantize_inputs(kernel, &model.input.height, height_mm, cells);
 
     for conv in &model.convs {
-        let channels = conv.in_channels;
-        let kernel_side = usize::from(conv.record.kernel);
-        let stride = usize::from(conv.record.stride);
-        let padding = usize::from(conv.record.padding);
-        let zero_point = i16::from(conv.linear.input_zero_point);
         let out_channels = conv.linear.rows;
-        let patch = row
-            .get_mut(..conv.linear.row_len)
+        let row_len = conv.linear.row_len;
+        // Patches of several output pixels go to the kernel at once, each padded to a whole
+        // number of SIMD blocks when the row buffer has room for it.
+        let stride = if padded_row_len(row_len) <= row.len() {
+            padded_row_len(row_len)
+        } else {
+            row_len
+        };
+        let batch = (row.len() / stride).max(1);
+        let pixels = conv.out_rows * conv.out_cols;
+        let outputs = dst
+            .get_mut(..pixels * out_channels)
             .ok_or(InferError::Internal)?;
-        let mut outputs = dst
-            .get_mut(..conv.out_rows * conv.out_cols * out_channels)
-            .ok_or(InferError::Internal)?
-            .chunks_exact_mut(out_channels);
-        for oy in 0..conv.out_rows {
-            for ox in 0..conv.out_cols {
-                // Gather the patch: kernel rows x kernel cols x channels, minus the zero
-                // point; padding cells stand for real 0, i.e. 0 after the subtraction.
-                let mut cells = patch.chunks_exact_mut(channels);
-                for ky in 0..kernel_side {
-                    for kx in 0..kernel_side {
-                        let cell = cells.next().ok_or(InferError::Internal)?;
-                        let iy = (oy * stride + ky).checked_sub(padding);
-                        let ix = (ox * stride + kx).checked_sub(padding);
-                        match (iy, ix) {
-                            (Some(iy), Some(ix)) if iy < conv.in_rows && ix < conv.in_cols => {
-                                let start = (iy * conv.in_cols + ix) * channels;
-                                let pixel = src
-                                    .get(start..start + channels)
-                                    .ok_or(InferError::Internal)?;
-                                for (out, &q) in cell.iter_mut().zip(pixel) {
-                                    *out = i16::from(q) - zero_point;
-                                }
-                            }
-                            _ => cell.fill(0),
-                        }
-                    }
-                }
-                let out = outputs.next().ok_or(InferError::Internal)?;
-                linear(kernel, &conv.linear, patch, out);
-            }
+        let mut first = 0;
+        for out in outputs.chunks_mut(batch * out_channels) {
+            let count = out.len() / out_channels;
+            let patches = row.get_mut(..count * stride).ok_or(InferError::Internal)?;
+            gather_patches(kernel, conv, src, first, patches, stride);
+            linear_batch(kernel, &conv.linear, patches, stride, out);
+            first += count;
         }
         mem::swap(&mut src, &mut dst);
     }

@@ -7,8 +7,9 @@
 //! loader bounds row length and bias so that no partial sum can overflow an i32), and both share
 //! the scalar requantization of [`super::quant`].
 
+use super::format::InputQuantRecord;
 use super::load::{i32_at, Linear};
-use super::quant::to_int8;
+use super::quant::{quantize_mm, to_int8};
 
 /// Which implementation of the kernel runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -109,9 +110,82 @@ pub fn finish(linear: &Linear<'_>, row: usize, acc: i32) -> i8 {
 /// `rows` elements; an unsupported kernel falls back to the scalar one.
 #[inline]
 pub fn linear(kernel: Kernel, linear: &Linear<'_>, input: &[i16], output: &mut [i8]) {
+    linear_batch(kernel, linear, input, linear.row_len, output);
+}
+
+/// Input rows handled per call in the padded layout of [`linear_batch`]: row lengths are
+/// rounded up to a multiple of this, so that SIMD kernels read whole 16-lane blocks.
+pub const ROW_ALIGN: usize = 16;
+
+/// `row_len` rounded up to [`ROW_ALIGN`] (the stride [`linear_batch`] runs fastest with).
+#[inline]
+pub const fn padded_row_len(row_len: usize) -> usize {
+    row_len.div_ceil(ROW_ALIGN) * ROW_ALIGN
+}
+
+/// Runs one layer on several input rows at once (the patches of several conv output pixels):
+/// input row `p` is `inputs[p * stride..p * stride + row_len]`, its outputs go to
+/// `outputs[p * rows..(p + 1) * rows]` (pixel-major, which is HWC for a conv), and the number
+/// of rows run is `outputs.len() / rows`.
+///
+/// Batching is what makes the SIMD kernels fast: each weight block is loaded and widened once
+/// for two pixels, and requantization runs 4 rows at a time in vector registers. Elements
+/// between `row_len` and `stride` are never used, so their content does not matter. Mismatched
+/// lengths (a caller bug) make the scalar kernel run on what fits instead of panicking.
+#[inline]
+pub fn linear_batch(
+    kernel: Kernel,
+    linear: &Linear<'_>,
+    inputs: &[i16],
+    stride: usize,
+    outputs: &mut [i8],
+) {
     match kernel {
         #[cfg(target_arch = "x86_64")]
-        Kernel::Avx2 => super::simd_x86::linear_avx2(linear, input, output),
-        _ => linear_scalar(linear, input, output),
+        Kernel::Avx2 => super::simd_x86::linear_batch_avx2(linear, inputs, stride, outputs),
+        _ => linear_batch_scalar(linear, inputs, stride, outputs),
+    }
+}
+
+/// [`linear_batch`] with the portable kernel: one [`linear_scalar`] per input row.
+pub fn linear_batch_scalar(linear: &Linear<'_>, inputs: &[i16], stride: usize, outputs: &mut [i8]) {
+    if linear.rows == 0 || stride == 0 {
+        return;
+    }
+    for (pixel, output) in outputs.chunks_exact_mut(linear.rows).enumerate() {
+        let start = pixel.saturating_mul(stride);
+        let Some(input) = inputs.get(start..start.saturating_add(linear.row_len)) else {
+            return;
+        };
+        linear_scalar(linear, input, output);
+    }
+}
+
+/// Quantizes raw inputs in millimetres (the height map) to int8 with one
+/// [`InputQuantRecord`]: `clamp(zero_point + rescale(mm), -128, 127)` per element, over the
+/// shorter of the two slices.
+#[inline]
+pub fn quantize_inputs(
+    kernel: Kernel,
+    quant: &InputQuantRecord,
+    values_mm: &[i16],
+    out: &mut [i8],
+) {
+    match kernel {
+        #[cfg(target_arch = "x86_64")]
+        Kernel::Avx2 => super::simd_x86::quantize_inputs_avx2(quant, values_mm, out),
+        _ => quantize_inputs_scalar(quant, values_mm, out),
+    }
+}
+
+/// [`quantize_inputs`] with the portable kernel.
+pub fn quantize_inputs_scalar(quant: &InputQuantRecord, values_mm: &[i16], out: &mut [i8]) {
+    for (q, &mm) in out.iter_mut().zip(values_mm) {
+        *q = quantize_mm(
+            i32::from(mm),
+            quant.multiplier,
+            quant.shift,
+            quant.zero_point,
+        );
     }
 }

@@ -5,22 +5,34 @@
 //! OSXSAVE, and XCR0 shows the OS saves SSE and AVX state. The answer is cached in an atomic,
 //! because CPUID traps to the hypervisor on virtual machines and costs microseconds.
 //!
-//! The kernel computes 4 output rows at a time so every activation load feeds 4 `vpmaddwd`
-//! (16 int16 x int16 products summed pairwise into 8 int32 lanes, exact for our ranges: |x| <=
-//! 255, |w| <= 128). Integer addition is associative, so the result equals the scalar kernel's
-//! bit for bit; tests in `tests/kernels.rs` hold it to that.
+//! The kernel is a small matrix product: 2 input rows (conv output pixels) x 4 output rows
+//! (channels) per step, so every widened weight block feeds 2 `vpmaddwd` and every activation
+//! block 4 (`vpmaddwd`: 16 int16 x int16 products summed pairwise into 8 int32 lanes, exact for
+//! our ranges: |x| <= 255, |w| <= 128). Integer addition is associative, so the sums equal the
+//! scalar kernel's bit for bit. Requantization runs 4 outputs per vector on exact 64-bit
+//! products (`vpmuldq`); AVX2 has no 64-bit arithmetic right shift, so the shift is done as a
+//! logical one on the value offset by 2^63 (see [`requant4`]). Tests in `tests/inference.rs`
+//! hold every path to the scalar kernel and to an independent reference.
 #![allow(unsafe_code)]
 
 use core::arch::x86_64::{
-    __cpuid_count, __m128i, __m256i, _mm256_add_epi32, _mm256_castsi256_si128,
-    _mm256_cvtepi8_epi16, _mm256_extracti128_si256, _mm256_hadd_epi32, _mm256_loadu_si256,
-    _mm256_madd_epi16, _mm256_setzero_si256, _mm_add_epi32, _mm_cvtsi128_si32, _mm_loadu_si128,
-    _mm_storeu_si128, _xgetbv,
+    __cpuid_count, __m128i, __m256i, _mm256_add_epi32, _mm256_add_epi64, _mm256_and_si256,
+    _mm256_blendv_epi8, _mm256_castsi256_si128, _mm256_cmpgt_epi64, _mm256_cvtepi16_epi32,
+    _mm256_cvtepi32_epi64, _mm256_cvtepi8_epi16, _mm256_cvtepi8_epi64, _mm256_extracti128_si256,
+    _mm256_hadd_epi32, _mm256_loadu_si256, _mm256_madd_epi16, _mm256_mul_epi32,
+    _mm256_permutevar8x32_epi32, _mm256_set1_epi32, _mm256_set1_epi64x, _mm256_setr_epi32,
+    _mm256_setzero_si256, _mm256_sllv_epi64, _mm256_srlv_epi64, _mm256_sub_epi64, _mm256_xor_si256,
+    _mm_add_epi32, _mm_cvtsi128_si32, _mm_cvtsi32_si128, _mm_loadu_si128, _mm_max_epi8,
+    _mm_min_epi8, _mm_packs_epi16, _mm_packs_epi32, _mm_set1_epi32, _mm_set1_epi8,
+    _mm_setzero_si128, _mm_storeu_si128, _xgetbv,
 };
 use core::sync::atomic::{AtomicU8, Ordering};
 
-use super::kernel::{finish, linear_scalar};
-use super::load::{i32_at, Linear};
+use super::format::InputQuantRecord;
+use super::infer::gather_pixels;
+use super::kernel::{finish, linear_batch_scalar, quantize_inputs_scalar};
+use super::load::{i32_at, ConvLayer, Linear};
+use super::quant::{MAX_SHIFT, MIN_SHIFT};
 
 /// 0: not yet detected, 1: no AVX2, 2: AVX2.
 static AVX2_STATE: AtomicU8 = AtomicU8::new(0);
@@ -76,24 +88,70 @@ unsafe fn read_xcr0() -> u64 {
     unsafe { _xgetbv(0) }
 }
 
-/// [`super::kernel::linear_scalar`]'s contract, with AVX2 when the CPU has it (falls back to the
-/// scalar kernel otherwise, so calling it is always safe).
-pub fn linear_avx2(linear: &Linear<'_>, input: &[i16], output: &mut [i8]) {
+/// [`super::kernel::linear_batch`] with AVX2 when the CPU has it (falls back to the scalar
+/// kernel otherwise, and on inconsistent lengths, so calling it is always safe).
+pub fn linear_batch_avx2(linear: &Linear<'_>, inputs: &[i16], stride: usize, outputs: &mut [i8]) {
     let rows = linear.rows;
+    let row_len = linear.row_len;
+    let count = outputs.len().checked_div(rows).unwrap_or(0);
     // The bounds the unsafe code relies on, checked once here rather than trusted.
-    let shapes_ok = input.len() == linear.row_len
-        && output.len() == rows
-        && linear.weights.len() == rows.saturating_mul(linear.row_len)
+    let shapes_ok = rows > 0
+        && row_len > 0
+        && stride >= row_len
+        && outputs.len() == count.saturating_mul(rows)
+        && count
+            .checked_sub(1)
+            .is_none_or(|last| last.saturating_mul(stride).saturating_add(row_len) <= inputs.len())
+        && linear.weights.len() == rows.saturating_mul(row_len)
         && linear.bias.len() == rows.saturating_mul(4)
         && linear.multipliers.len() == rows.saturating_mul(4)
         && linear.shifts.len() == rows;
     if !shapes_ok || !avx2_supported() {
-        linear_scalar(linear, input, output);
+        linear_batch_scalar(linear, inputs, stride, outputs);
         return;
     }
     // SAFETY: AVX2 is supported (checked just above) and the slice lengths the function
-    // reads with raw pointers were checked against `rows` and `row_len`.
-    unsafe { linear_avx2_unchecked(linear, input, output) }
+    // reads with raw pointers were checked against `rows`, `row_len`, `stride` and `count`.
+    unsafe { linear_batch_unchecked(linear, inputs, stride, count, outputs) }
+}
+
+/// The conv patch gather of `infer`, compiled for AVX2 when the CPU has it.
+pub fn gather_avx2(
+    conv: &ConvLayer<'_>,
+    src: &[i8],
+    first: usize,
+    patches: &mut [i16],
+    stride: usize,
+) {
+    if avx2_supported() {
+        // SAFETY: AVX2 is supported (checked just above); the body is safe code.
+        unsafe { gather_avx2_unchecked(conv, src, first, patches, stride) }
+    } else {
+        gather_pixels(conv, src, first, patches, stride);
+    }
+}
+
+/// # Safety
+/// AVX2 must be available.
+#[target_feature(enable = "avx2")]
+unsafe fn gather_avx2_unchecked(
+    conv: &ConvLayer<'_>,
+    src: &[i8],
+    first: usize,
+    patches: &mut [i16],
+    stride: usize,
+) {
+    gather_pixels(conv, src, first, patches, stride);
+}
+
+/// [`super::kernel::quantize_inputs`] with AVX2 when the CPU has it.
+pub fn quantize_inputs_avx2(quant: &InputQuantRecord, values_mm: &[i16], out: &mut [i8]) {
+    if !avx2_supported() {
+        quantize_inputs_scalar(quant, values_mm, out);
+        return;
+    }
+    // SAFETY: AVX2 is supported (checked just above).
+    unsafe { quantize_inputs_unchecked(quant, values_mm, out) }
 }
 
 /// Sums each of four 8-lane accumulators: `[sum(a), sum(b), sum(c), sum(d)]`.
@@ -113,10 +171,10 @@ fn hsum4(a: __m256i, b: __m256i, c: __m256i, d: __m256i) -> __m128i {
 /// so whatever they hold (the next row's weights, or zeros past the tensor) adds nothing.
 ///
 /// # Safety
-/// AVX2 must be available and `start < weights.len()`.
+/// AVX2 must be available.
 #[target_feature(enable = "avx2")]
 unsafe fn load_tail_weights(weights: &[u8], start: usize) -> __m256i {
-    if start + 16 <= weights.len() {
+    if start.saturating_add(16) <= weights.len() {
         // SAFETY: the 16 bytes at `start` are inside `weights` (checked just above).
         _mm256_cvtepi8_epi16(unsafe { _mm_loadu_si128(weights.as_ptr().add(start).cast()) })
     } else {
@@ -129,88 +187,423 @@ unsafe fn load_tail_weights(weights: &[u8], start: usize) -> __m256i {
     }
 }
 
-/// # Safety
-/// AVX2 must be available; `input.len() == row_len`, `output.len() == rows`,
-/// `weights.len() == rows * row_len`, `bias.len() == multipliers.len() == 4 * rows` and
-/// `shifts.len() == rows`.
+/// The last `tail` (< 16) inputs of a row starting at `start`, zero in the other lanes. Reads
+/// the 16 lanes directly and masks them when they are inside `inputs` (always, in the padded
+/// layout `infer` uses), and copies otherwise.
 #[target_feature(enable = "avx2")]
-unsafe fn linear_avx2_unchecked(linear: &Linear<'_>, input: &[i16], output: &mut [i8]) {
+fn tail_inputs(inputs: &[i16], start: usize, tail: usize, mask: __m256i) -> __m256i {
+    if tail == 0 {
+        return _mm256_setzero_si256();
+    }
+    match inputs.get(start..start.saturating_add(16)) {
+        // SAFETY: `block` is 16 i16 (32 bytes); loadu has no alignment requirement.
+        Some(block) => _mm256_and_si256(unsafe { _mm256_loadu_si256(block.as_ptr().cast()) }, mask),
+        None => {
+            let mut padded = [0i16; 16];
+            let values = inputs.get(start..).unwrap_or(&[]).iter().take(tail);
+            for (slot, value) in padded.iter_mut().zip(values) {
+                *slot = *value;
+            }
+            // SAFETY: `padded` is 16 i16.
+            unsafe { _mm256_loadu_si256(padded.as_ptr().cast()) }
+        }
+    }
+}
+
+/// Requantization constants of 4 output rows, one per 64-bit lane.
+#[derive(Clone, Copy)]
+struct Requant4 {
+    /// The multiplier, in the low 32 bits (what `vpmuldq` reads).
+    multiplier: __m256i,
+    /// The right shift `31 - shift`, in `1..=62`.
+    right: __m256i,
+    /// `2^(right - 1)`: rounds halves towards +infinity.
+    half: __m256i,
+    /// `2^63 >> right`: undoes the 2^63 offset of the logical shift.
+    offset: __m256i,
+    /// Output zero point.
+    zero_point: __m256i,
+    /// Lowest output (the zero point under ReLU, else -128).
+    low: __m256i,
+    /// 127.
+    high: __m256i,
+}
+
+impl Requant4 {
+    /// Constants from 4 multipliers and 4 shifts (shifts clamped as the scalar code does).
+    #[target_feature(enable = "avx2")]
+    fn new(multipliers: __m128i, shifts: __m128i, zero_point: i8, relu: bool) -> Requant4 {
+        let shifts = _mm_min_epi8(
+            _mm_max_epi8(shifts, _mm_set1_epi8(MIN_SHIFT)),
+            _mm_set1_epi8(MAX_SHIFT),
+        );
+        let right = _mm256_sub_epi64(_mm256_set1_epi64x(31), _mm256_cvtepi8_epi64(shifts));
+        let one = _mm256_set1_epi64x(1);
+        let low = if relu { i64::from(zero_point) } else { -128 };
+        Requant4 {
+            multiplier: _mm256_cvtepi32_epi64(multipliers),
+            right,
+            half: _mm256_sllv_epi64(one, _mm256_sub_epi64(right, one)),
+            offset: _mm256_srlv_epi64(_mm256_set1_epi64x(i64::MIN), right),
+            zero_point: _mm256_set1_epi64x(i64::from(zero_point)),
+            low: _mm256_set1_epi64x(low),
+            high: _mm256_set1_epi64x(127),
+        }
+    }
+
+    /// The constants of rows `row..row + 4` of a layer.
+    ///
+    /// # Safety
+    /// AVX2 must be available and `row + 4 <= linear.rows`, with the tensor lengths checked by
+    /// [`linear_batch_avx2`].
+    #[target_feature(enable = "avx2")]
+    unsafe fn for_rows(linear: &Linear<'_>, row: usize) -> Requant4 {
+        // SAFETY: rows `row..row + 4` exist, so 16 multiplier bytes at 4 * row are in bounds.
+        let multipliers =
+            unsafe { _mm_loadu_si128(linear.multipliers.as_ptr().add(4 * row).cast()) };
+        let shifts = match linear.shifts.get(row..row + 4) {
+            Some(&[a, b, c, d]) => i32::from_le_bytes([a, b, c, d]),
+            _ => 0,
+        };
+        Requant4::new(
+            multipliers,
+            _mm_cvtsi32_si128(shifts),
+            linear.output_zero_point,
+            linear.relu,
+        )
+    }
+}
+
+/// `to_int8` of 4 accumulators at once: `clamp(zp + floor((acc * M + 2^(r-1)) / 2^r), low,
+/// 127)` with the exact 64-bit product, as 4 i32 lanes. The arithmetic right shift is a logical
+/// one of `t + 2^63` (xor of the sign bit) minus `2^63 >> r`, exact because `2^r` divides
+/// `2^63`; `|t| < 2^62 + 2^61` so nothing wraps.
+#[target_feature(enable = "avx2")]
+fn requant4(acc: __m128i, c: &Requant4) -> __m128i {
+    let product = _mm256_mul_epi32(_mm256_cvtepi32_epi64(acc), c.multiplier);
+    let biased = _mm256_xor_si256(
+        _mm256_add_epi64(product, c.half),
+        _mm256_set1_epi64x(i64::MIN),
+    );
+    let scaled = _mm256_sub_epi64(_mm256_srlv_epi64(biased, c.right), c.offset);
+    let q = _mm256_add_epi64(scaled, c.zero_point);
+    let q = _mm256_blendv_epi8(q, c.high, _mm256_cmpgt_epi64(q, c.high));
+    let q = _mm256_blendv_epi8(q, c.low, _mm256_cmpgt_epi64(c.low, q));
+    // Low 32 bits of each 64-bit lane (the values fit an i8 by now).
+    let low_halves = _mm256_permutevar8x32_epi32(q, _mm256_setr_epi32(0, 2, 4, 6, 0, 2, 4, 6));
+    _mm256_castsi256_si128(low_halves)
+}
+
+/// Writes 4 requantized lanes (each in `[-128, 127]`) as bytes to `out[at..at + 4]`.
+#[target_feature(enable = "avx2")]
+fn store4(values: __m128i, out: &mut [i8], at: usize) {
+    let bytes = _mm_packs_epi16(_mm_packs_epi32(values, values), _mm_setzero_si128());
+    let word = _mm_cvtsi128_si32(bytes).to_le_bytes();
+    if let Some(slot) = out.get_mut(at..at + 4) {
+        for (o, b) in slot.iter_mut().zip(word) {
+            *o = b as i8;
+        }
+    }
+}
+
+/// `P` input rows (pixels) against all output rows of a layer.
+///
+/// # Safety
+/// AVX2 must be available; every `starts[p] + row_len <= inputs.len()`, every
+/// `outs[p] + rows <= outputs.len()`, and the tensor lengths checked by [`linear_batch_avx2`].
+#[target_feature(enable = "avx2")]
+unsafe fn pixels<const P: usize>(
+    linear: &Linear<'_>,
+    inputs: &[i16],
+    starts: [usize; P],
+    outs: [usize; P],
+    tail_mask: __m256i,
+    outputs: &mut [i8],
+) {
     let row_len = linear.row_len;
     let rows = linear.rows;
     let tail = row_len % 16;
-    // Elements handled by whole 16-wide blocks; the last partial block is zero-padded.
     let body = row_len - tail;
-    let x = input.as_ptr();
     let w = linear.weights.as_ptr();
-    let mut x_tail = [0i16; 16];
-    for (slot, value) in x_tail.iter_mut().zip(input.get(body..).unwrap_or(&[])) {
-        *slot = *value;
-    }
-    // SAFETY: `x_tail` is 16 i16.
-    let x_tail = unsafe { _mm256_loadu_si256(x_tail.as_ptr().cast()) };
+    let x = starts.map(|start| inputs.as_ptr().wrapping_add(start));
+    let x_tail = starts.map(|start| tail_inputs(inputs, start + body, tail, tail_mask));
 
     let mut row = 0;
     while row + 4 <= rows {
-        let mut acc = [_mm256_setzero_si256(); 4];
+        let mut acc = [[_mm256_setzero_si256(); 4]; P];
         let mut i = 0;
         while i < body {
-            // SAFETY: i + 16 <= body <= row_len = input.len(), so 16 i16 (32 bytes) are in
-            // bounds; loadu has no alignment requirement.
-            let xs = unsafe { _mm256_loadu_si256(x.add(i).cast::<__m256i>()) };
-            for (r, acc) in acc.iter_mut().enumerate() {
+            // SAFETY: i + 16 <= body <= row_len and starts[p] + row_len <= inputs.len(), so
+            // 16 i16 (32 bytes) are in bounds; loadu has no alignment requirement.
+            let xs = x.map(|x| unsafe { _mm256_loadu_si256(x.add(i).cast::<__m256i>()) });
+            for r in 0..4 {
                 // SAFETY: (row + r) < rows and i + 16 <= row_len, so the 16 bytes at
                 // (row + r) * row_len + i are inside `weights` (rows * row_len bytes).
-                let ws = unsafe { _mm_loadu_si128(w.add((row + r) * row_len + i).cast()) };
-                *acc = _mm256_add_epi32(*acc, _mm256_madd_epi16(xs, _mm256_cvtepi8_epi16(ws)));
+                let ws = _mm256_cvtepi8_epi16(unsafe {
+                    _mm_loadu_si128(w.add((row + r) * row_len + i).cast())
+                });
+                for (acc, xs) in acc.iter_mut().zip(xs) {
+                    if let Some(acc) = acc.get_mut(r) {
+                        *acc = _mm256_add_epi32(*acc, _mm256_madd_epi16(xs, ws));
+                    }
+                }
             }
             i += 16;
         }
         if tail != 0 {
-            for (r, acc) in acc.iter_mut().enumerate() {
-                // SAFETY: AVX2 is available; the start is inside `weights` since tail > 0.
+            for r in 0..4 {
+                // SAFETY: AVX2 is available.
                 let ws = unsafe { load_tail_weights(linear.weights, (row + r) * row_len + body) };
-                *acc = _mm256_add_epi32(*acc, _mm256_madd_epi16(x_tail, ws));
+                for (acc, xs) in acc.iter_mut().zip(x_tail) {
+                    if let Some(acc) = acc.get_mut(r) {
+                        *acc = _mm256_add_epi32(*acc, _mm256_madd_epi16(xs, ws));
+                    }
+                }
             }
         }
-        let [a, b, c, d] = acc;
         // SAFETY: row + 4 <= rows, so the 16 bias bytes at 4 * row are inside `bias`.
         let bias = unsafe { _mm_loadu_si128(linear.bias.as_ptr().add(4 * row).cast()) };
-        let mut sums = [0i32; 4];
-        // SAFETY: `sums` is 16 bytes.
-        unsafe {
-            _mm_storeu_si128(
-                sums.as_mut_ptr().cast(),
-                _mm_add_epi32(hsum4(a, b, c, d), bias),
-            )
-        };
-        for (r, sum) in sums.into_iter().enumerate() {
-            if let Some(out) = output.get_mut(row + r) {
-                *out = finish(linear, row + r, sum);
-            }
+        // SAFETY: row + 4 <= rows; tensor lengths per this function's contract.
+        let constants = unsafe { Requant4::for_rows(linear, row) };
+        for ([a, b, c, d], &out) in acc.into_iter().zip(&outs) {
+            let sums = _mm_add_epi32(hsum4(a, b, c, d), bias);
+            store4(requant4(sums, &constants), outputs, out + row);
         }
         row += 4;
     }
     while row < rows {
-        let mut acc = _mm256_setzero_si256();
+        let mut acc = [_mm256_setzero_si256(); P];
         let mut i = 0;
         while i < body {
             // SAFETY: as in the 4-row loop, for the single row `row < rows`.
-            let xs = unsafe { _mm256_loadu_si256(x.add(i).cast::<__m256i>()) };
-            // SAFETY: as above.
-            let ws = unsafe { _mm_loadu_si128(w.add(row * row_len + i).cast()) };
-            acc = _mm256_add_epi32(acc, _mm256_madd_epi16(xs, _mm256_cvtepi8_epi16(ws)));
+            let ws =
+                _mm256_cvtepi8_epi16(unsafe { _mm_loadu_si128(w.add(row * row_len + i).cast()) });
+            for (acc, x) in acc.iter_mut().zip(x) {
+                // SAFETY: as in the 4-row loop.
+                let xs = unsafe { _mm256_loadu_si256(x.add(i).cast::<__m256i>()) };
+                *acc = _mm256_add_epi32(*acc, _mm256_madd_epi16(xs, ws));
+            }
             i += 16;
         }
         if tail != 0 {
-            // SAFETY: AVX2 is available; the start is inside `weights` since tail > 0.
+            // SAFETY: AVX2 is available.
             let ws = unsafe { load_tail_weights(linear.weights, row * row_len + body) };
-            acc = _mm256_add_epi32(acc, _mm256_madd_epi16(x_tail, ws));
+            for (acc, xs) in acc.iter_mut().zip(x_tail) {
+                *acc = _mm256_add_epi32(*acc, _mm256_madd_epi16(xs, ws));
+            }
         }
         let zero = _mm256_setzero_si256();
-        let sum = _mm_cvtsi128_si32(hsum4(acc, zero, zero, zero)) + i32_at(linear.bias, row);
-        if let Some(out) = output.get_mut(row) {
-            *out = finish(linear, row, sum);
+        let bias = i32_at(linear.bias, row);
+        for (acc, &out) in acc.into_iter().zip(&outs) {
+            let sum = _mm_cvtsi128_si32(hsum4(acc, zero, zero, zero)) + bias;
+            if let Some(slot) = outputs.get_mut(out + row) {
+                *slot = finish(linear, row, sum);
+            }
         }
         row += 1;
+    }
+}
+
+/// Longest row (in input pairs) of the short-row path: a first conv layer on a one-channel map
+/// with a 3 x 3 kernel has 9 inputs per output, 5 pairs.
+const SHORT_PAIRS: usize = 5;
+
+/// Short rows (at most `2 * SHORT_PAIRS` inputs, a first conv layer): the dot-product layout
+/// would fill 9 of 16 lanes and spend more on horizontal sums and per-row requantization than
+/// on multiplying. Instead the outputs are the lanes: the weights of 16 rows are packed once
+/// per call as `[pair][row][2]` (10 registers), and each pixel broadcasts an input pair to all
+/// lanes, so 10 `vpmaddwd` give 16 outputs that are requantized and stored together (HWC is
+/// row-contiguous per pixel).
+///
+/// # Safety
+/// AVX2 must be available, the lengths checked by [`linear_batch_avx2`] must hold,
+/// `row_len <= 2 * SHORT_PAIRS` and `stride >= 2 * SHORT_PAIRS`.
+#[target_feature(enable = "avx2")]
+unsafe fn short_rows(
+    linear: &Linear<'_>,
+    inputs: &[i16],
+    stride: usize,
+    count: usize,
+    outputs: &mut [i8],
+) {
+    let rows = linear.rows;
+    let row_len = linear.row_len;
+    let mut first_row = 0;
+    while first_row < rows {
+        let chunk = (rows - first_row).min(16);
+        // Packed weights, and bias and requantization constants, of rows first_row..+chunk;
+        // rows past the layer's end get zero weights and are not stored.
+        let mut packed = [[0i16; 32]; 2 * SHORT_PAIRS];
+        let mut bias = [0i32; 16];
+        let mut multipliers = [0i32; 16];
+        let mut shifts = [0i8; 16];
+        for r in 0..chunk {
+            let row = first_row + r;
+            let weights = linear
+                .weights
+                .get(row * row_len..(row + 1) * row_len)
+                .unwrap_or(&[]);
+            for (k, &w) in weights.iter().enumerate() {
+                // pair k / 2, register r / 8, lane pair r % 8, position k % 2.
+                if let Some(slot) = packed
+                    .get_mut(2 * (k / 2) + r / 8)
+                    .and_then(|v| v.get_mut(2 * (r % 8) + k % 2))
+                {
+                    *slot = i16::from(w as i8);
+                }
+            }
+            if let Some(slot) = bias.get_mut(r) {
+                *slot = i32_at(linear.bias, row);
+            }
+            if let Some(slot) = multipliers.get_mut(r) {
+                *slot = i32_at(linear.multipliers, row);
+            }
+            if let (Some(slot), Some(&shift)) = (shifts.get_mut(r), linear.shifts.get(row)) {
+                *slot = shift as i8;
+            }
+        }
+        // SAFETY (all loads below): each array is at least as long as the bytes read.
+        let w = packed.map(|v| unsafe { _mm256_loadu_si256(v.as_ptr().cast()) });
+        let bias_lo = unsafe { _mm256_loadu_si256(bias.as_ptr().cast()) };
+        let bias_hi = unsafe { _mm256_loadu_si256(bias.as_ptr().add(8).cast()) };
+        let mut constants = [Requant4::new(_mm_setzero_si128(), _mm_setzero_si128(), 0, false); 4];
+        for (quarter, c) in constants.iter_mut().enumerate() {
+            let m = unsafe { _mm_loadu_si128(multipliers.as_ptr().add(4 * quarter).cast()) };
+            let s = match shifts.get(4 * quarter..4 * quarter + 4) {
+                Some(&[a, b, c, d]) => i32::from_le_bytes([a as u8, b as u8, c as u8, d as u8]),
+                _ => 0,
+            };
+            *c = Requant4::new(
+                m,
+                _mm_cvtsi32_si128(s),
+                linear.output_zero_point,
+                linear.relu,
+            );
+        }
+        for pixel in 0..count {
+            let x = inputs.as_ptr().wrapping_add(pixel * stride).cast::<i32>();
+            let mut lo = bias_lo;
+            let mut hi = bias_hi;
+            for pair in 0..SHORT_PAIRS {
+                // SAFETY: 2 * pair + 1 < 2 * SHORT_PAIRS <= stride, and the caller checked
+                // that every pixel's `stride` inputs... up to row_len are in bounds; inputs
+                // past row_len but below 2 * SHORT_PAIRS are read only when inside the slice
+                // (the last pixel's row may end at row_len), see `pair_at`.
+                let xs = unsafe { pair_at(inputs, x, pixel * stride, pair) };
+                if let (Some(&w_lo), Some(&w_hi)) = (w.get(2 * pair), w.get(2 * pair + 1)) {
+                    lo = _mm256_add_epi32(lo, _mm256_madd_epi16(xs, w_lo));
+                    hi = _mm256_add_epi32(hi, _mm256_madd_epi16(xs, w_hi));
+                }
+            }
+            let [c0, c1, c2, c3] = constants;
+            let a = requant4(_mm256_castsi256_si128(lo), &c0);
+            let b = requant4(_mm256_extracti128_si256::<1>(lo), &c1);
+            let c = requant4(_mm256_castsi256_si128(hi), &c2);
+            let d = requant4(_mm256_extracti128_si256::<1>(hi), &c3);
+            let bytes = _mm_packs_epi16(_mm_packs_epi32(a, b), _mm_packs_epi32(c, d));
+            let mut sixteen = [0i8; 16];
+            // SAFETY: `sixteen` is 16 bytes.
+            unsafe { _mm_storeu_si128(sixteen.as_mut_ptr().cast(), bytes) };
+            let at = pixel * rows + first_row;
+            if let (Some(slot), Some(values)) =
+                (outputs.get_mut(at..at + chunk), sixteen.get(..chunk))
+            {
+                slot.copy_from_slice(values);
+            }
+        }
+        first_row += chunk;
+    }
+}
+
+/// Inputs `2 * pair` and `2 * pair + 1` of the row at `start`, broadcast to every 32-bit lane;
+/// an input past the slice reads as 0 (its weight is 0 anyway).
+///
+/// # Safety
+/// AVX2 must be available; `x` is `inputs.as_ptr() + start` (as `i32` pointer).
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn pair_at(inputs: &[i16], x: *const i32, start: usize, pair: usize) -> __m256i {
+    let at = start + 2 * pair;
+    if at + 2 <= inputs.len() {
+        // SAFETY: the two i16 at `at` are inside `inputs`; read_unaligned has no alignment need.
+        _mm256_set1_epi32(unsafe { x.add(pair).read_unaligned() })
+    } else {
+        let lo = inputs.get(at).copied().unwrap_or(0);
+        let hi = inputs.get(at + 1).copied().unwrap_or(0);
+        _mm256_set1_epi32(i32::from(lo as u16) | (i32::from(hi) << 16))
+    }
+}
+
+/// # Safety
+/// AVX2 must be available and the lengths checked by [`linear_batch_avx2`] must hold.
+#[target_feature(enable = "avx2")]
+unsafe fn linear_batch_unchecked(
+    linear: &Linear<'_>,
+    inputs: &[i16],
+    stride: usize,
+    count: usize,
+    outputs: &mut [i8],
+) {
+    let rows = linear.rows;
+    if linear.row_len <= 2 * SHORT_PAIRS && stride >= 2 * SHORT_PAIRS {
+        // SAFETY: forwarded contract, plus `stride >= 2 * SHORT_PAIRS` (checked just above).
+        unsafe { short_rows(linear, inputs, stride, count, outputs) };
+        return;
+    }
+    let tail = linear.row_len % 16;
+    let mut lanes = [0i16; 16];
+    for (lane, slot) in lanes.iter_mut().enumerate() {
+        *slot = if lane < tail { -1 } else { 0 };
+    }
+    // SAFETY: `lanes` is 16 i16.
+    let tail_mask = unsafe { _mm256_loadu_si256(lanes.as_ptr().cast()) };
+    let mut pixel = 0;
+    while pixel + 2 <= count {
+        let starts = [pixel * stride, (pixel + 1) * stride];
+        let outs = [pixel * rows, (pixel + 1) * rows];
+        // SAFETY: pixel + 1 < count, so both rows are inside `inputs` and `outputs` (checked
+        // by the caller for the last row `count - 1`).
+        unsafe { pixels::<2>(linear, inputs, starts, outs, tail_mask, outputs) };
+        pixel += 2;
+    }
+    if pixel < count {
+        // SAFETY: as above for the single row `pixel < count`.
+        unsafe {
+            pixels::<1>(
+                linear,
+                inputs,
+                [pixel * stride],
+                [pixel * rows],
+                tail_mask,
+                outputs,
+            )
+        };
+    }
+}
+
+/// # Safety
+/// AVX2 must be available.
+#[target_feature(enable = "avx2")]
+unsafe fn quantize_inputs_unchecked(quant: &InputQuantRecord, values_mm: &[i16], out: &mut [i8]) {
+    let multipliers = _mm_set1_epi32(quant.multiplier);
+    let shifts = _mm_set1_epi8(quant.shift);
+    let constants = Requant4::new(multipliers, shifts, quant.zero_point, false);
+    let mut chunks = values_mm.chunks_exact(8).zip(out.chunks_exact_mut(8));
+    for (values, bytes) in &mut chunks {
+        // SAFETY: `values` is 8 i16 (16 bytes).
+        let wide = _mm256_cvtepi16_epi32(unsafe { _mm_loadu_si128(values.as_ptr().cast()) });
+        let low = requant4(_mm256_castsi256_si128(wide), &constants);
+        let high = requant4(_mm256_extracti128_si256::<1>(wide), &constants);
+        let packed = _mm_packs_epi16(_mm_packs_epi32(low, high), _mm_setzero_si128());
+        let mut eight = [0i8; 16];
+        // SAFETY: `eight` is 16 bytes.
+        unsafe { _mm_storeu_si128(eight.as_mut_ptr().cast(), packed) };
+        for (slot, value) in bytes.iter_mut().zip(eight) {
+            *slot = value;
+        }
+    }
+    let done = values_mm.len().min(out.len()) / 8 * 8;
+    if let (Some(values), Some(bytes)) = (values_mm.get(done..), out.get_mut(done..)) {
+        quantize_inputs_scalar(quant, values, bytes);
     }
 }
