@@ -269,7 +269,10 @@ pub fn forward<const ACT: usize, const ROW: usize>(
         } else {
             row_len
         };
-        let batch = (row.len() / stride).max(1);
+        // An even count when possible: the SIMD kernel runs pixels in pairs, and an odd one
+        // out per batch would take its slower single-pixel path.
+        let fit = row.len() / stride;
+        let batch = if fit >= 2 { fit & !1 } else { 1 };
         let pixels = conv.out_rows * conv.out_cols;
         let outputs = dst
             .get_mut(..pixels * out_channels)

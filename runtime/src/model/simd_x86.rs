@@ -15,16 +15,17 @@
 //! hold every path to the scalar kernel and to an independent reference.
 #![allow(unsafe_code)]
 
+use core::arch::asm;
 use core::arch::x86_64::{
     __cpuid_count, __m128i, __m256i, _mm256_add_epi32, _mm256_add_epi64, _mm256_and_si256,
     _mm256_blendv_epi8, _mm256_castsi256_si128, _mm256_cmpgt_epi64, _mm256_cvtepi16_epi32,
     _mm256_cvtepi32_epi64, _mm256_cvtepi8_epi16, _mm256_cvtepi8_epi64, _mm256_extracti128_si256,
-    _mm256_hadd_epi32, _mm256_loadu_si256, _mm256_madd_epi16, _mm256_mul_epi32,
-    _mm256_permutevar8x32_epi32, _mm256_set1_epi32, _mm256_set1_epi64x, _mm256_setr_epi32,
-    _mm256_setzero_si256, _mm256_sllv_epi64, _mm256_srlv_epi64, _mm256_sub_epi64, _mm256_xor_si256,
-    _mm_add_epi32, _mm_cvtsi128_si32, _mm_cvtsi32_si128, _mm_loadu_si128, _mm_max_epi8,
-    _mm_min_epi8, _mm_packs_epi16, _mm_packs_epi32, _mm_set1_epi32, _mm_set1_epi8,
-    _mm_setzero_si128, _mm_storeu_si128, _xgetbv,
+    _mm256_hadd_epi32, _mm256_loadu_si256, _mm256_madd_epi16, _mm256_permutevar8x32_epi32,
+    _mm256_set1_epi32, _mm256_set1_epi64x, _mm256_setr_epi32, _mm256_setzero_si256,
+    _mm256_sllv_epi64, _mm256_srlv_epi64, _mm256_sub_epi64, _mm256_xor_si256, _mm_add_epi32,
+    _mm_cvtsi128_si32, _mm_cvtsi32_si128, _mm_loadu_si128, _mm_max_epi8, _mm_min_epi8,
+    _mm_packs_epi16, _mm_packs_epi32, _mm_set1_epi32, _mm_set1_epi8, _mm_setzero_si128,
+    _mm_storeu_si128, _xgetbv,
 };
 use core::sync::atomic::{AtomicU8, Ordering};
 
@@ -213,8 +214,8 @@ fn tail_inputs(inputs: &[i16], start: usize, tail: usize, mask: __m256i) -> __m2
 /// Requantization constants of 4 output rows, one per 64-bit lane.
 #[derive(Clone, Copy)]
 struct Requant4 {
-    /// The multiplier, in the low 32 bits (what `vpmuldq` reads).
-    multiplier: __m256i,
+    /// The 4 multipliers as i32 (sign-extended where used: see [`requant4`]).
+    multiplier: __m128i,
     /// The right shift `31 - shift`, in `1..=62`.
     right: __m256i,
     /// `2^(right - 1)`: rounds halves towards +infinity.
@@ -241,7 +242,7 @@ impl Requant4 {
         let one = _mm256_set1_epi64x(1);
         let low = if relu { i64::from(zero_point) } else { -128 };
         Requant4 {
-            multiplier: _mm256_cvtepi32_epi64(multipliers),
+            multiplier: multipliers,
             right,
             half: _mm256_sllv_epi64(one, _mm256_sub_epi64(right, one)),
             offset: _mm256_srlv_epi64(_mm256_set1_epi64x(i64::MIN), right),
@@ -280,12 +281,15 @@ impl Requant4 {
 /// `2^63`; `|t| < 2^62 + 2^61` so nothing wraps.
 #[target_feature(enable = "avx2")]
 fn requant4(acc: __m128i, c: &Requant4) -> __m128i {
-    let product = _mm256_mul_epi32(_mm256_cvtepi32_epi64(acc), c.multiplier);
+    let product = vpmuldq(
+        _mm256_cvtepi32_epi64(acc),
+        _mm256_cvtepi32_epi64(c.multiplier),
+    );
     let biased = _mm256_xor_si256(
         _mm256_add_epi64(product, c.half),
         _mm256_set1_epi64x(i64::MIN),
     );
-    let scaled = _mm256_sub_epi64(_mm256_srlv_epi64(biased, c.right), c.offset);
+    let scaled = _mm256_sub_epi64(vpsrlvq(biased, c.right), c.offset);
     let q = _mm256_add_epi64(scaled, c.zero_point);
     let q = _mm256_blendv_epi8(q, c.high, _mm256_cmpgt_epi64(q, c.high));
     let q = _mm256_blendv_epi8(q, c.low, _mm256_cmpgt_epi64(c.low, q));
@@ -294,15 +298,42 @@ fn requant4(acc: __m128i, c: &Requant4) -> __m128i {
     _mm256_castsi256_si128(low_halves)
 }
 
+/// `vpmuldq` (`_mm256_mul_epi32`) as exactly that instruction. LLVM rewrites the intrinsic
+/// as a generic 64-bit multiply and, when the constants come back from the stack and it can no
+/// longer prove them sign-extended, lowers that to three `vpmuludq` and shifts.
+#[target_feature(enable = "avx2")]
+#[inline]
+fn vpmuldq(a: __m256i, b: __m256i) -> __m256i {
+    let out: __m256i;
+    // SAFETY: a register-only AVX2 instruction (AVX2 is enabled for this function).
+    unsafe {
+        asm!("vpmuldq {o}, {a}, {b}", a = in(ymm_reg) a, b = in(ymm_reg) b,
+             o = lateout(ymm_reg) out, options(pure, nomem, nostack, preserves_flags));
+    }
+    out
+}
+
+/// `vpsrlvq` (`_mm256_srlv_epi64`) as exactly that instruction: LLVM otherwise adds a
+/// compare-and-mask for shift counts above 63 that it cannot rule out (ours are in 1..=62).
+#[target_feature(enable = "avx2")]
+#[inline]
+fn vpsrlvq(a: __m256i, count: __m256i) -> __m256i {
+    let out: __m256i;
+    // SAFETY: a register-only AVX2 instruction (AVX2 is enabled for this function).
+    unsafe {
+        asm!("vpsrlvq {o}, {a}, {c}", a = in(ymm_reg) a, c = in(ymm_reg) count,
+             o = lateout(ymm_reg) out, options(pure, nomem, nostack, preserves_flags));
+    }
+    out
+}
+
 /// Writes 4 requantized lanes (each in `[-128, 127]`) as bytes to `out[at..at + 4]`.
 #[target_feature(enable = "avx2")]
 fn store4(values: __m128i, out: &mut [i8], at: usize) {
     let bytes = _mm_packs_epi16(_mm_packs_epi32(values, values), _mm_setzero_si128());
-    let word = _mm_cvtsi128_si32(bytes).to_le_bytes();
+    let word = _mm_cvtsi128_si32(bytes).to_le_bytes().map(|b| b as i8);
     if let Some(slot) = out.get_mut(at..at + 4) {
-        for (o, b) in slot.iter_mut().zip(word) {
-            *o = b as i8;
-        }
+        slot.copy_from_slice(&word);
     }
 }
 
@@ -505,10 +536,16 @@ unsafe fn short_rows(
             // SAFETY: `sixteen` is 16 bytes.
             unsafe { _mm_storeu_si128(sixteen.as_mut_ptr().cast(), bytes) };
             let at = pixel * rows + first_row;
-            if let (Some(slot), Some(values)) =
-                (outputs.get_mut(at..at + chunk), sixteen.get(..chunk))
-            {
-                slot.copy_from_slice(values);
+            if let Some(slot) = outputs.get_mut(at..at + chunk) {
+                // A whole chunk is one fixed-size copy (a store, not a `memcpy` call).
+                match <&mut [i8; 16]>::try_from(&mut *slot) {
+                    Ok(slot) => *slot = sixteen,
+                    Err(_) => {
+                        for (o, v) in slot.iter_mut().zip(sixteen) {
+                            *o = v;
+                        }
+                    }
+                }
             }
         }
         first_row += chunk;
