@@ -34,8 +34,12 @@ enum Command {
     Train(cli::train::Args),
     /// Evaluate a policy: success, collision-free success, path length vs the planner.
     Eval(cli::eval::Args),
+    /// Quantize a checkpoint to the robot's int8 weights file (with a model card).
+    Export(cli::export::Args),
     /// Plot learning curves of runs into a PNG.
     Plot(cli::plot::Args),
+    /// Relevance of each obstacle to a policy's trajectory (remove it, re-roll, compare) as a PNG.
+    Relevance(cli::relevance::Args),
     /// Run the closed loop on one scene: world -> policy (or planner) -> CAN -> simulated
     /// motors -> measured motion -> world; writes path.png and bus.log (candump -L).
     Demo(cli::demo::Args),
@@ -50,7 +54,9 @@ fn main() -> ExitCode {
         Command::Render(args) => cli::render::run(args),
         Command::Train(args) => cli::train::run(args),
         Command::Eval(args) => cli::eval::run(args),
+        Command::Export(args) => cli::export::run(args),
         Command::Plot(args) => cli::plot::run(args),
+        Command::Relevance(args) => cli::relevance::run(args),
         Command::Demo(args) => cli::demo::run(args),
     };
     match result {

@@ -56,7 +56,8 @@ impl Canvas {
         }
     }
 
-    fn fill_rect(&mut self, x0: i64, y0: i64, x1: i64, y1: i64, colour: [u8; 3]) {
+    /// Fills the pixel rectangle between two corners (both included; clipped to the canvas).
+    pub fn fill_rect(&mut self, x0: i64, y0: i64, x1: i64, y1: i64, colour: [u8; 3]) {
         for y in y0.min(y1)..=y0.max(y1) {
             for x in x0.min(x1)..=x0.max(x1) {
                 self.put(x, y, colour);
@@ -64,7 +65,8 @@ impl Canvas {
         }
     }
 
-    fn line(&mut self, a: (i64, i64), b: (i64, i64), colour: [u8; 3]) {
+    /// Draws a one-pixel line between two pixels (clipped to the canvas).
+    pub fn line(&mut self, a: (i64, i64), b: (i64, i64), colour: [u8; 3]) {
         let steps = (b.0 - a.0).abs().max((b.1 - a.1).abs()).max(1);
         for i in 0..=steps {
             let t = i as f32 / steps as f32;
@@ -74,7 +76,8 @@ impl Canvas {
         }
     }
 
-    fn disc(&mut self, centre: (i64, i64), radius: i64, colour: [u8; 3]) {
+    /// Fills a disc of `radius` pixels (clipped to the canvas).
+    pub fn disc(&mut self, centre: (i64, i64), radius: i64, colour: [u8; 3]) {
         for dy in -radius..=radius {
             for dx in -radius..=radius {
                 if dx * dx + dy * dy <= radius * radius {

@@ -1,19 +1,23 @@
-//! `wheelleg eval --policy CKPT (--scenarios FILE | --generated N --kind K) --seed S [--json]
+//! `wheelleg eval --policy CKPT|WEIGHTS (--scenarios FILE | --generated N --kind K) --seed S [--json]
 //! [--stochastic]`.
 
 use super::CliResult;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use std::path::PathBuf;
+use wheelleg_runtime::model::format::MAGIC;
 use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::generate::{generate_many, SceneKind};
+use wheelleg_trainer::batch_policy::FloatPolicy;
 use wheelleg_trainer::evaluate::{evaluate, EvalOptions};
 use wheelleg_trainer::network::BackendKind;
+use wheelleg_trainer::quantize::EvalPolicy;
 
 /// Arguments of `eval`.
 #[derive(clap::Args)]
 pub struct Args {
-    /// Policy checkpoint (a run's checkpoint.ckpt).
+    /// Policy: a run's checkpoint.ckpt (float, as trained) or a `.wlw` weights file (int8, run
+    /// by the robot's runtime crate).
     #[arg(long)]
     policy: PathBuf,
     /// Scenario file (JSON) to evaluate on.
@@ -41,7 +45,6 @@ pub struct Args {
 
 /// Runs `eval`.
 pub fn run(args: Args) -> CliResult {
-    let net = wheelleg_trainer::evaluate::load_policy(&args.policy)?;
     let scenarios = match (&args.scenarios, args.generated, &args.kind) {
         (Some(file), _, _) => wheelleg_sim::scenario_file::load(file, &WHEELLEG)?,
         (None, Some(n), Some(kind)) => {
@@ -62,10 +65,21 @@ pub fn run(args: Args) -> CliResult {
         planner_expansions: args.planner_expansions,
         ..EvalOptions::default()
     };
-    let device = BackendKind::Flex.device()?;
     let mut rng = ChaCha8Rng::seed_from_u64(args.seed);
     rng.set_stream(1);
-    let report = evaluate(&net, &device, &scenarios, &options, &mut rng)?;
+    let bytes = std::fs::read(&args.policy)
+        .map_err(|e| format!("cannot read {}: {e}", args.policy.display()))?;
+    let report = if bytes.starts_with(&MAGIC) {
+        let policy = EvalPolicy::from_bytes(&bytes)
+            .map_err(|e| format!("{}: {e}", args.policy.display()))?;
+        evaluate(&policy, &scenarios, &options, &mut rng)?
+    } else {
+        let net = wheelleg_trainer::checkpoint::Checkpoint::from_bytes(&bytes)
+            .and_then(|c| c.network.to_network())
+            .map_err(|e| format!("{}: {e}", args.policy.display()))?;
+        let policy = FloatPolicy::new(&net, &BackendKind::Flex.device()?)?;
+        evaluate(&policy, &scenarios, &options, &mut rng)?
+    };
     if args.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
         return Ok(());

@@ -2,10 +2,12 @@
 
 pub mod demo;
 pub mod eval;
+pub mod export;
 pub mod generate;
 pub mod inspect;
 pub mod plan;
 pub mod plot;
+pub mod relevance;
 pub mod render;
 pub mod train;
 

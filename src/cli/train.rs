@@ -1,8 +1,12 @@
-//! `wheelleg train baseline --config FILE --out runs/NAME [--seed S] [--resume]`.
+//! `wheelleg train baseline|secondary|randomize|primary|all --config FILE --out runs/NAME
+//! [--seed S] [--resume]`.
 
 use super::CliResult;
 use std::path::PathBuf;
 use wheelleg_trainer::config::TrainConfig;
+use wheelleg_trainer::curriculum::{
+    run_all, run_primary, run_randomize, run_secondary, CurriculumOptions,
+};
 use wheelleg_trainer::runner::{train, RunOptions};
 
 /// What to train.
@@ -10,6 +14,15 @@ use wheelleg_trainer::runner::{train, RunOptions};
 pub enum Stage {
     /// PPO from scratch on the config's scene kind (the paper's baseline on complex scenes).
     Baseline,
+    /// Algorithm 1: one policy per behaviour (straight first, the others from it) into
+    /// OUT/secondary-<behaviour>/, each keeping its latest successful trajectories.
+    Secondary,
+    /// The domain-randomized trajectory batch from the stored trajectories: OUT/batch.wltb.
+    Randomize,
+    /// Algorithm 2: the primary policy on complex scenes with replayed samples: OUT/primary/.
+    Primary,
+    /// Secondary, randomize and primary in order; each stage resumes where it stopped.
+    All,
 }
 
 /// Arguments of `train`.
@@ -27,7 +40,8 @@ pub struct Args {
     /// Seed of every random choice.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Continue the run in --out from its last checkpoint.
+    /// Continue the run in --out from its last checkpoint (baseline; the curriculum stages
+    /// always resume what they find).
     #[arg(long)]
     resume: bool,
     /// No progress bar.
@@ -38,7 +52,28 @@ pub struct Args {
 /// Runs `train`.
 pub fn run(args: Args) -> CliResult {
     let config = TrainConfig::load(&args.config)?;
-    let Stage::Baseline = args.stage;
+    let curriculum = CurriculumOptions {
+        out: args.out.clone(),
+        seed: args.seed,
+        progress: !args.quiet,
+    };
+    let summary = match args.stage {
+        Stage::Baseline => return baseline(&config, &args),
+        Stage::Secondary => return Ok(run_secondary(&config, &curriculum)?),
+        Stage::Randomize => return Ok(run_randomize(&config, &curriculum).map(|_| ())?),
+        Stage::Primary => run_primary(&config, &curriculum)?,
+        Stage::All => run_all(&config, &curriculum)?,
+    };
+    println!(
+        "primary policy: {} iterations, {} env steps; checkpoint {}",
+        summary.iterations,
+        summary.env_steps,
+        summary.checkpoint.display()
+    );
+    Ok(())
+}
+
+fn baseline(config: &TrainConfig, args: &Args) -> CliResult {
     let opts = RunOptions {
         out: args.out.clone(),
         seed: args.seed,
@@ -47,7 +82,7 @@ pub fn run(args: Args) -> CliResult {
         max_iterations: None,
         kind: "baseline".into(),
     };
-    let summary = train(&config, &opts)?;
+    let summary = train(config, &opts)?;
     println!(
         "trained {} iterations, {} env steps; checkpoint {}",
         summary.iterations,

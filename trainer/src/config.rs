@@ -117,6 +117,44 @@ impl Default for RunConfig {
     }
 }
 
+/// The paper's method around PPO (Algorithms 1 and 2): secondary policies, the
+/// domain-randomized trajectory batch, and the primary policy's mixed batches. Used by
+/// `wheelleg train secondary|randomize|primary|all`; the baseline ignores it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CurriculumConfig {
+    /// Behaviours trained as secondary policies, straight first (the others start from it).
+    pub behaviours: Vec<String>,
+    /// Environment steps per PPO iteration of a secondary policy (the paper: 3,000).
+    pub secondary_steps_per_iteration: usize,
+    /// Environment steps of each secondary policy.
+    pub secondary_env_steps: u64,
+    /// Latest successful, collision-free trajectories kept per secondary policy.
+    pub keep_trajectories: usize,
+    /// Randomized scenes tried per stored trajectory (the paper: 1,000).
+    pub randomizations: usize,
+    /// Replayed steps added to each primary iteration's on-policy batch (the paper: 2,000).
+    pub replay_steps_per_iteration: usize,
+    /// Where the primary policy starts: `scratch` or a behaviour's secondary policy.
+    pub primary_init: String,
+}
+
+impl Default for CurriculumConfig {
+    fn default() -> Self {
+        CurriculumConfig {
+            behaviours: ["straight", "around", "lift", "spread", "squeeze"]
+                .map(String::from)
+                .to_vec(),
+            secondary_steps_per_iteration: 3_000,
+            secondary_env_steps: 300_000,
+            keep_trajectories: 1_000,
+            randomizations: 1_000,
+            replay_steps_per_iteration: 2_000,
+            primary_init: "scratch".into(),
+        }
+    }
+}
+
 /// A whole training configuration file.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Default)]
 #[serde(deny_unknown_fields, default)]
@@ -127,6 +165,8 @@ pub struct TrainConfig {
     pub ppo: PpoConfig,
     /// The network.
     pub network: NetworkConfig,
+    /// The curriculum (secondary policies, randomization, primary policy).
+    pub curriculum: CurriculumConfig,
 }
 
 impl TrainConfig {
@@ -147,6 +187,13 @@ impl TrainConfig {
     /// The config as TOML (stored in every checkpoint to detect mismatched resumes).
     pub fn to_toml(&self) -> String {
         toml::to_string(self).unwrap_or_default()
+    }
+
+    /// Whether `stored` (a checkpoint's config text) means the same config. Compared parsed, so
+    /// that a checkpoint written before a new section existed still matches when the section
+    /// holds its defaults.
+    pub fn same_as_stored(&self, stored: &str) -> bool {
+        toml::from_str::<TrainConfig>(stored).is_ok_and(|c| &c == self)
     }
 
     /// Checks ranges, naming the offending key.
@@ -198,6 +245,24 @@ impl TrainConfig {
         check(
             self.network.hidden.iter().all(|&h| h > 0),
             "network.hidden widths must be positive",
+        )?;
+        let c = &self.curriculum;
+        check(
+            c.behaviours.first().map(String::as_str) == Some("straight")
+                && c.behaviours.iter().all(|b| {
+                    wheelleg_sim::generate::SceneKind::from_name(b)
+                        .is_some_and(|k| k != wheelleg_sim::generate::SceneKind::Complex)
+                }),
+            "curriculum.behaviours must start with straight and name behaviours (straight, \
+             around, lift, spread, squeeze)",
+        )?;
+        check(
+            c.secondary_steps_per_iteration >= r.num_envs,
+            "curriculum.secondary_steps_per_iteration must be at least run.num_envs",
+        )?;
+        check(
+            c.primary_init == "scratch" || c.behaviours.contains(&c.primary_init),
+            "curriculum.primary_init must be scratch or one of curriculum.behaviours",
         )?;
         Ok(())
     }

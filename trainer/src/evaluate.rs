@@ -5,9 +5,8 @@
 //! Greedy (most probable choice per head) by default; stochastic draws come from the caller's
 //! seeded RNG.
 
+use crate::batch_policy::BatchPolicy;
 use crate::network_f32::NetworkF32;
-use crate::ppo::PolicyOutput;
-use burn::tensor::Device;
 use rand::Rng;
 use serde::Serialize;
 use wheelleg_runtime::action::Action;
@@ -73,15 +72,15 @@ impl Default for EvalOptions {
     }
 }
 
-/// Runs `net` once on every scenario.
-pub fn evaluate(
-    net: &NetworkF32,
-    device: &Device,
+/// Runs every scenario to its end in lock-step (one batched policy call per step), calling
+/// `on_observation` with each observation the policy acts on. Returns the finished episodes.
+pub fn run_episodes(
+    policy: &dyn BatchPolicy,
     scenarios: &[Scenario],
     options: &EvalOptions,
     rng: &mut impl Rng,
-) -> Result<EvalReport, String> {
-    let burn_net = crate::network::Net::new(net, device, false)?;
+    on_observation: &mut dyn FnMut(&Observation),
+) -> Result<Vec<Env>, String> {
     let mut envs = scenarios
         .iter()
         .map(|s| Env::new(s, options.env_config).map_err(|e| format!("scenario {}: {e:?}", s.name)))
@@ -98,14 +97,11 @@ pub fn evaluate(
         let mut states = Vec::with_capacity(running.len() * STATE_LEN);
         for &i in &running {
             envs[i].observe(&mut obs);
+            on_observation(&obs);
             heights.extend_from_slice(&obs.height_map);
             states.extend_from_slice(&obs.state);
         }
-        let f = burn_net.forward(heights, states, running.len());
-        let out = PolicyOutput {
-            log_probs: crate::network::to_vec(f.log_probs),
-            values: vec![],
-        };
+        let out = policy.log_probs(&heights, &states, running.len())?;
         for (k, &i) in running.iter().enumerate() {
             let choices = if options.stochastic {
                 out.sample(k, rng)
@@ -119,6 +115,38 @@ pub fn evaluate(
                 .map_err(|_| "stepped a finished episode".to_string())?;
         }
     }
+    Ok(envs)
+}
+
+/// One observation as plain vectors: height map (metres, row-major) and state.
+pub type RecordedObservation = (Vec<f32>, Vec<f32>);
+
+/// Observations a policy meets when it drives through `scenarios` (every step of every
+/// episode, at most `limit`): the calibration and agreement data of quantization.
+pub fn collect_observations(
+    policy: &dyn BatchPolicy,
+    scenarios: &[Scenario],
+    options: &EvalOptions,
+    rng: &mut impl Rng,
+    limit: usize,
+) -> Result<Vec<RecordedObservation>, String> {
+    let mut observations = Vec::new();
+    run_episodes(policy, scenarios, options, rng, &mut |obs| {
+        if observations.len() < limit {
+            observations.push((obs.height_map.to_vec(), obs.state.to_vec()));
+        }
+    })?;
+    Ok(observations)
+}
+
+/// Runs `policy` once on every scenario and measures it.
+pub fn evaluate(
+    policy: &dyn BatchPolicy,
+    scenarios: &[Scenario],
+    options: &EvalOptions,
+    rng: &mut impl Rng,
+) -> Result<EvalReport, String> {
+    let envs = run_episodes(policy, scenarios, options, rng, &mut |_| {})?;
     let planner = PlannerConfig {
         max_expansions: options.planner_expansions,
         ..PlannerConfig::default()

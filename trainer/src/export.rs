@@ -1,8 +1,171 @@
-//! Writing a weights file so that a reader never sees half of it.
+//! From a trained checkpoint to the robot's weights file: calibration rollouts, post-training
+//! int8 quantization, a check through the runtime itself, the agreement figure on held-out
+//! observations, and an atomic write.
 
+use crate::batch_policy::FloatPolicy;
+use crate::evaluate::{collect_observations, EvalOptions, RecordedObservation};
+use crate::network_f32::NetworkF32;
+use crate::quantize::{agreement, quantize, Agreement, Calibration, EvalPolicy, RangeMethod};
+use burn::tensor::Device;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
 use std::fs;
 use std::io::{self, Write};
 use std::path::{Path, PathBuf};
+use wheelleg_sim::generate::{generate_many, SceneKind};
+
+/// Where calibration and agreement observations come from.
+#[derive(Clone, Debug)]
+pub struct ExportOptions {
+    /// Scenes the observations are collected in.
+    pub scene_kind: SceneKind,
+    /// Seed of the calibration scenes; the held-out scenes use `seed + 1`. Pick seeds not used
+    /// in training or evaluation (the default 2,000,000 is neither).
+    pub seed: u64,
+    /// Observations the activation ranges are taken from.
+    pub calibration_observations: usize,
+    /// Held-out observations the agreement is measured on.
+    pub holdout_observations: usize,
+    /// How a tensor's range is chosen from its observed values.
+    pub range: RangeMethod,
+}
+
+impl Default for ExportOptions {
+    fn default() -> Self {
+        ExportOptions {
+            scene_kind: SceneKind::Complex,
+            seed: 2_000_000,
+            calibration_observations: 20_000,
+            holdout_observations: 10_000,
+            range: RangeMethod::MinMax,
+        }
+    }
+}
+
+/// What was exported and how well it matches the float network: written beside the weights
+/// as `<file>.card.json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct ModelCard {
+    /// The checkpoint (or other source) the float network came from.
+    pub source: String,
+    /// Size of the weights file.
+    pub file_bytes: usize,
+    /// Parameters.
+    pub parameters: usize,
+    /// Multiply-accumulates per decision.
+    pub macs_per_decision: usize,
+    /// Scene kind of the calibration and held-out rollouts.
+    pub scene_kind: String,
+    /// Seed of the calibration scenes (held-out: seed + 1).
+    pub seed: u64,
+    /// Observations calibrated on.
+    pub calibration_observations: usize,
+    /// Range method (`minmax` or `percentile low-high`).
+    pub range: String,
+    /// Greedy agreement of int8 with float on the held-out observations.
+    pub agreement: Agreement,
+}
+
+/// Observations from stochastic rollouts of `network` in freshly generated scenes, until
+/// `count` are collected. Stochastic: the sampled actions visit more of the state space than
+/// the greedy path, so calibration also sees what a slightly off-course robot sees.
+fn rollout_observations(
+    policy: &FloatPolicy,
+    kind: SceneKind,
+    seed: u64,
+    count: usize,
+) -> Result<Vec<RecordedObservation>, String> {
+    let mut scenes_rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut actions_rng = ChaCha8Rng::seed_from_u64(seed);
+    actions_rng.set_stream(1);
+    let options = EvalOptions {
+        stochastic: true,
+        planner_expansions: 0,
+        ..EvalOptions::default()
+    };
+    let mut observations = Vec::with_capacity(count);
+    while observations.len() < count {
+        let scenes = generate_many(kind, &mut scenes_rng, 64);
+        let more = collect_observations(
+            policy,
+            &scenes,
+            &options,
+            &mut actions_rng,
+            count - observations.len(),
+        )?;
+        if more.is_empty() {
+            return Err("rollouts produced no observations".into());
+        }
+        observations.extend(more);
+    }
+    Ok(observations)
+}
+
+fn range_name(range: RangeMethod) -> String {
+    match range {
+        RangeMethod::MinMax => "minmax".into(),
+        RangeMethod::Percentile { low, high } => format!("percentile {low}-{high}"),
+    }
+}
+
+/// Quantizes `network` as [`ExportOptions`] say and checks the result through the runtime:
+/// the weights file bytes and their model card.
+pub fn export_policy(
+    network: &NetworkF32,
+    device: &Device,
+    source: &str,
+    options: &ExportOptions,
+) -> Result<(Vec<u8>, ModelCard), String> {
+    let float = FloatPolicy::new(network, device)?;
+    let calibration_set = rollout_observations(
+        &float,
+        options.scene_kind,
+        options.seed,
+        options.calibration_observations,
+    )?;
+    let calibration = Calibration::from_observations(
+        network,
+        calibration_set
+            .iter()
+            .map(|(h, s)| (h.as_slice(), s.as_slice())),
+    );
+    let quantized =
+        quantize(network, &calibration, options.range).map_err(|e| format!("quantize: {e}"))?;
+    let bytes = quantized
+        .to_bytes()
+        .map_err(|e| format!("encode weights: {e}"))?;
+    let policy = EvalPolicy::from_bytes(&bytes)
+        .map_err(|e| format!("the runtime refuses the exported weights: {e}"))?;
+    let holdout = rollout_observations(
+        &float,
+        options.scene_kind,
+        options.seed + 1,
+        options.holdout_observations,
+    )?;
+    let agreement = agreement(network, &policy, &holdout)?;
+    let (parameters, macs_per_decision) = (policy.model().parameter_count(), policy.model().macs());
+    drop(policy);
+    let card = ModelCard {
+        source: source.to_string(),
+        file_bytes: bytes.len(),
+        parameters,
+        macs_per_decision,
+        scene_kind: format!("{:?}", options.scene_kind).to_lowercase(),
+        seed: options.seed,
+        calibration_observations: calibration.count,
+        range: range_name(options.range),
+        agreement,
+    };
+    Ok((bytes, card))
+}
+
+/// The model card's path for a weights file: `policy.wlw` -> `policy.wlw.card.json`.
+pub fn card_path(weights: &Path) -> PathBuf {
+    let mut name = weights.as_os_str().to_owned();
+    name.push(".card.json");
+    PathBuf::from(name)
+}
 
 /// Writes `bytes` to `path` atomically: into a temporary file in the same directory (so the
 /// rename stays on one file system), flushed to disk, then renamed over `path`. A crash leaves

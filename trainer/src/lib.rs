@@ -8,17 +8,25 @@
 //! - [`vec_env`]: many simulator episodes stepped in lock-step over the cores.
 //! - [`storage`]: the rollout and its advantages (GAE).
 //! - [`ppo`]: the clipped surrogate, value loss, entropy bonus, Adam update.
+//! - [`replay`]: Algorithm 2's replayed samples, advantages from the current critic.
 //! - [`runner`]: the training loop (rollout, advantages, update, metrics, checkpoints).
+//! - [`curriculum`]: the paper's Algorithms 1 and 2 stage by stage (secondary policies,
+//!   trajectory batch, primary policy).
 //! - [`checkpoint`]: atomic, validated checkpoints for exact resumes.
+//! - [`batch_policy`]: the float (burn) or int8 (runtime) policy behind one batched interface.
 //! - [`evaluate`]: success, collision-free success and path length against the planner.
 //! - [`plot`]: learning curves of runs.
 //! - [`network_f32`]: the policy network in plain f32 and its forward pass, the float
 //!   reference every int8 result is compared with.
 //! - [`quantize`]: post-training int8 quantization and the `.wlw` weights file bytes.
 //! - [`export`]: writing a weights file atomically.
+//! - [`trajectory`]: stored trajectories, the domain-randomized trajectory batch and its file,
+//!   and the obstacle relevance test.
 
+pub mod batch_policy;
 pub mod checkpoint;
 pub mod config;
+pub mod curriculum;
 pub mod evaluate;
 pub mod export;
 pub mod network;
@@ -26,6 +34,8 @@ pub mod network_f32;
 pub mod plot;
 pub mod ppo;
 pub mod quantize;
+pub mod replay;
 pub mod runner;
 pub mod storage;
+pub mod trajectory;
 pub mod vec_env;

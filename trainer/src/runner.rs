@@ -8,22 +8,30 @@
 use crate::checkpoint::{Checkpoint, NetworkRecord};
 use crate::config::TrainConfig;
 use crate::network::{init_policy, BackendKind};
+use crate::network_f32::NetworkF32;
 use crate::ppo::{Ppo, UpdateStats};
+use crate::replay::replay_samples;
 use crate::storage::RolloutStorage;
-use crate::vec_env::{EpisodeStats, VecEnv};
+use crate::trajectory::batch_file::{partial_path, TrajectoryBatch};
+use crate::trajectory::randomize::{randomize_batch_with, RandomizeConfig};
+use crate::trajectory::Trajectory;
+use crate::vec_env::{EpisodeStats, SolvedEpisode, VecEnv};
 use indicatif::{ProgressBar, ProgressStyle};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
+use std::collections::VecDeque;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
 use wheelleg_sim::env::EnvConfig;
-use wheelleg_sim::generate::SceneKind;
+use wheelleg_sim::generate::{Behaviour, SceneKind};
 
 /// Name of the latest checkpoint in a run folder.
 pub const CHECKPOINT_FILE: &str = "checkpoint.ckpt";
+/// Name of the stored successful trajectories in a run folder (a trajectory batch file).
+pub const TRAJECTORIES_FILE: &str = "trajectories.wltb";
 /// Name of the metrics log in a run folder.
 pub const METRICS_FILE: &str = "metrics.jsonl";
 
@@ -95,8 +103,34 @@ pub struct RunSummary {
     pub checkpoint: PathBuf,
 }
 
-/// Trains a policy with PPO on fresh scenes of `config.run.scene_kind`.
+/// What the paper's method adds to a plain PPO run; the default (nothing) is the baseline.
+#[derive(Clone, Copy, Default)]
+pub struct StageInputs<'a> {
+    /// Parameters a fresh run starts from instead of a random init (Algorithm 1: the other
+    /// behaviours start from the straight-line policy; Algorithm 2: optionally the primary).
+    pub init: Option<&'a NetworkF32>,
+    /// Algorithm 2: every update also learns from `replay_steps` samples of this batch.
+    pub replay: Option<&'a TrajectoryBatch>,
+    /// Replayed samples per iteration.
+    pub replay_steps: usize,
+    /// Algorithm 1: keep the latest `keep_trajectories` successful, collision-free episodes,
+    /// labelled with this behaviour, in the run folder's [`TRAJECTORIES_FILE`].
+    pub record: Option<Behaviour>,
+    /// How many trajectories `record` keeps.
+    pub keep_trajectories: usize,
+}
+
+/// Trains a policy with PPO on fresh scenes of `config.run.scene_kind` (the baseline).
 pub fn train(config: &TrainConfig, opts: &RunOptions) -> Result<RunSummary, String> {
+    train_stage(config, opts, StageInputs::default())
+}
+
+/// [`train`] with the additions of a curriculum stage.
+pub fn train_stage(
+    config: &TrainConfig,
+    opts: &RunOptions,
+    inputs: StageInputs<'_>,
+) -> Result<RunSummary, String> {
     config.validate()?;
     let run = &config.run;
     let kind = SceneKind::from_name(&run.scene_kind).ok_or("bad run.scene_kind")?;
@@ -123,16 +157,19 @@ pub fn train(config: &TrainConfig, opts: &RunOptions) -> Result<RunSummary, Stri
         .wrapping_mul(0x9E37_79B9_7F4A_7C15)
         .wrapping_add(3);
     let mut envs = VecEnv::new(kind, n, env_seed, env_config, run.threads)?;
+    let random_init = init_policy(&config.architecture(), &mut init_rng);
     let mut ppo = Ppo::new(
-        init_policy(&config.architecture(), &mut init_rng),
+        inputs.init.cloned().unwrap_or(random_init),
         config.ppo.clone(),
         device,
     )?;
+    let trajectories_path = opts.out.join(TRAJECTORIES_FILE);
+    let mut solved: VecDeque<Trajectory> = VecDeque::new();
     let (mut iteration, mut env_steps, mut elapsed_before) = (0u64, 0u64, 0.0f64);
 
     if opts.resume {
         let c = Checkpoint::load(&ckpt_path)?;
-        if c.config_toml != config.to_toml() {
+        if !config.same_as_stored(&c.config_toml) {
             return Err(format!(
                 "{} was written with a different config; resume with the run's own {}",
                 ckpt_path.display(),
@@ -152,6 +189,10 @@ pub fn train(config: &TrainConfig, opts: &RunOptions) -> Result<RunSummary, Stri
         sampler.set_word_pos(c.sampler_word_pos);
         envs.restore(env_seed, &c.envs)?;
         (iteration, env_steps, elapsed_before) = (c.iteration, c.env_steps, c.elapsed_s);
+        if inputs.record.is_some() && trajectories_path.exists() {
+            let stored = TrajectoryBatch::load(&trajectories_path).map_err(|e| e.to_string())?;
+            solved.extend((0..stored.len()).filter_map(|i| stored.trajectory(i)));
+        }
         truncate_metrics(&metrics_path, iteration)?;
     } else {
         if ckpt_path.exists() {
@@ -199,6 +240,15 @@ pub fn train(config: &TrainConfig, opts: &RunOptions) -> Result<RunSummary, Stri
             let rewards: Vec<f32> = results.iter().map(|r| r.reward).collect();
             let dones: Vec<bool> = results.iter().map(|r| r.done).collect();
             episodes.extend(results.iter().filter_map(|r| r.episode));
+            if let Some(behaviour) = inputs.record {
+                for episode in results.into_iter().filter_map(|r| r.success) {
+                    let SolvedEpisode { scenario, actions } = *episode;
+                    solved.push_back(Trajectory::new(scenario, actions, behaviour));
+                    if solved.len() > inputs.keep_trajectories {
+                        solved.pop_front();
+                    }
+                }
+            }
             storage.push_step(
                 &obs_h,
                 &obs_s,
@@ -212,8 +262,21 @@ pub fn train(config: &TrainConfig, opts: &RunOptions) -> Result<RunSummary, Stri
         // 2. Returns and advantages (GAE), bootstrapped with the value of where each env stands.
         let last_values = ppo.evaluate(&heights, &states, n)?.values;
         storage.compute_returns(&last_values, config.ppo.gamma, config.ppo.gae_lambda);
-        // 3. PPO update.
-        let update = ppo.update(&storage.samples, &mut sampler)?;
+        // 3. PPO update, on the on-policy samples plus (Algorithm 2) replayed ones whose
+        //    advantages come from the current value function.
+        let update = match inputs.replay {
+            Some(batch) => {
+                let mut mixed = storage.samples.clone();
+                mixed.extend(&replay_samples(
+                    &ppo,
+                    batch,
+                    inputs.replay_steps,
+                    &mut sampler,
+                )?);
+                ppo.update(&mixed, &mut sampler)?
+            }
+            None => ppo.update(&storage.samples, &mut sampler)?,
+        };
 
         iteration += 1;
         iterations_here += 1;
@@ -246,6 +309,9 @@ pub fn train(config: &TrainConfig, opts: &RunOptions) -> Result<RunSummary, Stri
         let finished = env_steps >= run.total_env_steps
             || opts.max_iterations.is_some_and(|mx| iterations_here >= mx);
         if iteration % run.checkpoint_interval as u64 == 0 || finished {
+            if inputs.record.is_some() {
+                save_trajectories(&trajectories_path, solved.make_contiguous(), env_config)?;
+            }
             Checkpoint {
                 kind: opts.kind.clone(),
                 config_toml: config.to_toml(),
@@ -268,6 +334,27 @@ pub fn train(config: &TrainConfig, opts: &RunOptions) -> Result<RunSummary, Stri
         last,
         checkpoint: ckpt_path,
     })
+}
+
+/// Writes the stored trajectories as a trajectory batch of originals only (no randomized
+/// scenes), beside the checkpoint: to a fresh temporary file, then renamed over the old one, so a
+/// crash leaves the previous set.
+fn save_trajectories(
+    path: &Path,
+    trajectories: &[Trajectory],
+    env: EnvConfig,
+) -> Result<(), String> {
+    let temp = path.with_extension("new");
+    let _ = std::fs::remove_file(&temp);
+    let _ = std::fs::remove_file(partial_path(&temp));
+    let config = RandomizeConfig {
+        per_trajectory: 0,
+        include_original: true,
+        env,
+        ..RandomizeConfig::default()
+    };
+    randomize_batch_with(trajectories, &config, &temp, |_| {}).map_err(|e| e.to_string())?;
+    std::fs::rename(&temp, path).map_err(|e| format!("cannot write {}: {e}", path.display()))
 }
 
 fn append_metrics(path: &Path, m: &IterationMetrics) -> Result<(), String> {

@@ -39,7 +39,7 @@ pub struct EnvSlot {
 }
 
 /// What one environment's step returned.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct StepResult {
     /// The reward.
     pub reward: f32,
@@ -47,6 +47,18 @@ pub struct StepResult {
     pub done: bool,
     /// The finished episode, when `done`.
     pub episode: Option<EpisodeStats>,
+    /// The scene and actions of a finished episode that reached the target without a
+    /// collision (Algorithm 1 stores the latest of these).
+    pub success: Option<Box<SolvedEpisode>>,
+}
+
+/// A scene and the actions that solved it without a collision.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SolvedEpisode {
+    /// The scene.
+    pub scenario: Scenario,
+    /// The actions, in order.
+    pub actions: Vec<Action>,
 }
 
 /// Where an environment stands, for checkpoints.
@@ -109,6 +121,7 @@ impl EnvSlot {
                 reward: 0.0,
                 done: true,
                 episode: None,
+                success: None,
             };
         };
         let reward = outcome.reward.total();
@@ -119,6 +132,7 @@ impl EnvSlot {
                 reward,
                 done: false,
                 episode: None,
+                success: None,
             };
         }
         let episode = EpisodeStats {
@@ -127,11 +141,22 @@ impl EnvSlot {
             success: outcome.status == Status::Success,
             collisions: self.env.collisions(),
         };
+        let success = (episode.success && episode.collisions == 0).then(|| {
+            Box::new(SolvedEpisode {
+                scenario: self.scenario.clone(),
+                actions: self
+                    .actions
+                    .iter()
+                    .filter_map(|&a| Action::from_index(a as usize))
+                    .collect(),
+            })
+        });
         self.reset(kind, config, index);
         StepResult {
             reward,
             done: true,
             episode: Some(episode),
+            success,
         }
     }
 
@@ -216,7 +241,8 @@ impl VecEnv {
             StepResult {
                 reward: 0.0,
                 done: false,
-                episode: None
+                episode: None,
+                success: None,
             };
             self.slots.len()
         ];

@@ -8,10 +8,13 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use std::path::PathBuf;
 use wheelleg_sim::generate::{generate_many, Behaviour, SceneKind};
+use wheelleg_trainer::batch_policy::FloatPolicy;
 use wheelleg_trainer::checkpoint::Checkpoint;
 use wheelleg_trainer::config::TrainConfig;
 use wheelleg_trainer::evaluate::{evaluate, EvalOptions};
+use wheelleg_trainer::export::{export_policy, ExportOptions};
 use wheelleg_trainer::network::BackendKind;
+use wheelleg_trainer::quantize::EvalPolicy;
 use wheelleg_trainer::runner::{read_metrics, train, RunOptions};
 
 fn temp_dir(name: &str) -> PathBuf {
@@ -57,14 +60,8 @@ fn ppo_learns_to_drive_straight_to_the_target() {
         ..EvalOptions::default()
     };
     let device = BackendKind::Flex.device().unwrap();
-    let report = evaluate(
-        &net,
-        &device,
-        &scenes,
-        &options,
-        &mut ChaCha8Rng::seed_from_u64(0),
-    )
-    .unwrap();
+    let float = FloatPolicy::new(&net, &device).unwrap();
+    let report = evaluate(&float, &scenes, &options, &mut ChaCha8Rng::seed_from_u64(0)).unwrap();
     let metrics = read_metrics(&dir).unwrap();
     eprintln!(
         "greedy success {:.2}, collision-free {:.2}, mean steps {:?}; training success by iteration: {:?}",
@@ -76,6 +73,34 @@ fn ppo_learns_to_drive_straight_to_the_target() {
     assert!(
         report.success_rate >= 0.9,
         "greedy success {}",
+        report.success_rate
+    );
+
+    // What ships: the int8 export of the same network, run by the robot's runtime, takes the
+    // float network's greedy action almost always and succeeds as often on the same scenes.
+    let export = ExportOptions {
+        scene_kind: SceneKind::Behaviour(Behaviour::Straight),
+        calibration_observations: 3_000,
+        holdout_observations: 2_000,
+        ..ExportOptions::default()
+    };
+    let (bytes, card) = export_policy(&net, &device, "test", &export).unwrap();
+    let int8 = EvalPolicy::from_bytes(&bytes).unwrap();
+    let int8_report =
+        evaluate(&int8, &scenes, &options, &mut ChaCha8Rng::seed_from_u64(0)).unwrap();
+    eprintln!(
+        "int8: agreement {:?} (whole action {:.3}), greedy success {:.2}",
+        card.agreement.per_dimension, card.agreement.whole_action, int8_report.success_rate
+    );
+    // Height and width do nothing in straight scenes, so their heads stay near ties that any
+    // rounding flips; the driving dimensions must agree.
+    for (dim, share) in card.agreement.per_dimension.iter().enumerate().take(3) {
+        assert!(*share >= 0.97, "dimension {dim}: {:?}", card.agreement);
+    }
+    assert!(
+        int8_report.success_rate >= report.success_rate - 0.03,
+        "int8 {} vs float {}",
+        int8_report.success_rate,
         report.success_rate
     );
     let _ = std::fs::remove_dir_all(&dir);

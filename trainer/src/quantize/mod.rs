@@ -8,12 +8,16 @@
 //!    the layer that reads features ++ state, and encode the `.wlw` file
 //!    ([`QuantizedNetwork::to_bytes`]).
 //!
+//! 4. [`agreement`]: how often the int8 network's greedy action equals the float network's.
+//!
 //! The int8 network is then run by `wheelleg_runtime::model` itself ([`EvalPolicy`]).
 
+pub mod agreement;
 pub mod build;
 pub mod calibrate;
 pub mod params;
 
+pub use agreement::{agreement, Agreement};
 pub use build::{quantize, InputQuant, QuantizeError, QuantizedLayer, QuantizedNetwork};
 pub use calibrate::{Calibration, RangeMethod, RangeObserver};
 pub use params::{quantize_multiplier, ActQuant};

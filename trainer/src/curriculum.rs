@@ -1,0 +1,233 @@
+//! The paper's method end to end (Algorithms 1 and 2), stage by stage, each resumable:
+//!
+//! 1. **Secondary policies** ([`run_secondary`]): PPO in each behaviour's simple scenes with the
+//!    paper's batch of 3,000 steps; straight first, the others start from it. Each run keeps
+//!    its latest successful trajectories.
+//! 2. **Trajectory batch** ([`run_randomize`]): every stored trajectory replayed in new scenes
+//!    whose obstacles were re-placed outside its essential area; only replays that still
+//!    succeed without a collision are kept ([`crate::trajectory::randomize`]).
+//! 3. **Primary policy** ([`run_primary`]): PPO on complex scenes, each update on the
+//!    on-policy batch plus replayed samples whose advantages the current critic recomputes.
+//!
+//! Layout of `--out runs/NAME`: `secondary-<behaviour>/` (a run folder each, with
+//! `trajectories.wltb`), `batch.wltb` (the trajectory batch), `primary/` (a run folder).
+//! [`run_all`] runs the stages in order; a stage whose run reached its budget is not redone,
+//! one that was interrupted resumes from its checkpoint.
+
+use crate::checkpoint::Checkpoint;
+use crate::config::TrainConfig;
+use crate::network_f32::NetworkF32;
+use crate::runner::{train_stage, RunOptions, RunSummary, StageInputs, TRAJECTORIES_FILE};
+use crate::trajectory::batch_file::TrajectoryBatch;
+use crate::trajectory::randomize::{randomize_batch_with, RandomizeConfig, Stats};
+use crate::trajectory::Trajectory;
+use std::path::{Path, PathBuf};
+use wheelleg_sim::env::EnvConfig;
+use wheelleg_sim::generate::{Behaviour, SceneKind};
+
+/// Name of the trajectory batch in a curriculum folder.
+pub const BATCH_FILE: &str = "batch.wltb";
+/// Name of the primary policy's run folder.
+pub const PRIMARY_DIR: &str = "primary";
+
+/// How a curriculum command runs.
+#[derive(Clone, Debug)]
+pub struct CurriculumOptions {
+    /// The curriculum folder.
+    pub out: PathBuf,
+    /// Seed of every random choice (each stage derives its own).
+    pub seed: u64,
+    /// Draw progress bars.
+    pub progress: bool,
+}
+
+/// The run folder of a behaviour's secondary policy.
+pub fn secondary_dir(out: &Path, behaviour: Behaviour) -> PathBuf {
+    out.join(format!("secondary-{}", behaviour.name()))
+}
+
+fn behaviours(config: &TrainConfig) -> Result<Vec<Behaviour>, String> {
+    config
+        .curriculum
+        .behaviours
+        .iter()
+        .map(|name| match SceneKind::from_name(name) {
+            Some(SceneKind::Behaviour(b)) => Ok(b),
+            _ => Err(format!(
+                "curriculum.behaviours: {name:?} is not a behaviour"
+            )),
+        })
+        .collect()
+}
+
+fn episode_rules(config: &TrainConfig) -> EnvConfig {
+    EnvConfig {
+        max_steps: config.run.max_episode_steps,
+        ..EnvConfig::default()
+    }
+}
+
+/// Runs (or resumes) one PPO stage in `dir`: resumes when a checkpoint is there, so a stage
+/// that already reached its budget returns at once.
+fn run_stage(
+    config: &TrainConfig,
+    dir: &Path,
+    seed: u64,
+    kind: &str,
+    progress: bool,
+    inputs: StageInputs<'_>,
+) -> Result<RunSummary, String> {
+    let resume = dir.join(crate::runner::CHECKPOINT_FILE).exists();
+    let opts = RunOptions {
+        out: dir.to_path_buf(),
+        seed,
+        resume,
+        progress,
+        max_iterations: None,
+        kind: kind.to_string(),
+    };
+    train_stage(config, &opts, inputs)
+}
+
+fn load_network(dir: &Path) -> Result<NetworkF32, String> {
+    Checkpoint::load(&dir.join(crate::runner::CHECKPOINT_FILE))?
+        .network
+        .to_network()
+}
+
+/// Algorithm 1: one secondary policy per behaviour, straight first, the others initialised
+/// from it; each keeps its latest successful trajectories.
+pub fn run_secondary(config: &TrainConfig, opts: &CurriculumOptions) -> Result<(), String> {
+    let behaviours = behaviours(config)?;
+    let mut straight: Option<NetworkF32> = None;
+    for (index, &behaviour) in behaviours.iter().enumerate() {
+        let mut stage = config.clone();
+        stage.run.scene_kind = behaviour.name().to_string();
+        stage.run.steps_per_iteration = config.curriculum.secondary_steps_per_iteration;
+        stage.run.total_env_steps = config.curriculum.secondary_env_steps;
+        let dir = secondary_dir(&opts.out, behaviour);
+        let summary = run_stage(
+            &stage,
+            &dir,
+            opts.seed.wrapping_add(1 + index as u64),
+            &format!("secondary-{}", behaviour.name()),
+            opts.progress,
+            StageInputs {
+                init: straight.as_ref(),
+                record: Some(behaviour),
+                keep_trajectories: config.curriculum.keep_trajectories,
+                ..StageInputs::default()
+            },
+        )?;
+        report_stage(&format!("secondary {}", behaviour.name()), &summary);
+        if index == 0 {
+            straight = Some(load_network(&dir)?);
+        }
+    }
+    Ok(())
+}
+
+fn report_stage(name: &str, summary: &RunSummary) {
+    match &summary.last {
+        Some(m) => println!(
+            "{name}: {} env steps, success {:.1}%, collision-free {:.1}%",
+            summary.env_steps,
+            100.0 * m.success_rate,
+            100.0 * m.collision_free_rate
+        ),
+        None => println!("{name}: done earlier ({} env steps)", summary.env_steps),
+    }
+}
+
+/// The stored trajectories of every secondary policy, in behaviour order.
+pub fn stored_trajectories(config: &TrainConfig, out: &Path) -> Result<Vec<Trajectory>, String> {
+    let mut all = Vec::new();
+    for behaviour in behaviours(config)? {
+        let path = secondary_dir(out, behaviour).join(TRAJECTORIES_FILE);
+        let stored = TrajectoryBatch::load(&path).map_err(|e| {
+            format!("{e} (train the secondary policies first: wheelleg train secondary)")
+        })?;
+        all.extend((0..stored.len()).filter_map(|i| stored.trajectory(i)));
+    }
+    Ok(all)
+}
+
+/// The trajectory batch by domain randomization (resumable: see
+/// [`crate::trajectory::batch_file`]).
+pub fn run_randomize(config: &TrainConfig, opts: &CurriculumOptions) -> Result<Stats, String> {
+    let sources = stored_trajectories(config, &opts.out)?;
+    if sources.is_empty() {
+        return Err("the secondary policies stored no successful trajectory to randomize".into());
+    }
+    let randomize = RandomizeConfig {
+        per_trajectory: config.curriculum.randomizations,
+        seed: opts.seed,
+        env: episode_rules(config),
+        ..RandomizeConfig::default()
+    };
+    let bar = if opts.progress {
+        indicatif::ProgressBar::new(sources.len() as u64)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    let stats = randomize_batch_with(&sources, &randomize, &opts.out.join(BATCH_FILE), |p| {
+        bar.set_position(p.sources_done);
+        bar.set_message(format!("{} kept of {} tried", p.kept, p.tried));
+    })
+    .map_err(|e| e.to_string())?;
+    bar.finish_and_clear();
+    println!(
+        "trajectory batch: {} sources, {} randomized scenes kept of {} tried, {} trajectories, \
+         {:.1} bytes each",
+        stats.sources,
+        stats.kept,
+        stats.tried,
+        stats.trajectories(),
+        stats.bytes_per_trajectory()
+    );
+    Ok(stats)
+}
+
+/// Algorithm 2: PPO on complex scenes with replayed samples from the trajectory batch.
+pub fn run_primary(config: &TrainConfig, opts: &CurriculumOptions) -> Result<RunSummary, String> {
+    let batch_path = opts.out.join(BATCH_FILE);
+    let batch = TrajectoryBatch::load(&batch_path)
+        .map_err(|e| format!("{e} (make the trajectory batch first: wheelleg train randomize)"))?;
+    let init = match config.curriculum.primary_init.as_str() {
+        "scratch" => None,
+        name => match SceneKind::from_name(name) {
+            Some(SceneKind::Behaviour(b)) => Some(load_network(&secondary_dir(&opts.out, b))?),
+            _ => {
+                return Err(format!(
+                    "curriculum.primary_init: {name:?} is not a behaviour"
+                ))
+            }
+        },
+    };
+    let mut stage = config.clone();
+    stage.run.scene_kind = "complex".into();
+    let summary = run_stage(
+        &stage,
+        &opts.out.join(PRIMARY_DIR),
+        opts.seed,
+        "primary",
+        opts.progress,
+        StageInputs {
+            init: init.as_ref(),
+            replay: Some(&batch),
+            replay_steps: config.curriculum.replay_steps_per_iteration,
+            ..StageInputs::default()
+        },
+    )?;
+    report_stage("primary", &summary);
+    Ok(summary)
+}
+
+/// The whole pipeline: secondary policies, trajectory batch, primary policy.
+pub fn run_all(config: &TrainConfig, opts: &CurriculumOptions) -> Result<RunSummary, String> {
+    std::fs::create_dir_all(&opts.out)
+        .map_err(|e| format!("cannot create {}: {e}", opts.out.display()))?;
+    run_secondary(config, opts)?;
+    run_randomize(config, opts)?;
+    run_primary(config, opts)
+}

@@ -1,0 +1,105 @@
+//! The paper's pipeline end to end on a tiny budget: secondary policies store successful
+//! trajectories, randomization turns them into a batch of replays that all still succeed, the
+//! primary policy trains on complex scenes with replayed samples, and `all` run again resumes
+//! without redoing finished stages.
+//!
+//! Run in release: `cargo test --release -p wheelleg-trainer --test curriculum`.
+
+use std::path::PathBuf;
+use wheelleg_sim::generate::Behaviour;
+use wheelleg_trainer::checkpoint::Checkpoint;
+use wheelleg_trainer::config::TrainConfig;
+use wheelleg_trainer::curriculum::{
+    run_all, secondary_dir, stored_trajectories, CurriculumOptions, BATCH_FILE, PRIMARY_DIR,
+};
+use wheelleg_trainer::runner::{read_metrics, CHECKPOINT_FILE};
+use wheelleg_trainer::trajectory::batch_file::TrajectoryBatch;
+
+fn tiny_config() -> TrainConfig {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/smoke.toml");
+    let mut config = TrainConfig::load(std::path::Path::new(path)).unwrap();
+    config.run.num_envs = 20;
+    config.run.steps_per_iteration = 1000;
+    config.run.total_env_steps = 2000;
+    config.curriculum.behaviours = vec!["straight".into(), "lift".into()];
+    config.curriculum.secondary_steps_per_iteration = 1000;
+    config.curriculum.secondary_env_steps = 10_000;
+    config.curriculum.keep_trajectories = 40;
+    config.curriculum.randomizations = 3;
+    config.curriculum.replay_steps_per_iteration = 200;
+    config.validate().unwrap();
+    config
+}
+
+#[test]
+fn the_whole_pipeline_runs_and_resumes() {
+    let out = std::env::temp_dir().join(format!("wheelleg-curriculum-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    let config = tiny_config();
+    let opts = CurriculumOptions {
+        out: out.clone(),
+        seed: 5,
+        progress: false,
+    };
+    let summary = run_all(&config, &opts).unwrap();
+    assert_eq!(summary.env_steps, 2000);
+
+    // Secondary policies ran their budgets and kept successful trajectories.
+    for behaviour in [Behaviour::Straight, Behaviour::LiftOver] {
+        let dir = secondary_dir(&out, behaviour);
+        let c = Checkpoint::load(&dir.join(CHECKPOINT_FILE)).unwrap();
+        assert_eq!(c.env_steps, 10_000, "{behaviour:?}");
+        assert!(!read_metrics(&dir).unwrap().is_empty());
+    }
+    let sources = stored_trajectories(&config, &out).unwrap();
+    assert!(
+        !sources.is_empty() && sources.len() <= 80,
+        "{}",
+        sources.len()
+    );
+
+    // Every trajectory of the batch replays to success without a collision, under the
+    // batch's own episode rules.
+    let batch = TrajectoryBatch::load(&out.join(BATCH_FILE)).unwrap();
+    assert!(
+        batch.len() >= sources.len(),
+        "{} < {}",
+        batch.len(),
+        sources.len()
+    );
+    for i in 0..batch.len() {
+        let replay = batch
+            .trajectory(i)
+            .unwrap()
+            .replay(batch.env_config())
+            .unwrap();
+        assert!(
+            replay.success() && replay.collision_free(),
+            "trajectory {i}"
+        );
+    }
+
+    // The primary run logged its iterations; running `all` again trains nothing more.
+    let primary = out.join(PRIMARY_DIR);
+    assert_eq!(read_metrics(&primary).unwrap().len(), 2);
+    let again = run_all(&config, &opts).unwrap();
+    assert_eq!(again.env_steps, 2000);
+    assert!(again.last.is_none());
+    assert_eq!(read_metrics(&primary).unwrap().len(), 2);
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+fn the_primary_stage_names_the_missing_batch() {
+    let out = std::env::temp_dir().join(format!("wheelleg-nobatch-{}", std::process::id()));
+    let opts = CurriculumOptions {
+        out: PathBuf::from(&out),
+        seed: 0,
+        progress: false,
+    };
+    let e = wheelleg_trainer::curriculum::run_primary(&tiny_config(), &opts).unwrap_err();
+    assert!(
+        e.contains("batch.wltb") && e.contains("wheelleg train randomize"),
+        "{e}"
+    );
+}
