@@ -333,3 +333,60 @@ fn simd_input_quantization_equals_scalar() {
         assert_eq!(scalar, simd, "case {case}: {quant:?}");
     }
 }
+
+/// The first-layer path of the AVX2 kernel (one input channel, 3 x 3 kernel, read straight from
+/// the int8 map) over every stride and padding, channel counts below, at and above its 16-lane
+/// chunk, odd map sizes, and a later layer with one input channel, against the reference.
+#[test]
+fn one_channel_3x3_conv_path_is_bit_exact() {
+    use wheelleg_trainer::network_f32::{Architecture, ConvSpec};
+    let mut rng = ChaCha8Rng::seed_from_u64(33);
+    let mut checked = 0;
+    for stride in 1..=3 {
+        for padding in 0..=2 {
+            for out_channels in [1, 5, 16, 20, 33] {
+                let (rows, cols) = (rng.random_range(3..=21), rng.random_range(3..=21));
+                let first = ConvSpec {
+                    in_channels: 1,
+                    out_channels,
+                    kernel: 3,
+                    stride,
+                    padding,
+                };
+                let (h, w) = (first.output_side(rows), first.output_side(cols));
+                let mut convs = vec![first];
+                if out_channels == 1 && h >= 3 && w >= 3 {
+                    convs.push(ConvSpec {
+                        in_channels: 1,
+                        out_channels: 7,
+                        kernel: 3,
+                        stride: 1,
+                        padding: 1,
+                    });
+                }
+                let arch = Architecture {
+                    height_rows: rows,
+                    height_cols: cols,
+                    state_len: 4,
+                    convs,
+                    hidden: vec![12],
+                    value_head: true,
+                };
+                let (_, quantized) = random_quantized(&mut rng, &arch, RangeMethod::MinMax);
+                let bytes = quantized.to_bytes().unwrap();
+                let mut policy = EvalPolicy::from_bytes(&bytes).unwrap();
+                for _ in 0..5 {
+                    let (height, state) = random_inputs_mm(&mut rng, &arch);
+                    let expected = reference_forward(&quantized, &height, &state);
+                    for kernel in Kernel::ALL.into_iter().filter(|k| k.is_supported()) {
+                        policy.set_kernel(kernel).unwrap();
+                        let outputs = policy.evaluate(&height, &state).unwrap();
+                        check_against_reference(&policy, &outputs, &expected);
+                    }
+                    checked += 1;
+                }
+            }
+        }
+    }
+    assert_eq!(checked, 3 * 3 * 5 * 5);
+}

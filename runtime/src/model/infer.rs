@@ -260,6 +260,12 @@ pub fn forward<const ACT: usize, const ROW: usize>(
     quantize_inputs(kernel, &model.input.height, height_mm, cells);
 
     for conv in &model.convs {
+        #[cfg(target_arch = "x86_64")]
+        if kernel == Kernel::Avx2 && super::simd_x86::conv3x3_one_channel_avx2(conv, src, dst, row)
+        {
+            mem::swap(&mut src, &mut dst);
+            continue;
+        }
         let out_channels = conv.linear.rows;
         let row_len = conv.linear.row_len;
         // Patches of several output pixels go to the kernel at once, each padded to a whole

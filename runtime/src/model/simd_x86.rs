@@ -465,9 +465,6 @@ unsafe fn short_rows(
         // Packed weights, and bias and requantization constants, of rows first_row..+chunk;
         // rows past the layer's end get zero weights and are not stored.
         let mut packed = [[0i16; 32]; 2 * SHORT_PAIRS];
-        let mut bias = [0i32; 16];
-        let mut multipliers = [0i32; 16];
-        let mut shifts = [0i8; 16];
         for r in 0..chunk {
             let row = first_row + r;
             let weights = linear
@@ -483,69 +480,216 @@ unsafe fn short_rows(
                     *slot = i16::from(w as i8);
                 }
             }
-            if let Some(slot) = bias.get_mut(r) {
-                *slot = i32_at(linear.bias, row);
-            }
-            if let Some(slot) = multipliers.get_mut(r) {
-                *slot = i32_at(linear.multipliers, row);
-            }
-            if let (Some(slot), Some(&shift)) = (shifts.get_mut(r), linear.shifts.get(row)) {
-                *slot = shift as i8;
-            }
         }
-        // SAFETY (all loads below): each array is at least as long as the bytes read.
+        // SAFETY: each packed vector is 32 i16 (2 x 256 bits); the first 16 are loaded.
         let w = packed.map(|v| unsafe { _mm256_loadu_si256(v.as_ptr().cast()) });
-        let bias_lo = unsafe { _mm256_loadu_si256(bias.as_ptr().cast()) };
-        let bias_hi = unsafe { _mm256_loadu_si256(bias.as_ptr().add(8).cast()) };
-        let mut constants = [Requant4::new(_mm_setzero_si128(), _mm_setzero_si128(), 0, false); 4];
-        for (quarter, c) in constants.iter_mut().enumerate() {
-            let m = unsafe { _mm_loadu_si128(multipliers.as_ptr().add(4 * quarter).cast()) };
-            let s = match shifts.get(4 * quarter..4 * quarter + 4) {
-                Some(&[a, b, c, d]) => i32::from_le_bytes([a as u8, b as u8, c as u8, d as u8]),
-                _ => 0,
-            };
-            *c = Requant4::new(
-                m,
-                _mm_cvtsi32_si128(s),
-                linear.output_zero_point,
-                linear.relu,
-            );
-        }
+        let (bias_lo, bias_hi, constants) = chunk_constants(linear, first_row, chunk);
         for pixel in 0..count {
             let x = inputs.as_ptr().wrapping_add(pixel * stride).cast::<i32>();
             let mut lo = bias_lo;
             let mut hi = bias_hi;
             for pair in 0..SHORT_PAIRS {
-                // SAFETY: 2 * pair + 1 < 2 * SHORT_PAIRS <= stride, and the caller checked
-                // that every pixel's `stride` inputs... up to row_len are in bounds; inputs
-                // past row_len but below 2 * SHORT_PAIRS are read only when inside the slice
-                // (the last pixel's row may end at row_len), see `pair_at`.
+                // SAFETY: AVX2 is available; `x` is the row's start, as `pair_at` requires
+                // (it reads inside `inputs` only).
                 let xs = unsafe { pair_at(inputs, x, pixel * stride, pair) };
                 if let (Some(&w_lo), Some(&w_hi)) = (w.get(2 * pair), w.get(2 * pair + 1)) {
                     lo = _mm256_add_epi32(lo, _mm256_madd_epi16(xs, w_lo));
                     hi = _mm256_add_epi32(hi, _mm256_madd_epi16(xs, w_hi));
                 }
             }
-            let [c0, c1, c2, c3] = constants;
-            let a = requant4(_mm256_castsi256_si128(lo), &c0);
-            let b = requant4(_mm256_extracti128_si256::<1>(lo), &c1);
-            let c = requant4(_mm256_castsi256_si128(hi), &c2);
-            let d = requant4(_mm256_extracti128_si256::<1>(hi), &c3);
-            let bytes = _mm_packs_epi16(_mm_packs_epi32(a, b), _mm_packs_epi32(c, d));
-            let mut sixteen = [0i8; 16];
-            // SAFETY: `sixteen` is 16 bytes.
-            unsafe { _mm_storeu_si128(sixteen.as_mut_ptr().cast(), bytes) };
-            let at = pixel * rows + first_row;
-            if let Some(slot) = outputs.get_mut(at..at + chunk) {
-                // A whole chunk is one fixed-size copy (a store, not a `memcpy` call).
-                match <&mut [i8; 16]>::try_from(&mut *slot) {
-                    Ok(slot) => *slot = sixteen,
-                    Err(_) => {
-                        for (o, v) in slot.iter_mut().zip(sixteen) {
-                            *o = v;
+            store16(lo, hi, &constants, outputs, pixel * rows + first_row, chunk);
+        }
+        first_row += chunk;
+    }
+}
+
+/// Bias (2 x 8 lanes) and requantization constants (4 x 4 rows) of the rows
+/// `first_row..first_row + chunk` (at most 16) of a layer; missing rows get zeros.
+#[target_feature(enable = "avx2")]
+fn chunk_constants(
+    linear: &Linear<'_>,
+    first_row: usize,
+    chunk: usize,
+) -> (__m256i, __m256i, [Requant4; 4]) {
+    let mut bias = [0i32; 16];
+    let mut multipliers = [0i32; 16];
+    let mut shifts = [0u8; 16];
+    for r in 0..chunk.min(16) {
+        let row = first_row + r;
+        if let (Some(b), Some(m), Some(s), Some(&shift)) = (
+            bias.get_mut(r),
+            multipliers.get_mut(r),
+            shifts.get_mut(r),
+            linear.shifts.get(row),
+        ) {
+            *b = i32_at(linear.bias, row);
+            *m = i32_at(linear.multipliers, row);
+            *s = shift;
+        }
+    }
+    // SAFETY (loads): each array holds 16 elements, at least what is read.
+    let bias_lo = unsafe { _mm256_loadu_si256(bias.as_ptr().cast()) };
+    let bias_hi = unsafe { _mm256_loadu_si256(bias.as_ptr().add(8).cast()) };
+    let mut constants = [Requant4::new(_mm_setzero_si128(), _mm_setzero_si128(), 0, false); 4];
+    for (quarter, c) in constants.iter_mut().enumerate() {
+        let m = unsafe { _mm_loadu_si128(multipliers.as_ptr().add(4 * quarter).cast()) };
+        let s = match shifts.get(4 * quarter..4 * quarter + 4) {
+            Some(&[a, b, c, d]) => i32::from_le_bytes([a, b, c, d]),
+            _ => 0,
+        };
+        *c = Requant4::new(
+            m,
+            _mm_cvtsi32_si128(s),
+            linear.output_zero_point,
+            linear.relu,
+        );
+    }
+    (bias_lo, bias_hi, constants)
+}
+
+/// Requantizes 16 accumulators (rows `0..16` of a chunk, as two 8-lane vectors) and writes
+/// the first `chunk` of them to `out[at..]`.
+#[target_feature(enable = "avx2")]
+fn store16(lo: __m256i, hi: __m256i, c: &[Requant4; 4], out: &mut [i8], at: usize, chunk: usize) {
+    let [c0, c1, c2, c3] = c;
+    let a = requant4(_mm256_castsi256_si128(lo), c0);
+    let b = requant4(_mm256_extracti128_si256::<1>(lo), c1);
+    let c = requant4(_mm256_castsi256_si128(hi), c2);
+    let d = requant4(_mm256_extracti128_si256::<1>(hi), c3);
+    let bytes = _mm_packs_epi16(_mm_packs_epi32(a, b), _mm_packs_epi32(c, d));
+    let mut sixteen = [0i8; 16];
+    // SAFETY: `sixteen` is 16 bytes.
+    unsafe { _mm_storeu_si128(sixteen.as_mut_ptr().cast(), bytes) };
+    if let Some(slot) = out.get_mut(at..at + chunk) {
+        // A whole chunk is one fixed-size copy (a store, not a `memcpy` call).
+        match <&mut [i8; 16]>::try_from(&mut *slot) {
+            Ok(slot) => *slot = sixteen,
+            Err(_) => {
+                for (o, v) in slot.iter_mut().zip(sixteen) {
+                    *o = v;
+                }
+            }
+        }
+    }
+}
+
+/// A conv layer on a one-channel map with a 3 x 3 kernel (the first layer), straight from the
+/// int8 map: no patch gather at all. For each output row the three input rows it reads are
+/// widened once (minus the zero point, zero-padded) into `scratch`; then kernel cells
+/// (ky, 0..2) and (ky, 2..4) of a pixel are adjacent i16 pairs of such a row, read as one i32
+/// and broadcast, against weights packed per call as `[ky][pair][row][2]` (the (ky, 3) weight
+/// is 0). 16 output channels per vector pair, requantized and stored together. Returns
+/// `false`, having done nothing, when the layer is not of that shape, the CPU has no AVX2 or
+/// `scratch` is too short (the caller then takes the general path).
+pub fn conv3x3_one_channel_avx2(
+    conv: &ConvLayer<'_>,
+    src: &[i8],
+    out: &mut [i8],
+    scratch: &mut [i16],
+) -> bool {
+    let linear = &conv.linear;
+    let rows = linear.rows;
+    let padding = usize::from(conv.record.padding);
+    let stride = usize::from(conv.record.stride);
+    // One padded row, plus one slack element for the last pixel's (ky, 3) read.
+    let width = conv.in_cols + 2 * padding + 1;
+    let applicable = conv.in_channels == 1
+        && conv.record.kernel == 3
+        && rows > 0
+        && conv.out_cols > 0
+        && linear.row_len == 9
+        && linear.weights.len() == rows.saturating_mul(9)
+        && linear.bias.len() == rows.saturating_mul(4)
+        && linear.multipliers.len() == rows.saturating_mul(4)
+        && linear.shifts.len() == rows
+        && src.len() >= conv.in_rows.saturating_mul(conv.in_cols)
+        && out.len() >= conv.out_rows.saturating_mul(conv.out_cols).saturating_mul(rows)
+        && scratch.len() >= 3 * width
+        // Reads of pixel ox reach padded column ox * stride + 3.
+        && (conv.out_cols - 1) * stride + 4 <= width
+        && avx2_supported();
+    if applicable {
+        // SAFETY: AVX2 is supported and the bounds above hold.
+        unsafe { conv3x3_one_channel_unchecked(conv, src, out, scratch, width) };
+    }
+    applicable
+}
+
+/// # Safety
+/// AVX2 must be available and the conditions checked by [`conv3x3_one_channel_avx2`] hold.
+#[target_feature(enable = "avx2")]
+unsafe fn conv3x3_one_channel_unchecked(
+    conv: &ConvLayer<'_>,
+    src: &[i8],
+    out: &mut [i8],
+    scratch: &mut [i16],
+    width: usize,
+) {
+    let linear = &conv.linear;
+    let rows = linear.rows;
+    let padding = usize::from(conv.record.padding);
+    let stride = usize::from(conv.record.stride);
+    let zero_point = i16::from(linear.input_zero_point);
+    let mut first_row = 0;
+    while first_row < rows {
+        let chunk = (rows - first_row).min(16);
+        // Weights: vector 2 * (2 * ky + pair) + r / 8, lanes 2 * (r % 8) + (kx % 2).
+        let mut packed = [[0i16; 32]; 12];
+        for r in 0..chunk {
+            let row = first_row + r;
+            let weights = linear.weights.get(row * 9..row * 9 + 9).unwrap_or(&[]);
+            for (k, &w) in weights.iter().enumerate() {
+                let (ky, kx) = (k / 3, k % 3);
+                if let Some(slot) = packed
+                    .get_mut(2 * (2 * ky + kx / 2) + r / 8)
+                    .and_then(|v| v.get_mut(2 * (r % 8) + kx % 2))
+                {
+                    *slot = i16::from(w as i8);
+                }
+            }
+        }
+        // SAFETY: each packed vector is 32 i16 (2 x 256 bits); the first 16 are loaded.
+        let w = packed.map(|v| unsafe { _mm256_loadu_si256(v.as_ptr().cast()) });
+        let (bias_lo, bias_hi, constants) = chunk_constants(linear, first_row, chunk);
+        for oy in 0..conv.out_rows {
+            // The three input rows of this output row, widened and zero-padded.
+            for (ky, line) in scratch.chunks_exact_mut(width).take(3).enumerate() {
+                let iy = (oy * stride + ky).checked_sub(padding);
+                let cells = iy
+                    .filter(|&iy| iy < conv.in_rows)
+                    .and_then(|iy| src.get(iy * conv.in_cols..(iy + 1) * conv.in_cols));
+                line.fill(0);
+                if let (Some(cells), Some(inside)) =
+                    (cells, line.get_mut(padding..padding + conv.in_cols))
+                {
+                    for (x, &q) in inside.iter_mut().zip(cells) {
+                        *x = i16::from(q) - zero_point;
+                    }
+                }
+            }
+            let base = scratch.as_ptr();
+            for ox in 0..conv.out_cols {
+                let mut lo = bias_lo;
+                let mut hi = bias_hi;
+                for ky in 0..3 {
+                    for pair in 0..2 {
+                        // SAFETY: ky * width + ox * stride + 2 * pair + 1 < 3 * width <=
+                        // scratch.len() (checked by the caller: (out_cols - 1) * stride + 4
+                        // <= width); read_unaligned has no alignment requirement.
+                        let xs = _mm256_set1_epi32(unsafe {
+                            base.add(ky * width + ox * stride + 2 * pair)
+                                .cast::<i32>()
+                                .read_unaligned()
+                        });
+                        let v = 2 * (2 * ky + pair);
+                        if let (Some(&w_lo), Some(&w_hi)) = (w.get(v), w.get(v + 1)) {
+                            lo = _mm256_add_epi32(lo, _mm256_madd_epi16(xs, w_lo));
+                            hi = _mm256_add_epi32(hi, _mm256_madd_epi16(xs, w_hi));
                         }
                     }
                 }
+                let at = (oy * conv.out_cols + ox) * rows + first_row;
+                store16(lo, hi, &constants, out, at, chunk);
             }
         }
         first_row += chunk;
