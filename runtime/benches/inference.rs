@@ -1,9 +1,16 @@
 //! Per-decision latency of the shipped network at batch 1: the int8 runtime with the scalar and
-//! the AVX2 kernel, and the trainer's f32 forward pass as the float reference, in one run.
+//! the AVX2 kernel (seeded random weights, and `weights/policy.wlw` when it exists), and the
+//! trainer's f32 forward pass as the float reference, in one run. onnxruntime's figures for the
+//! same network come from `tools/onnx_reference.py` (docs/model.md, "Speed").
 //!
 //! `cargo bench -p wheelleg-runtime --bench inference`
 // Bench setup: a failed unwrap is a broken benchmark, reported loudly.
-#![allow(clippy::unwrap_used, clippy::expect_used, clippy::indexing_slicing)]
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::indexing_slicing,
+    clippy::std_instead_of_core
+)]
 // criterion's macros generate undocumented public functions.
 #![allow(missing_docs)]
 
@@ -58,6 +65,24 @@ fn bench_decision(c: &mut Criterion) {
         policy.set_kernel(kernel).unwrap();
         let mut scratch = Scratch::new();
         group.bench_function(format!("int8_{kernel:?}").to_lowercase(), |b| {
+            b.iter(|| {
+                policy
+                    .evaluate_with(&mut scratch, black_box(&height_mm), black_box(&state_mm))
+                    .unwrap()
+            })
+        });
+    }
+    // The shipped weights, when exported: the same architecture, so the same time (no kernel
+    // branches on values); measured to show it.
+    let shipped = std::fs::read(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../weights/policy.wlw"
+    ));
+    if let Ok(shipped) = &shipped {
+        let policy = DefaultPolicy::from_bytes(shipped).unwrap();
+        let mut scratch = Scratch::new();
+        let name = format!("int8_{:?}_weights_policy_wlw", policy.kernel()).to_lowercase();
+        group.bench_function(name, |b| {
             b.iter(|| {
                 policy
                     .evaluate_with(&mut scratch, black_box(&height_mm), black_box(&state_mm))

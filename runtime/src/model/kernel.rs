@@ -1,11 +1,13 @@
 //! The one compute kernel every layer reduces to: for each output row, a dot product of an
 //! int16 input row (activations minus their zero point) with an int8 weight row, plus bias, then
-//! requantization. Conv layers call it once per output pixel with the gathered patch; dense
-//! layers once with the whole input vector.
+//! requantization. Conv layers call it on a batch of output pixels' gathered patches
+//! ([`linear_batch`]); dense layers with the whole input vector as a batch of one.
 //!
 //! Two implementations, bit-exact by construction: integer sums are exact in any order (the
-//! loader bounds row length and bias so that no partial sum can overflow an i32), and both share
-//! the scalar requantization of [`super::quant`].
+//! loader bounds row length and bias so that no partial sum can overflow an i32), and the AVX2
+//! requantization computes the scalar one's exact 64-bit formula of [`super::quant`] 4 lanes at
+//! a time. The AVX2 side also has a first-layer path that needs no patches
+//! (`simd_x86::conv3x3_one_channel_avx2`, called by `infer`).
 
 use super::format::InputQuantRecord;
 use super::load::{i32_at, Linear};
