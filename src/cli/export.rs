@@ -4,9 +4,10 @@
 use super::CliResult;
 use std::path::PathBuf;
 use wheelleg_sim::generate::SceneKind;
+use wheelleg_trainer::checkpoint::Checkpoint;
 use wheelleg_trainer::export::{card_path, export_policy, write_atomic, ExportOptions};
 use wheelleg_trainer::network::BackendKind;
-use wheelleg_trainer::quantize::{Agreement, RangeMethod};
+use wheelleg_trainer::quantize::{ActionRange, Agreement, RangeMethod};
 
 /// Arguments of `export`.
 #[derive(clap::Args)]
@@ -29,6 +30,10 @@ pub struct Args {
     /// Range of each tensor: `minmax`, or `percentile:LOW:HIGH` (e.g. percentile:0.01:99.99).
     #[arg(long, default_value = "minmax")]
     range: String,
+    /// Action head range from `contenders` (each head's two largest logits: what decides the
+    /// argmax the robot acts on) or `all-logits`.
+    #[arg(long, default_value = "contenders")]
+    action_range: String,
     /// Scenes of the rollouts: straight, around, lift, spread, squeeze, complex.
     #[arg(long, default_value = "complex")]
     kind: String,
@@ -66,21 +71,35 @@ pub fn run(args: Args) -> CliResult {
     if args.calibration == 0 || args.holdout == 0 {
         return Err("--calibration and --holdout must be at least 1".into());
     }
+    let action_range = match args.action_range.as_str() {
+        "contenders" => ActionRange::Contenders,
+        "all-logits" => ActionRange::AllLogits,
+        other => {
+            return Err(
+                format!("--action-range {other:?}: expected contenders or all-logits").into(),
+            )
+        }
+    };
     let options = ExportOptions {
+        action_range,
         scene_kind: kind,
         seed: args.seed,
         calibration_observations: args.calibration,
         holdout_observations: args.holdout,
         range: parse_range(&args.range)?,
     };
-    let network = wheelleg_trainer::evaluate::load_policy(&args.policy)?;
+    let checkpoint = Checkpoint::load(&args.policy)?;
+    let network = checkpoint.network.to_network()?;
+    let source = format!(
+        "{} ({} run, iteration {}, {} env steps, seed {})",
+        args.policy.display(),
+        checkpoint.kind,
+        checkpoint.iteration,
+        checkpoint.env_steps,
+        checkpoint.seed
+    );
     let device = BackendKind::Flex.device()?;
-    let (bytes, card) = export_policy(
-        &network,
-        &device,
-        &args.policy.display().to_string(),
-        &options,
-    )?;
+    let (bytes, card) = export_policy(&network, &device, &source, &options)?;
     if let Some(dir) = args.out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir)
             .map_err(|e| format!("cannot create {}: {e}", dir.display()))?;

@@ -5,7 +5,9 @@
 use crate::batch_policy::FloatPolicy;
 use crate::evaluate::{collect_observations, EvalOptions, RecordedObservation};
 use crate::network_f32::NetworkF32;
-use crate::quantize::{agreement, quantize, Agreement, Calibration, EvalPolicy, RangeMethod};
+use crate::quantize::{
+    agreement, quantize, ActionRange, Agreement, Calibration, EvalPolicy, RangeMethod,
+};
 use burn::tensor::Device;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -29,6 +31,8 @@ pub struct ExportOptions {
     pub holdout_observations: usize,
     /// How a tensor's range is chosen from its observed values.
     pub range: RangeMethod,
+    /// Which logits set the action head's output range.
+    pub action_range: ActionRange,
 }
 
 impl Default for ExportOptions {
@@ -39,6 +43,9 @@ impl Default for ExportOptions {
             calibration_observations: 20_000,
             holdout_observations: 10_000,
             range: RangeMethod::MinMax,
+            // The robot acts on the argmax: measured on the baseline policy, this raises
+            // greedy agreement (docs/model.md).
+            action_range: ActionRange::Contenders,
         }
     }
 }
@@ -63,6 +70,8 @@ pub struct ModelCard {
     pub calibration_observations: usize,
     /// Range method (`minmax` or `percentile low-high`).
     pub range: String,
+    /// Which logits set the action head's range (`all-logits` or `contenders`).
+    pub action_range: String,
     /// Greedy agreement of int8 with float on the held-out observations.
     pub agreement: Agreement,
 }
@@ -124,12 +133,13 @@ pub fn export_policy(
         options.seed,
         options.calibration_observations,
     )?;
-    let calibration = Calibration::from_observations(
+    let mut calibration = Calibration::from_observations(
         network,
         calibration_set
             .iter()
             .map(|(h, s)| (h.as_slice(), s.as_slice())),
     );
+    calibration.action_range = options.action_range;
     let quantized =
         quantize(network, &calibration, options.range).map_err(|e| format!("quantize: {e}"))?;
     let bytes = quantized
@@ -155,6 +165,10 @@ pub fn export_policy(
         seed: options.seed,
         calibration_observations: calibration.count,
         range: range_name(options.range),
+        action_range: match options.action_range {
+            ActionRange::AllLogits => "all-logits".into(),
+            ActionRange::Contenders => "contenders".into(),
+        },
         agreement,
     };
     Ok((bytes, card))

@@ -10,7 +10,7 @@ use wheelleg_runtime::model::format::{
 };
 use wheelleg_runtime::model::load::MAX_BIAS_ABS;
 
-use super::calibrate::{Calibration, RangeMethod, RangeObserver};
+use super::calibrate::{ActionRange, Calibration, RangeMethod, RangeObserver};
 use super::params::{quantize_multiplier, quantize_rows, ActQuant};
 use crate::network_f32::{Architecture, ConvSpec, DenseF32, NetworkF32};
 
@@ -327,7 +327,13 @@ pub fn quantize(
         &network.action_head,
         heads_fold(&network.action_head),
         input,
-        act_quant(&calibration.action, method),
+        act_quant(
+            match calibration.action_range {
+                ActionRange::AllLogits => &calibration.action,
+                ActionRange::Contenders => &calibration.action_contenders,
+            },
+            method,
+        ),
         false,
     )?;
     let value_head = match &network.value_head {

@@ -89,6 +89,21 @@ impl RangeObserver {
     }
 }
 
+/// Which values decide the action head's output range.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum ActionRange {
+    /// Every logit: the int8 logits track all float logits (needed when probabilities are
+    /// used, e.g. sampling).
+    #[default]
+    AllLogits,
+    /// Only each head's two largest logits, the contenders for its argmax. The robot acts on
+    /// the argmax alone, and a logit below every head's runner-up never decides it, so the
+    /// range can drop the long tail of very negative logits: a finer step, fewer near-ties
+    /// flipped by rounding. Clamped low logits change sampling probabilities of choices that
+    /// were already improbable.
+    Contenders,
+}
+
 /// Observers for every quantized tensor of a network.
 #[derive(Clone, Debug)]
 pub struct Calibration {
@@ -102,6 +117,10 @@ pub struct Calibration {
     pub hidden: Vec<RangeObserver>,
     /// Action logits.
     pub action: RangeObserver,
+    /// Each head's largest and second-largest logit (see [`ActionRange::Contenders`]).
+    pub action_contenders: RangeObserver,
+    /// Which observer sets the action head's output range.
+    pub action_range: ActionRange,
     /// Value.
     pub value: RangeObserver,
     /// Observations seen.
@@ -123,6 +142,8 @@ impl Calibration {
             hidden: network.hidden.iter().map(|_| next()).collect(),
             action: next(),
             value: next(),
+            action_contenders: next(),
+            action_range: ActionRange::default(),
             count: 0,
         }
     }
@@ -140,6 +161,15 @@ impl Calibration {
             observer.observe(values);
         }
         self.action.observe(&trace.action_logits);
+        for head in trace
+            .action_logits
+            .chunks_exact(wheelleg_runtime::action::CHOICES)
+        {
+            let mut sorted = head.to_vec();
+            sorted.sort_by(|a, b| b.total_cmp(a));
+            self.action_contenders
+                .observe(&sorted[..2.min(sorted.len())]);
+        }
         if let Some(value) = trace.value {
             self.value.observe(&[value]);
         }

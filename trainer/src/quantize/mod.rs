@@ -19,7 +19,7 @@ pub mod params;
 
 pub use agreement::{agreement, Agreement};
 pub use build::{quantize, InputQuant, QuantizeError, QuantizedLayer, QuantizedNetwork};
-pub use calibrate::{Calibration, RangeMethod, RangeObserver};
+pub use calibrate::{ActionRange, Calibration, RangeMethod, RangeObserver};
 pub use params::{quantize_multiplier, ActQuant};
 
 use wheelleg_runtime::model::Policy;
