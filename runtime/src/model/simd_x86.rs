@@ -343,7 +343,7 @@ fn store4(values: __m128i, out: &mut [i8], at: usize) {
 /// AVX2 must be available; every `starts[p] + row_len <= inputs.len()`, every
 /// `outs[p] + rows <= outputs.len()`, and the tensor lengths checked by [`linear_batch_avx2`].
 #[target_feature(enable = "avx2")]
-unsafe fn pixels<const P: usize>(
+unsafe fn pixels<const P: usize, const TAIL: bool>(
     linear: &Linear<'_>,
     inputs: &[i16],
     starts: [usize; P],
@@ -358,6 +358,8 @@ unsafe fn pixels<const P: usize>(
     let w = linear.weights.as_ptr();
     let x = starts.map(|start| inputs.as_ptr().wrapping_add(start));
     let x_tail = starts.map(|start| tail_inputs(inputs, start + body, tail, tail_mask));
+    // `TAIL` is `tail != 0`, as a constant: conv rows of 16-channel multiples have no partial
+    // block, and without the branch the compiler keeps the accumulators in registers.
 
     let mut row = 0;
     while row + 4 <= rows {
@@ -381,7 +383,7 @@ unsafe fn pixels<const P: usize>(
             }
             i += 16;
         }
-        if tail != 0 {
+        if TAIL {
             for r in 0..4 {
                 // SAFETY: AVX2 is available.
                 let ws = unsafe { load_tail_weights(linear.weights, (row + r) * row_len + body) };
@@ -416,7 +418,7 @@ unsafe fn pixels<const P: usize>(
             }
             i += 16;
         }
-        if tail != 0 {
+        if TAIL {
             // SAFETY: AVX2 is available.
             let ws = unsafe { load_tail_weights(linear.weights, row * row_len + body) };
             for (acc, xs) in acc.iter_mut().zip(x_tail) {
@@ -744,21 +746,25 @@ unsafe fn linear_batch_unchecked(
         let outs = [pixel * rows, (pixel + 1) * rows];
         // SAFETY: pixel + 1 < count, so both rows are inside `inputs` and `outputs` (checked
         // by the caller for the last row `count - 1`).
-        unsafe { pixels::<2>(linear, inputs, starts, outs, tail_mask, outputs) };
+        unsafe {
+            if tail == 0 {
+                pixels::<2, false>(linear, inputs, starts, outs, tail_mask, outputs);
+            } else {
+                pixels::<2, true>(linear, inputs, starts, outs, tail_mask, outputs);
+            }
+        }
         pixel += 2;
     }
     if pixel < count {
+        let (starts, outs) = ([pixel * stride], [pixel * rows]);
         // SAFETY: as above for the single row `pixel < count`.
         unsafe {
-            pixels::<1>(
-                linear,
-                inputs,
-                [pixel * stride],
-                [pixel * rows],
-                tail_mask,
-                outputs,
-            )
-        };
+            if tail == 0 {
+                pixels::<1, false>(linear, inputs, starts, outs, tail_mask, outputs);
+            } else {
+                pixels::<1, true>(linear, inputs, starts, outs, tail_mask, outputs);
+            }
+        }
     }
 }
 
