@@ -278,7 +278,7 @@ pub enum Message {
         /// Target position.
         pos_turns: f32,
         /// Velocity feed-forward, carried as i16 thousandths: resolution 0.001 turn/s,
-        /// magnitude at most [`MAX_FF`].
+        /// magnitude at most [`MAX_FF`] (or exactly -32.768, the field's lowest value).
         vel_ff_turns_per_s: f32,
         /// Torque feed-forward, carried as i16 thousandths.
         torque_ff_nm: f32,
@@ -391,12 +391,17 @@ fn finite(x: f32) -> Result<f32, EncodeError> {
     }
 }
 
+/// `x` in whole thousandths, if the i16 field holds it. The field's whole range is accepted,
+/// -32.768 included (one step beyond -[`MAX_FF`]): whatever a received frame carries must be
+/// sendable again, or a decoded command could not be relayed or logged back (found by the
+/// property tests and the CAN fuzz target, docs/robustness.md).
 fn thousandths(x: f32) -> Result<i16, EncodeError> {
-    let x = finite(x)?;
-    if x.abs() > MAX_FF {
+    let t = libm::roundf(finite(x)? * 1000.0);
+    if !(f32::from(i16::MIN)..=f32::from(i16::MAX)).contains(&t) {
         return Err(EncodeError::FeedForwardOutOfRange);
     }
-    Ok(libm::roundf(x * 1000.0) as i16)
+    // In range and integral: the cast is exact.
+    Ok(t as i16)
 }
 
 /// Builds the frame carrying `message` for `node`.
