@@ -323,6 +323,36 @@ fn every_stored_trajectory_replays_to_success_without_collision() {
 }
 
 #[test]
+fn the_replay_check_catches_an_obstacle_in_the_essential_area() {
+    // The negative control of the keep rule: a block put on the path makes the same actions
+    // collide, so such a scene could never be kept.
+    let config = EnvConfig::default();
+    for t in sources() {
+        let path = t.replay(config).unwrap().path;
+        let area = EssentialArea::of_trajectory(&t, config, DEFAULT_MARGIN_M).unwrap();
+        let cell = |v: f32| (v / 0.25).floor() * 0.25 + 0.125;
+        let mut tried = 0;
+        for state in &path {
+            let block = Obstacle::new(
+                ObstacleKind::Block,
+                cell(state.position.x),
+                cell(state.position.y),
+                ObstacleYaw::Deg0,
+            );
+            let mut blocked = t.clone();
+            blocked.scenario.obstacles.push(block);
+            let Ok(r) = blocked.replay(config) else {
+                continue; // the robot would start inside it
+            };
+            tried += 1;
+            assert!(area.intersects_obstacle(&block));
+            assert!(r.collisions > 0, "{}: {block:?}", t.scenario.name);
+        }
+        assert!(tried > 3, "{}: {tried} blocks tried", t.scenario.name);
+    }
+}
+
+#[test]
 fn the_same_seed_gives_the_same_batch() {
     let dir = scratch("seed");
     let sources = sources();

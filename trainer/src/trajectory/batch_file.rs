@@ -893,6 +893,9 @@ impl TrajectoryBatch {
                 batch.push_source(record)?;
             }
         }
+        // Millions of scenes: the growth slack of the vectors would be a third of the memory.
+        batch.scenes.shrink_to_fit();
+        batch.obstacles.shrink_to_fit();
         Ok(batch)
     }
 
