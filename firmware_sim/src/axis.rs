@@ -105,6 +105,7 @@ pub struct SimAxis {
     pos_turns: f32,
     vel_turns_per_s: f32,
     last_setpoint_us: u64,
+    watchdog_trip_us: Option<u64>,
     next_estimate_us: u64,
     next_heartbeat_us: u64,
     pending_requests: [bool; 2],
@@ -128,6 +129,7 @@ impl SimAxis {
             pos_turns,
             vel_turns_per_s: 0.0,
             last_setpoint_us: 0,
+            watchdog_trip_us: None,
             next_estimate_us: 0,
             next_heartbeat_us: 0,
             pending_requests: [false; 2],
@@ -164,6 +166,17 @@ impl SimAxis {
     /// Command counters.
     pub fn stats(&self) -> AxisStats {
         self.stats
+    }
+
+    /// When the axis last accepted a setpoint or was armed: the watchdog counts from here.
+    pub fn last_setpoint_us(&self) -> u64 {
+        self.last_setpoint_us
+    }
+
+    /// When the watchdog last idled the axis, if it ever did (fault tests time it against
+    /// [`SimAxis::last_setpoint_us`]).
+    pub fn last_watchdog_trip_us(&self) -> Option<u64> {
+        self.watchdog_trip_us
     }
 
     /// Makes the axis stop (or resume) transmitting; it still obeys commands.
@@ -278,6 +291,7 @@ impl SimAxis {
             self.error |= axis_error::WATCHDOG_TIMER_EXPIRED;
             self.state = AxisState::Idle;
             self.stats.watchdog_trips += 1;
+            self.watchdog_trip_us = Some(now_us);
         }
         let v0 = self.vel_turns_per_s;
         let v1 = if self.state == AxisState::ClosedLoopControl {

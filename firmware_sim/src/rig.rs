@@ -11,6 +11,11 @@
 //! Safety: every control tick the controller checks [`Health`]. A node silent for longer than
 //! `health_timeout_us`, or reporting an error, puts the rig in safe stop for good: wheels to
 //! zero, joints held at their measured positions, reported as [`StopReason`].
+//!
+//! For fault tests on the in-process bus the rig also keeps the *ground truth* the controller
+//! cannot see ([`Rig::true_pose`], [`Rig::true_legs`]: integrated from the simulated motors' own
+//! state every physics step) and can inject a fault at a chosen instant, in the middle of a
+//! motion ([`Rig::schedule`], [`TimedFault`]).
 
 use crate::bus::{BusError, Faults, InProcessBus, Port, Transport};
 use crate::candump::CandumpWriter;
@@ -18,15 +23,15 @@ use crate::firmware::Firmware;
 use nalgebra::Isometry2;
 use std::io::Write;
 use wheelleg_runtime::action::Action;
-use wheelleg_runtime::base::{BaseError, MecanumBase, Odometry};
+use wheelleg_runtime::base::{BaseError, MecanumBase, Odometry, WheelSpeeds};
 use wheelleg_runtime::can::bus_load::frame_bits;
 use wheelleg_runtime::can::host::{CanError, Commander, FeedbackTracker, Health, TxQueue};
-use wheelleg_runtime::can::node_map::{Axis, NodeMap};
+use wheelleg_runtime::can::node_map::{Axis, Joint, NodeMap};
 use wheelleg_runtime::can::protocol::AxisState;
 use wheelleg_runtime::can::CanFrame;
-use wheelleg_runtime::leg::{IkError, LegConfig};
+use wheelleg_runtime::leg::{IkError, JointAngles, LegConfig};
 use wheelleg_runtime::motion::{ideal_step, MotionConfig, MotionError, Setpoint, StepMotion};
-use wheelleg_runtime::robot::RobotGeometry;
+use wheelleg_runtime::robot::{LegId, RobotGeometry};
 
 /// Capacity of the controller's transmit queue: two ticks' worth of start-up frames.
 pub const TX_QUEUE_FRAMES: usize = 64;
@@ -115,6 +120,16 @@ pub enum StopReason {
     Silent(wheelleg_runtime::can::host::AxisSet),
     /// These axes reported errors (for example `WATCHDOG_TIMER_EXPIRED`).
     AxisError(wheelleg_runtime::can::host::AxisSet),
+}
+
+/// A fault the rig injects by itself when simulated time reaches a chosen instant, so that a
+/// test can hit the middle of a motion rather than the gap between two steps.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TimedFault {
+    /// The axis stops transmitting for good (it still obeys commands): a broken transceiver.
+    Silence(Axis),
+    /// The controller's transmit path hangs (it keeps listening), as [`Rig::pause_commands`].
+    HangCommands,
 }
 
 /// What one step achieved, beside what it should have.
@@ -208,9 +223,14 @@ pub struct Rig {
     odometry: Odometry,
     legs: LegConfig,
     stopped: Option<StopReason>,
+    stopped_at_us: Option<u64>,
     commands_paused: bool,
     log: Option<CandumpWriter<Box<dyn Write>>>,
     traffic: TrafficCounts,
+    /// Faults still to inject, (time, fault).
+    scheduled: Vec<(u64, TimedFault)>,
+    /// Pose integrated from the simulated wheels' true speeds (in-process only).
+    true_odometry: Odometry,
 }
 
 impl Rig {
@@ -238,9 +258,12 @@ impl Rig {
             odometry: Odometry::default(),
             legs: start,
             stopped: None,
+            stopped_at_us: None,
             commands_paused: false,
             log: None,
             traffic: TrafficCounts::default(),
+            scheduled: Vec::new(),
+            true_odometry: Odometry::default(),
         })
     }
 
@@ -269,9 +292,12 @@ impl Rig {
             odometry: Odometry::default(),
             legs: start,
             stopped: None,
+            stopped_at_us: None,
             commands_paused: false,
             log: None,
             traffic: TrafficCounts::default(),
+            scheduled: Vec::new(),
+            true_odometry: Odometry::default(),
         })
     }
 
@@ -348,6 +374,83 @@ impl Rig {
         self.stopped
     }
 
+    /// When the controller went into safe stop (simulated time), if it did.
+    pub fn stopped_at_us(&self) -> Option<u64> {
+        self.stopped_at_us
+    }
+
+    /// Injects `fault` at the first physics step at or after `at_us` (in-process bus only: a
+    /// remote rig has no physics steps, and its motors are out of reach).
+    pub fn schedule(&mut self, at_us: u64, fault: TimedFault) {
+        self.scheduled.push((at_us, fault));
+    }
+
+    /// Where the robot really is relative to where it started: odometry of the simulated
+    /// wheels' true speeds at every physics step, with the true leg track. Unlike
+    /// [`Rig::pose`], a silent or lying node cannot corrupt it. Identity for a remote rig.
+    pub fn true_pose(&self) -> Isometry2<f32> {
+        self.true_odometry.pose
+    }
+
+    /// The legs as the simulated joints really are (forward kinematics of their true
+    /// positions, averaged over the four legs); `None` for a remote rig.
+    pub fn true_legs(&self) -> Option<LegConfig> {
+        let (mut clearance_m, mut track_m) = (0.0, 0.0);
+        for leg in LegId::ALL {
+            let angle = |joint| {
+                let axis = Axis::Joint(leg, joint);
+                let motor = self.firmware.axis(axis)?;
+                Some(self.config.map.get(axis).to_angle_rad(motor.pos_turns()))
+            };
+            let joints = JointAngles {
+                hip_rad: angle(Joint::Hip)?,
+                knee_rad: angle(Joint::Knee)?,
+                wheel_mount_rad: angle(Joint::WheelMount)?,
+            };
+            let c = self.geometry.config_from_joints(joints);
+            clearance_m += 0.25 * c.clearance_m;
+            track_m += 0.25 * c.track_m;
+        }
+        Some(LegConfig {
+            clearance_m,
+            track_m,
+        })
+    }
+
+    fn true_wheel_speeds(&self) -> Option<WheelSpeeds> {
+        let mut speeds = WheelSpeeds::ZERO;
+        for (leg, out) in LegId::ALL.into_iter().zip(speeds.radps.iter_mut()) {
+            let axis = Axis::Wheel(leg);
+            let motor = self.firmware.axis(axis)?;
+            *out = self
+                .config
+                .map
+                .get(axis)
+                .to_speed_radps(motor.vel_turns_per_s());
+        }
+        Some(speeds)
+    }
+
+    /// Applies the scheduled faults that are due at `now_us`.
+    fn inject_due_faults(&mut self) {
+        let now_us = self.now_us;
+        let (due, later): (Vec<_>, Vec<_>) = self
+            .scheduled
+            .drain(..)
+            .partition(|(at_us, _)| *at_us <= now_us);
+        self.scheduled = later;
+        for (_, fault) in due {
+            match fault {
+                TimedFault::Silence(axis) => {
+                    if let Some(motor) = self.firmware.axis_mut(axis) {
+                        motor.set_silent(true);
+                    }
+                }
+                TimedFault::HangCommands => self.commands_paused = true,
+            }
+        }
+    }
+
     /// Simulates a controller whose transmit path hangs: it keeps listening but sends nothing.
     pub fn pause_commands(&mut self, paused: bool) {
         self.commands_paused = paused;
@@ -407,6 +510,9 @@ impl Rig {
             } else if !health.errored.is_empty() {
                 self.stopped = Some(StopReason::AxisError(health.errored));
             }
+            if self.stopped.is_some() {
+                self.stopped_at_us = Some(self.now_us);
+            }
         }
         if !self.commands_paused {
             if self.stopped.is_some() {
@@ -424,22 +530,32 @@ impl Rig {
             }
         }
         let end_us = self.now_us + tick_us;
-        match (&mut self.firmware_port, self.realtime_origin) {
-            (Some(port), _) => {
+        match (self.firmware_port.is_some(), self.realtime_origin) {
+            (true, _) => {
                 let dt_s = self.config.physics_dt_us as f32 * 1e-6;
                 while self.now_us < end_us {
                     self.now_us += self.config.physics_dt_us;
-                    self.firmware.run(port, self.now_us, dt_s)?;
+                    if let Some(port) = &mut self.firmware_port {
+                        self.firmware.run(port, self.now_us, dt_s)?;
+                    }
+                    if let (Some(legs), Some(wheels)) = (self.true_legs(), self.true_wheel_speeds())
+                    {
+                        let base = MecanumBase::at(&self.geometry, legs)?;
+                        self.true_odometry.integrate_wheels(&base, wheels, dt_s)?;
+                    }
+                    if !self.scheduled.is_empty() {
+                        self.inject_due_faults();
+                    }
                 }
             }
-            (None, Some(origin)) => {
+            (false, Some(origin)) => {
                 let deadline = origin + std::time::Duration::from_micros(end_us);
                 if let Some(wait) = deadline.checked_duration_since(std::time::Instant::now()) {
                     std::thread::sleep(wait);
                 }
                 self.now_us = end_us.max(origin.elapsed().as_micros() as u64);
             }
-            (None, None) => self.now_us = end_us,
+            (false, None) => self.now_us = end_us,
         }
         Ok(())
     }
@@ -453,6 +569,7 @@ impl Rig {
             .health(self.now_us, self.config.health_timeout_us);
         self.stopped
             .get_or_insert(StopReason::AxisError(health.errored));
+        self.stopped_at_us.get_or_insert(self.now_us);
         let hold = Setpoint::hold(&self.geometry, self.legs)?;
         self.control_tick(&hold, false)
     }
@@ -463,6 +580,7 @@ impl Rig {
     pub fn recover(&mut self) -> Result<(), RigError> {
         self.commander.queue_clear_errors(&mut self.tx)?;
         self.stopped = None;
+        self.stopped_at_us = None;
         self.commands_paused = false;
         self.start_up()
     }
