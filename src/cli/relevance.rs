@@ -5,6 +5,8 @@
 //! the obstacles white to red by relevance beside the trajectories.
 
 use super::CliResult;
+use std::fmt::Write as _;
+use std::io::Write as _;
 use std::path::PathBuf;
 use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::env::EnvConfig;
@@ -50,6 +52,7 @@ pub fn run(args: Args) -> CliResult {
         .save_png(&args.out)
         .map_err(|e| format!("cannot write {}: {e}", args.out.display()))?;
     let status = |s: wheelleg_sim::env::Status| format!("{s:?}");
+    let mut text = String::new();
     if args.json {
         let obstacles: Vec<serde_json::Value> = report
             .obstacles
@@ -77,22 +80,25 @@ pub fn run(args: Args) -> CliResult {
             "obstacles": obstacles,
             "png": args.out.display().to_string(),
         });
-        println!("{json:#}");
+        writeln!(text, "{json:#}")?;
     } else {
-        println!(
+        writeln!(
+            text,
             "scenario {}: with every obstacle {:?} in {} steps ({} collisions)",
             scenario.name,
             report.baseline.status,
             report.baseline.path.len() - 1,
             report.baseline.collisions
-        );
-        println!(
+        )?;
+        writeln!(
+            text,
             "{:>5} {:>6} {:>7} {:>7} {:>12}  without it",
             "index", "kind", "x_m", "y_m", "relevance_m"
-        );
+        )?;
         for o in &report.obstacles {
             let obstacle = &scenario.obstacles[o.index];
-            println!(
+            writeln!(
+                text,
                 "{:>5} {:>6} {:>7.3} {:>7.3} {:>12.3}  {:?} in {} steps",
                 o.index,
                 obstacle.kind.name(),
@@ -101,9 +107,14 @@ pub fn run(args: Args) -> CliResult {
                 o.relevance_m,
                 o.run.status,
                 o.run.path.len() - 1
-            );
+            )?;
         }
-        println!("wrote {}", args.out.display());
+        writeln!(text, "wrote {}", args.out.display())?;
     }
+    // Written in one go, and a closed pipe (`| head`) is an error to report, not a panic.
+    std::io::stdout()
+        .lock()
+        .write_all(text.as_bytes())
+        .map_err(|e| format!("cannot write to standard output: {e}"))?;
     Ok(())
 }

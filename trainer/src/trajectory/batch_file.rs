@@ -155,7 +155,7 @@ impl BatchHeader {
     }
 }
 
-/// An obstacle on the 0.25 m grid in 5 bytes of memory and typically 3 on disk (postcard
+/// An obstacle on the 0.25 m grid in 6 bytes of memory and typically 3 on disk (postcard
 /// varints): `code` = kind index ([`ObstacleKind::ALL`]) * 2 + yaw (0: 0°, 1: 90°), and the
 /// cell indices (centre = (index + 0.5) * 0.25 m).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -258,7 +258,7 @@ impl SourceRecord {
         }
     }
 
-    /// The record of a trajectory, with no scenes yet; `None` (with the reason) when it cannot
+    /// The record of a trajectory, with no scenes yet; an error (with the reason) when it cannot
     /// be stored compactly.
     pub fn of_trajectory(trajectory: &Trajectory) -> Result<SourceRecord, RecordError> {
         let s = &trajectory.scenario;
@@ -842,7 +842,7 @@ pub struct StoredSource {
     pub first_scene: u32,
 }
 
-/// One scene in memory: 12 bytes plus 5 per new obstacle.
+/// One scene in memory: 12 bytes plus 6 per new obstacle.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct SceneRef {
     source: u32,

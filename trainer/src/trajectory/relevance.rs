@@ -354,11 +354,22 @@ pub fn render(
                 [110, 110, 110],
                 true,
             );
+            // Paths that end in the same place (stuck at the same obstacle) get their numbers
+            // side by side instead of on top of each other.
+            let mut labels: Vec<(i64, i64)> = Vec::new();
             for o in &report.obstacles {
                 if o.relevance_m > 0.01 {
                     if let Some(end) = o.run.path.last() {
                         let (x, y) = panel.px(end.position);
-                        draw_number(&mut canvas, (x + 12, y - 12), o.index, [200, 30, 20]);
+                        let mut at = (x + 12, y - 12);
+                        while labels
+                            .iter()
+                            .any(|l| (l.0 - at.0).abs() < 16 && (l.1 - at.1).abs() < 18)
+                        {
+                            at.0 += 16;
+                        }
+                        labels.push(at);
+                        draw_number(&mut canvas, at, o.index, [200, 30, 20]);
                     }
                 }
             }
