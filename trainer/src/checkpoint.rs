@@ -93,6 +93,7 @@ impl NetworkRecord {
 
     /// Rebuilds the network, checking every tensor's length against the architecture.
     pub fn to_network(&self) -> Result<NetworkF32, String> {
+        check_shape(&self.arch)?;
         let arch = self.arch.to_arch();
         let mut t = self.tensors.iter();
         let mut take = |len: usize, what: &str| -> Result<Vec<f32>, String> {
@@ -151,6 +152,57 @@ impl NetworkRecord {
             value_head,
         })
     }
+}
+
+/// Checks that every size the architecture implies is computable: no zero stride or kernel, no
+/// kernel larger than its padded input, channels that chain, and no product that overflows.
+/// A checkpoint is outside data once it is on disk; the fuzz target `checkpoint_payload` found
+/// an architecture whose feature count overflowed (docs/robustness.md).
+fn check_shape(arch: &ArchRecord) -> Result<(), String> {
+    let bad = |what: String| Err(format!("checkpoint architecture is impossible: {what}"));
+    let (mut h, mut w, mut c) = (arch.height.0, arch.height.1, 1usize);
+    for (i, &(in_channels, out_channels, kernel, stride, padding)) in arch.convs.iter().enumerate()
+    {
+        let padded = |side: usize| padding.checked_mul(2).and_then(|p| side.checked_add(p));
+        let (Some(ph), Some(pw)) = (padded(h), padded(w)) else {
+            return bad(format!("conv{i} padding"));
+        };
+        if in_channels != c || stride == 0 || kernel == 0 || kernel > ph || kernel > pw {
+            return bad(format!("conv{i} channels, kernel, stride or padding"));
+        }
+        let weights = out_channels
+            .checked_mul(in_channels)
+            .and_then(|x| x.checked_mul(kernel))
+            .and_then(|x| x.checked_mul(kernel));
+        if weights.is_none() {
+            return bad(format!("conv{i} size"));
+        }
+        (h, w, c) = (
+            (ph - kernel) / stride + 1,
+            (pw - kernel) / stride + 1,
+            out_channels,
+        );
+    }
+    let Some(mut width) = h
+        .checked_mul(w)
+        .and_then(|x| x.checked_mul(c))
+        .and_then(|x| x.checked_add(arch.state_len))
+    else {
+        return bad("feature count".into());
+    };
+    for &out in &arch.hidden {
+        if out.checked_mul(width).is_none() {
+            return bad("dense layer size".into());
+        }
+        width = out;
+    }
+    if crate::network_f32::ACTION_LOGITS
+        .checked_mul(width)
+        .is_none()
+    {
+        return bad("head size".into());
+    }
+    Ok(())
 }
 
 /// Sums of the current iteration are not stored: checkpoints are taken between iterations.
@@ -290,6 +342,34 @@ mod tests {
         assert!(Checkpoint::from_bytes(b"hello world, this is not it")
             .unwrap_err()
             .contains("magic"));
+    }
+
+    /// Regression (fuzz target `checkpoint_payload`): a stored architecture whose feature count
+    /// overflows `usize` panicked with a multiply overflow instead of being refused.
+    #[test]
+    fn impossible_architectures_are_refused() {
+        let mut c = sample();
+        c.network.arch.convs.clear();
+        c.network.arch.height = (usize::MAX / 2, 3);
+        let e = c.network.to_network().unwrap_err();
+        assert!(e.contains("impossible"), "{e}");
+        let mut c = sample();
+        c.network.arch.convs[0].3 = 0;
+        assert!(c.network.to_network().unwrap_err().contains("stride"));
+        let mut c = sample();
+        c.network.arch.convs[1].0 = 7;
+        assert!(c.network.to_network().unwrap_err().contains("channels"));
+        // The artifact itself, as the payload behind a valid header.
+        let payload: [u8; 55] = [
+            0, 0, 0, 0, 0, 133, 133, 133, 133, 133, 48, 133, 133, 133, 133, 133, 133, 133, 0, 35,
+            0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 144, 0, 0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 0,
+            0, 0, 1, 0, 0, 0, 0,
+        ];
+        let mut file = MAGIC.to_vec();
+        file.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+        file.extend_from_slice(&fnv1a(&payload).to_le_bytes());
+        file.extend_from_slice(&payload);
+        assert!(Checkpoint::from_bytes(&file).is_err());
     }
 
     #[test]
