@@ -26,7 +26,9 @@ cargo +nightly fuzz build
 for target in $targets; do
     echo "== fuzz $target for ${seconds}s"
     # New inputs go to fuzz/corpus/ (ignored by git); the seeds stay as committed.
-    mkdir -p "fuzz/corpus/$target"
+    # A target without committed seeds (trajectory_batch) starts from an empty directory:
+    # libFuzzer refuses a corpus directory that does not exist.
+    mkdir -p "fuzz/corpus/$target" "fuzz/seeds/$target"
     # -timeout: one input may take 10 s at most (a hang); -rss_limit_mb: 2 GB at most (an
     # unbounded allocation). Input length: libFuzzer's default, 4 KiB or the largest seed.
     cargo +nightly fuzz run "$target" "fuzz/corpus/$target" "fuzz/seeds/$target" -- \
