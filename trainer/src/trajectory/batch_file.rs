@@ -51,31 +51,9 @@ pub const MAX_CHUNK_BYTES: usize = 256 << 20;
 /// Largest header payload accepted.
 const MAX_HEADER_BYTES: usize = 1 << 16;
 
-/// CRC-32 (IEEE 802.3 polynomial, reflected, as zlib and PNG compute it).
-pub fn crc32(bytes: &[u8]) -> u32 {
-    const TABLE: [u32; 256] = {
-        let mut table = [0u32; 256];
-        let mut i = 0;
-        while i < 256 {
-            let mut c = i as u32;
-            let mut k = 0;
-            while k < 8 {
-                c = if c & 1 != 0 {
-                    0xEDB8_8320 ^ (c >> 1)
-                } else {
-                    c >> 1
-                };
-                k += 1;
-            }
-            table[i] = c;
-            i += 1;
-        }
-        table
-    };
-    !bytes.iter().fold(!0u32, |c, &b| {
-        TABLE[((c ^ b as u32) & 0xff) as usize] ^ (c >> 8)
-    })
-}
+/// CRC-32 (IEEE 802.3 polynomial, reflected, as zlib and PNG compute it): the runtime's, so the
+/// weights file and the batch file share one implementation.
+pub use wheelleg_runtime::model::crc32::crc32;
 
 /// FNV-1a, 64 bit: the fingerprint of the source trajectories (not a checksum of the file).
 pub(crate) fn fnv1a(bytes: &[u8], seed: u64) -> u64 {
