@@ -65,6 +65,28 @@ impl Canvas {
         }
     }
 
+    /// Grid lines every `cell_m` metres over the world rectangle `min`..`max`, placed on the
+    /// canvas by `px` (top views and the relevance figure share it).
+    pub fn grid(
+        &mut self,
+        min: Point2<f32>,
+        max: Point2<f32>,
+        cell_m: f32,
+        px: impl Fn(Point2<f32>) -> (i64, i64),
+        colour: [u8; 3],
+    ) {
+        let mut x = (min.x / cell_m).ceil() * cell_m;
+        while x <= max.x {
+            self.line(px(Point2::new(x, min.y)), px(Point2::new(x, max.y)), colour);
+            x += cell_m;
+        }
+        let mut y = (min.y / cell_m).ceil() * cell_m;
+        while y <= max.y {
+            self.line(px(Point2::new(min.x, y)), px(Point2::new(max.x, y)), colour);
+            y += cell_m;
+        }
+    }
+
     /// Draws a one-pixel line between two pixels (clipped to the canvas).
     pub fn line(&mut self, a: (i64, i64), b: (i64, i64), colour: [u8; 3]) {
         let steps = (b.0 - a.0).abs().max((b.1 - a.1).abs()).max(1);
@@ -150,24 +172,7 @@ pub fn top_view(scenario: &Scenario, geometry: &RobotGeometry, path: &[RobotStat
     let mut canvas = Canvas::new(width, height, [245, 245, 240]);
     // Grid lines every obstacle cell, for reading positions.
     let cell = crate::obstacle::GRID_CELL_M;
-    let mut gx = (min.x / cell).ceil() * cell;
-    while gx <= max.x {
-        canvas.line(
-            view.px(Point2::new(gx, min.y)),
-            view.px(Point2::new(gx, max.y)),
-            [225, 225, 220],
-        );
-        gx += cell;
-    }
-    let mut gy = (min.y / cell).ceil() * cell;
-    while gy <= max.y {
-        canvas.line(
-            view.px(Point2::new(min.x, gy)),
-            view.px(Point2::new(max.x, gy)),
-            [225, 225, 220],
-        );
-        gy += cell;
-    }
+    canvas.grid(min, max, cell, |p| view.px(p), [225, 225, 220]);
     let mut obstacles = scenario.obstacles.clone();
     // Tall obstacles drawn last, so they stay visible where boxes overlap.
     obstacles.sort_by(|a, b| a.kind.size_m().2.total_cmp(&b.kind.size_m().2));

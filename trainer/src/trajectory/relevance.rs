@@ -297,24 +297,7 @@ pub fn render(
         .map(|o| o.relevance_m)
         .fold(0.0f32, f32::max);
     for (p, panel) in panels.iter().enumerate() {
-        let mut gx = (min.x / GRID_CELL_M).ceil() * GRID_CELL_M;
-        while gx <= max.x {
-            canvas.line(
-                panel.px(Point2::new(gx, min.y)),
-                panel.px(Point2::new(gx, max.y)),
-                [232, 232, 228],
-            );
-            gx += GRID_CELL_M;
-        }
-        let mut gy = (min.y / GRID_CELL_M).ceil() * GRID_CELL_M;
-        while gy <= max.y {
-            canvas.line(
-                panel.px(Point2::new(min.x, gy)),
-                panel.px(Point2::new(max.x, gy)),
-                [232, 232, 228],
-            );
-            gy += GRID_CELL_M;
-        }
+        canvas.grid(min, max, GRID_CELL_M, |q| panel.px(q), [232, 232, 228]);
         for (i, o) in scenario.obstacles.iter().enumerate() {
             let b = o.ground_box();
             let (x0, y0) = panel.px(Point2::new(b.min_x_m, b.min_y_m));
