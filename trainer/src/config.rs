@@ -137,6 +137,16 @@ pub struct CurriculumConfig {
     pub replay_steps_per_iteration: usize,
     /// Where the primary policy starts: `scratch` or a behaviour's secondary policy.
     pub primary_init: String,
+    /// Softmax temperature applied to the straight-line policy's action head when another
+    /// secondary policy starts from it (1 = copied as is, the paper). A converged straight
+    /// policy is nearly deterministic and, in a scene where driving straight collides, it
+    /// never samples the way around: curriculum-s0 found 0% success for `around` after
+    /// 300k steps at 1. Dividing the head by a temperature keeps what the features learned
+    /// and gives the sampling back its spread.
+    pub secondary_init_temperature: f32,
+    /// Entropy coefficient of the secondary policies that start from the straight-line
+    /// policy (the straight one uses `ppo.entropy_coef`), for the same reason.
+    pub secondary_entropy_coef: f32,
 }
 
 impl Default for CurriculumConfig {
@@ -151,6 +161,8 @@ impl Default for CurriculumConfig {
             randomizations: 1_000,
             replay_steps_per_iteration: 2_000,
             primary_init: "scratch".into(),
+            secondary_init_temperature: 1.0,
+            secondary_entropy_coef: 0.003,
         }
     }
 }
@@ -192,8 +204,21 @@ impl TrainConfig {
     /// Whether `stored` (a checkpoint's config text) means the same config. Compared parsed, so
     /// that a checkpoint written before a new section existed still matches when the section
     /// holds its defaults.
+    ///
+    /// `run.total_env_steps` and the `[curriculum]` section are left out: the
+    /// budget because extending a finished run is what resuming is for; the curriculum
+    /// because it describes the pipeline around a stage, and
+    /// `wheelleg train all` copies what a stage uses of it into that stage's `run` and `ppo`,
+    /// so tuning a later stage does not lock out the finished earlier ones.
     pub fn same_as_stored(&self, stored: &str) -> bool {
-        toml::from_str::<TrainConfig>(stored).is_ok_and(|c| &c == self)
+        toml::from_str::<TrainConfig>(stored).is_ok_and(|c| {
+            let budget = self.run.total_env_steps;
+            let run = RunConfig {
+                total_env_steps: budget,
+                ..c.run
+            };
+            run == self.run && c.ppo == self.ppo && c.network == self.network
+        })
     }
 
     /// Checks ranges, naming the offending key.
@@ -264,6 +289,14 @@ impl TrainConfig {
             c.primary_init == "scratch" || c.behaviours.contains(&c.primary_init),
             "curriculum.primary_init must be scratch or one of curriculum.behaviours",
         )?;
+        check(
+            c.secondary_init_temperature.is_finite() && c.secondary_init_temperature > 0.0,
+            "curriculum.secondary_init_temperature must be a positive number",
+        )?;
+        check(
+            c.secondary_entropy_coef.is_finite() && c.secondary_entropy_coef >= 0.0,
+            "curriculum.secondary_entropy_coef must be a non-negative number",
+        )?;
         Ok(())
     }
 
@@ -319,5 +352,25 @@ mod tests {
         assert!(e.contains("learning_rat"), "{e}");
         let e = TrainConfig::from_toml("[run]\nscene_kind = \"maze\"\n").unwrap_err();
         assert!(e.contains("run.scene_kind"), "{e}");
+        let e =
+            TrainConfig::from_toml("[curriculum]\nsecondary_init_temperature = 0.0\n").unwrap_err();
+        assert!(e.contains("curriculum.secondary_init_temperature"), "{e}");
+    }
+
+    #[test]
+    fn a_resume_may_extend_the_budget_or_retune_the_curriculum_but_not_ppo() {
+        let stored = TrainConfig::default().to_toml();
+        let mut longer = TrainConfig::default();
+        longer.run.total_env_steps *= 2;
+        assert!(longer.same_as_stored(&stored));
+        let mut retuned = TrainConfig::default();
+        retuned.curriculum.secondary_init_temperature = 10.0;
+        assert!(retuned.same_as_stored(&stored));
+        let mut other = TrainConfig::default();
+        other.ppo.entropy_coef *= 2.0;
+        assert!(!other.same_as_stored(&stored));
+        let mut other = TrainConfig::default();
+        other.run.num_envs += 1;
+        assert!(!other.same_as_stored(&stored));
     }
 }

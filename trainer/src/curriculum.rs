@@ -105,6 +105,9 @@ pub fn run_secondary(config: &TrainConfig, opts: &CurriculumOptions) -> Result<(
         stage.run.scene_kind = behaviour.name().to_string();
         stage.run.steps_per_iteration = config.curriculum.secondary_steps_per_iteration;
         stage.run.total_env_steps = config.curriculum.secondary_env_steps;
+        if straight.is_some() {
+            stage.ppo.entropy_coef = config.curriculum.secondary_entropy_coef;
+        }
         let dir = secondary_dir(&opts.out, behaviour);
         let summary = run_stage(
             &stage,
@@ -121,10 +124,21 @@ pub fn run_secondary(config: &TrainConfig, opts: &CurriculumOptions) -> Result<(
         )?;
         report_stage(&format!("secondary {}", behaviour.name()), &summary);
         if index == 0 {
-            straight = Some(load_network(&dir)?);
+            let mut network = load_network(&dir)?;
+            soften_action_head(&mut network, config.curriculum.secondary_init_temperature);
+            straight = Some(network);
         }
     }
     Ok(())
+}
+
+/// Divides the action logits by `temperature` (weights and bias alike, so every logit is
+/// scaled and each dimension's ranking is kept while its distribution flattens).
+fn soften_action_head(network: &mut NetworkF32, temperature: f32) {
+    let head = &mut network.action_head;
+    for w in head.weights.iter_mut().chain(head.bias.iter_mut()) {
+        *w /= temperature;
+    }
 }
 
 fn report_stage(name: &str, summary: &RunSummary) {
@@ -204,11 +218,13 @@ pub fn run_primary(config: &TrainConfig, opts: &CurriculumOptions) -> Result<Run
             }
         },
     };
+    let dir = opts.out.join(PRIMARY_DIR);
+    refuse_changed_replay(config, &dir)?;
     let mut stage = config.clone();
     stage.run.scene_kind = "complex".into();
     let summary = run_stage(
         &stage,
-        &opts.out.join(PRIMARY_DIR),
+        &dir,
         opts.seed,
         "primary",
         opts.progress,
@@ -223,6 +239,31 @@ pub fn run_primary(config: &TrainConfig, opts: &CurriculumOptions) -> Result<Run
     Ok(summary)
 }
 
+/// The primary stage's batches depend on two curriculum keys that the stage's own config
+/// check leaves out (see [`TrainConfig::same_as_stored`]): a resume must keep them.
+fn refuse_changed_replay(config: &TrainConfig, dir: &Path) -> Result<(), String> {
+    let path = dir.join(crate::runner::CHECKPOINT_FILE);
+    if !path.exists() {
+        return Ok(());
+    }
+    let stored = Checkpoint::load(&path)?;
+    let stored: TrainConfig = toml::from_str(&stored.config_toml)
+        .map_err(|e| format!("{}: stored config: {e}", path.display()))?;
+    let (a, b) = (&stored.curriculum, &config.curriculum);
+    if a.replay_steps_per_iteration != b.replay_steps_per_iteration
+        || a.primary_init != b.primary_init
+    {
+        return Err(format!(
+            "{} was written with curriculum.replay_steps_per_iteration = {} and \
+             curriculum.primary_init = {:?}; resume with the same values",
+            path.display(),
+            a.replay_steps_per_iteration,
+            a.primary_init
+        ));
+    }
+    Ok(())
+}
+
 /// The whole pipeline: secondary policies, trajectory batch, primary policy.
 pub fn run_all(config: &TrainConfig, opts: &CurriculumOptions) -> Result<RunSummary, String> {
     std::fs::create_dir_all(&opts.out)
@@ -230,4 +271,29 @@ pub fn run_all(config: &TrainConfig, opts: &CurriculumOptions) -> Result<RunSumm
     run_secondary(config, opts)?;
     run_randomize(config, opts)?;
     run_primary(config, opts)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::network::init_policy;
+    use crate::network_f32::Architecture;
+    use rand::SeedableRng;
+
+    #[test]
+    fn softening_keeps_each_heads_ranking_and_flattens_its_distribution() {
+        let arch = Architecture::default_policy();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+        let sharp = init_policy(&arch, &mut rng);
+        let mut soft = sharp.clone();
+        soften_action_head(&mut soft, 10.0);
+        let height_m: Vec<f32> = (0..32 * 32).map(|i| (i % 7) as f32 * 0.03).collect();
+        let state = vec![0.12, 0.36, 0.8, -0.1];
+        let (a, _) = sharp.forward(&height_m, &state);
+        let (b, _) = soft.forward(&height_m, &state);
+        for (x, y) in a.iter().zip(&b) {
+            assert!((x / 10.0 - y).abs() < 1e-5, "{x} / 10 != {y}");
+        }
+        assert_eq!(sharp.convs, soft.convs, "only the action head changes");
+    }
 }
