@@ -21,13 +21,16 @@ use wheelleg_firmware_sim::rig::{Rig, RigConfig};
 use wheelleg_runtime::action::{Action, Step};
 use wheelleg_runtime::can::node_map::Axis;
 use wheelleg_runtime::leg::LegConfig;
+use wheelleg_runtime::model::format::FORMAT_VERSION;
 use wheelleg_runtime::robot::{LegId, WHEELLEG};
 use wheelleg_sim::env::{Env, EnvConfig, Observation};
 use wheelleg_sim::generate::{generate, SceneKind};
 use wheelleg_trainer::checkpoint::{Checkpoint, NetworkRecord};
 use wheelleg_trainer::network_f32::{Architecture, ConvSpec, NetworkF32};
 use wheelleg_trainer::ppo::Adam;
-use wheelleg_trainer::quantize::{quantize, Calibration, QuantizedNetwork, RangeMethod};
+use wheelleg_trainer::quantize::{
+    quantize_for_version, Calibration, QuantizedNetwork, RangeMethod,
+};
 use wheelleg_trainer::vec_env::EnvSnapshot;
 
 /// Frames per CAN seed: small inputs mutate faster; a seed still spans start-up or a step.
@@ -89,14 +92,24 @@ fn observation(arch: &Architecture) -> (Vec<f32>, Vec<f32>) {
     (height, state[..arch.state_len].to_vec())
 }
 
+/// The network quantized for the current weights format version.
 fn quantized(network: &NetworkF32, observations: &[(Vec<f32>, Vec<f32>)]) -> QuantizedNetwork {
+    quantized_version(network, observations, FORMAT_VERSION)
+}
+
+/// The network quantized for a weights format version (1: int8 logits, 2: int16 logits).
+fn quantized_version(
+    network: &NetworkF32,
+    observations: &[(Vec<f32>, Vec<f32>)],
+    version: u16,
+) -> QuantizedNetwork {
     let calibration = Calibration::from_observations(
         network,
         observations
             .iter()
             .map(|(h, s)| (h.as_slice(), s.as_slice())),
     );
-    quantize(network, &calibration, RangeMethod::MinMax).unwrap()
+    quantize_for_version(network, &calibration, RangeMethod::MinMax, version).unwrap()
 }
 
 fn weights_seeds(out: &Path) {
@@ -116,6 +129,14 @@ fn weights_seeds(out: &Path) {
         .collect();
     let q = quantized(&network, &observations);
     write(out, "weights_file", "default.wlw", &q.to_bytes().unwrap());
+    // The runtime still reads version 1 files (int8 logits): keep that path fuzzed too.
+    let old = quantized_version(&network, &observations, 1);
+    write(
+        out,
+        "weights_file",
+        "default-v1.wlw",
+        &old.to_bytes().unwrap(),
+    );
     for (i, arch) in small_architectures().iter().enumerate() {
         let network = NetworkF32::random(arch, &mut ChaCha8Rng::seed_from_u64(i as u64));
         let q = quantized(&network, &[observation(arch)]);

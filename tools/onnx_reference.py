@@ -141,7 +141,9 @@ def parse_wlw(data):
     r = Reader(data)
     r.take(4)
     version = r.u16()
-    if version != 1:
+    # Version 2 has version 1's bytes; only the action head's output differs (int16 logits,
+    # zero point 0, no ReLU), see docs/weights-format.md.
+    if version not in (1, 2):
         raise ValueError(f"unsupported version {version}")
     payload = r.bytes()
     crc = struct.unpack("<I", r.take(4))[0]
@@ -150,7 +152,7 @@ def parse_wlw(data):
     if zlib.crc32(data[:-4]) & 0xFFFFFFFF != crc:
         raise ValueError("bad checksum")
     p = Reader(payload)
-    model = dict(input=dict(rows=p.u16(), cols=p.u16(), height=p.input_quant()))
+    model = dict(version=version, input=dict(rows=p.u16(), cols=p.u16(), height=p.input_quant()))
     model["state"] = [p.input_quant() for _ in range(p.varint(5))]
     model["convs"] = [p.conv() for _ in range(p.varint(5))]
     model["hidden"] = [p.dense() for _ in range(p.varint(5))]
@@ -158,6 +160,9 @@ def parse_wlw(data):
     model["value_head"] = p.dense() if p.boolean() else None
     if p.pos != len(payload):
         raise ValueError("bytes after the value head")
+    head = model["action_head"]
+    if version >= 2 and (head["output"]["zero_point"] != 0 or head["relu"]):
+        raise ValueError("version 2 action head must have zero point 0 and no ReLU")
     return model
 
 
@@ -324,6 +329,11 @@ def int8_forward(np, model, height_mm, state_mm):
         zp = rec["output"]["zero_point"]
     head = model["action_head"]
     w, _, _, _ = layer_arrays(np, head, 15)
+    if model["version"] >= 2:
+        # int16 logits, zero point 0.
+        _, bias, m, s = layer_arrays(np, head, 15)
+        logits = np.clip(rescale(np, w @ (x - zp) + bias, m, s), -32768, 32767)
+        return head["output"]["scale"] * logits
     logits = requant(w @ (x - zp), head, 15)
     return head["output"]["scale"] * (logits - head["output"]["zero_point"])
 

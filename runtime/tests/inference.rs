@@ -17,7 +17,7 @@ use common::*;
 fn check_against_reference(
     policy: &EvalPolicy<'_>,
     outputs: &Outputs,
-    expected: &(Vec<i8>, Option<i8>),
+    expected: &(Vec<i16>, Option<i8>),
 ) {
     assert_eq!(outputs.action_logits.as_slice(), expected.0.as_slice());
     assert_eq!(outputs.value.map(|(q, _, _)| q), expected.1);
@@ -38,10 +38,14 @@ fn int8_inference_is_bit_exact_with_the_reference_on_random_networks() {
                 high: 99.0,
             }
         };
-        let (_, quantized) = random_quantized(&mut rng, &arch, method);
+        // Every third network as a format version 1 file (int8 logits): the runtime still
+        // reads those, through the same int16 logit path with int8 bounds.
+        let version = if net_index % 3 == 2 { 1 } else { 2 };
+        let (_, quantized) = random_quantized_version(&mut rng, &arch, method, version);
         let bytes = quantized.to_bytes().unwrap();
         let mut policy = EvalPolicy::from_bytes(&bytes)
             .unwrap_or_else(|e| panic!("network {net_index} {arch:?}: {e}"));
+        assert_eq!(policy.model().version, version);
         for _ in 0..20 {
             let (height, state) = random_inputs_mm(&mut rng, &arch);
             let expected = reference_forward(&quantized, &height, &state);
@@ -147,6 +151,9 @@ fn simd_kernel_equals_scalar_kernel_on_random_rows_and_extreme_values() {
         let shifts: Vec<u8> = (0..rows)
             .map(|_| rng.random_range(-31i8..=30) as u8)
             .collect();
+        let output_zero_point = rng.random();
+        let relu = rng.random_bool(0.5);
+        let (output_low, output_high) = Linear::int8_bounds(output_zero_point, relu);
         let linear = Linear {
             weights: &weights,
             bias: &bias,
@@ -155,14 +162,32 @@ fn simd_kernel_equals_scalar_kernel_on_random_rows_and_extreme_values() {
             rows,
             row_len,
             input_zero_point: 0,
-            output_zero_point: rng.random(),
-            relu: rng.random_bool(0.5),
+            output_zero_point,
+            relu,
+            output_low,
+            output_high,
         };
         let mut scalar = vec![0i8; rows];
         let mut simd = vec![0i8; rows];
         kernel::linear(Kernel::Scalar, &linear, &input, &mut scalar);
         kernel::linear(Kernel::Avx2, &linear, &input, &mut simd);
         assert_eq!(scalar, simd, "case {case}: rows {rows} row_len {row_len}");
+        // The same rows as int16 logits (zero point 0, full int16 range, as the action head).
+        let logits = Linear {
+            output_zero_point: 0,
+            relu: false,
+            output_low: i16::MIN,
+            output_high: i16::MAX,
+            ..linear
+        };
+        let mut scalar = vec![0i16; rows];
+        let mut simd = vec![0i16; rows];
+        kernel::linear(Kernel::Scalar, &logits, &input, &mut scalar);
+        kernel::linear(Kernel::Avx2, &logits, &input, &mut simd);
+        assert_eq!(
+            scalar, simd,
+            "int16 case {case}: rows {rows} row_len {row_len}"
+        );
         // And both equal the plain sum before requantization.
         for row in 0..rows {
             let dot: i64 = input
@@ -201,6 +226,8 @@ struct RandomLayer {
     row_len: usize,
     output_zero_point: i8,
     relu: bool,
+    /// Output bounds: int8 ones (from zero point and ReLU) or, for int16 logits, random ones.
+    bounds: (i16, i16),
 }
 
 impl RandomLayer {
@@ -221,7 +248,28 @@ impl RandomLayer {
             row_len,
             output_zero_point: rng.random(),
             relu: rng.random_bool(0.5),
+            bounds: (0, 0),
         }
+    }
+
+    /// As an int8 layer: bounds from its zero point and ReLU.
+    fn int8(mut self) -> Self {
+        self.bounds = Linear::int8_bounds(self.output_zero_point, self.relu);
+        self
+    }
+
+    /// As an int16 logit layer: zero point 0, int16 bounds (sometimes narrower, as a version 1
+    /// head's).
+    fn int16(mut self, rng: &mut ChaCha8Rng) -> Self {
+        self.output_zero_point = 0;
+        self.relu = false;
+        self.bounds = if rng.random_bool(0.5) {
+            (i16::MIN, i16::MAX)
+        } else {
+            let zero_point: i8 = rng.random();
+            (-128 - i16::from(zero_point), 127 - i16::from(zero_point))
+        };
+        self
     }
 
     fn linear(&self) -> Linear<'_> {
@@ -235,6 +283,8 @@ impl RandomLayer {
             input_zero_point: 0,
             output_zero_point: self.output_zero_point,
             relu: self.relu,
+            output_low: self.bounds.0,
+            output_high: self.bounds.1,
         }
     }
 }
@@ -264,6 +314,8 @@ fn batched_simd_kernel_equals_scalar_kernel() {
         let count = rng.random_range(1..=9);
         let extreme = case % 5 == 0;
         let layer = RandomLayer::new(&mut rng, rows, row_len, extreme);
+        let logits = RandomLayer::new(&mut rng, rows, row_len, extreme).int16(&mut rng);
+        let layer = layer.int8();
         let linear = layer.linear();
         // Garbage between row_len and stride: a correct kernel never reads it into a sum.
         let inputs: Vec<i16> = (0..(count - 1) * stride + row_len)
@@ -295,6 +347,26 @@ fn batched_simd_kernel_equals_scalar_kernel() {
             kernel::linear(Kernel::Scalar, &linear, input, &mut one);
             assert_eq!(one, scalar[pixel * rows..(pixel + 1) * rows], "case {case}");
         }
+        // int16 outputs through the same batched paths (short rows, pairs, single pixel).
+        let logits = logits.linear();
+        let mut scalar = vec![0i16; count * rows];
+        let mut simd = vec![0i16; count * rows];
+        kernel::linear_batch(Kernel::Scalar, &logits, &inputs, stride, &mut scalar);
+        kernel::linear_batch(Kernel::Avx2, &logits, &inputs, stride, &mut simd);
+        assert_eq!(
+            scalar, simd,
+            "int16 case {case}: rows {rows} row_len {row_len}"
+        );
+        // Bounds wider than the output type (never from the loader): every kernel saturates
+        // the same way.
+        let mut scalar = vec![0i8; count * rows];
+        let mut simd = vec![0i8; count * rows];
+        kernel::linear_batch(Kernel::Scalar, &logits, &inputs, stride, &mut scalar);
+        kernel::linear_batch(Kernel::Avx2, &logits, &inputs, stride, &mut simd);
+        assert_eq!(
+            scalar, simd,
+            "saturated case {case}: rows {rows} row_len {row_len}"
+        );
     }
 }
 

@@ -5,7 +5,7 @@ mod common;
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use wheelleg_runtime::model::format::{FORMAT_VERSION, MAGIC};
+use wheelleg_runtime::model::format::{FORMAT_VERSION, MAGIC, OLDEST_FORMAT_VERSION};
 use wheelleg_runtime::model::load::{Model, MAX_CONV_LAYERS};
 use wheelleg_runtime::model::{Capacity, DefaultPolicy, LayerRef, LoadError, Policy};
 use wheelleg_trainer::network_f32::{Architecture, ConvSpec};
@@ -48,15 +48,18 @@ fn magic_version_checksum_and_trailing_bytes_are_checked() {
     ));
 
     // The version is the varint right after the magic (one byte below 128).
-    let mut wrong_version = bytes.clone();
-    wrong_version[4] = 2;
-    assert_eq!(
-        Model::parse(&wrong_version).err(),
-        Some(LoadError::UnsupportedVersion {
-            found: 2,
-            supported: FORMAT_VERSION
-        })
-    );
+    for version in [0, FORMAT_VERSION + 1, 127] {
+        let mut wrong_version = bytes.clone();
+        wrong_version[4] = version as u8;
+        assert_eq!(
+            Model::parse(&wrong_version).err(),
+            Some(LoadError::UnsupportedVersion {
+                found: version,
+                supported: FORMAT_VERSION
+            })
+        );
+    }
+    assert_eq!((OLDEST_FORMAT_VERSION, FORMAT_VERSION), (1, 2));
     // A validly written file of another version is refused the same way.
     let future = envelope_bytes(FORMAT_VERSION + 1, b"anything").unwrap();
     assert!(matches!(
@@ -210,6 +213,30 @@ fn inconsistent_layers_are_shape_or_parameter_errors() {
             what: "shift"
         })
     );
+
+    // Version 2 logits are symmetric int16 without ReLU; version 1 heads may have either.
+    let mut logit_zero_point = good.clone();
+    logit_zero_point.action_head.layer.output.zero_point = 3;
+    assert_eq!(
+        Model::parse(&logit_zero_point.to_bytes().unwrap()).err(),
+        Some(LoadError::InvalidParameter {
+            layer: LayerRef::ActionHead,
+            what: "logit zero point (must be 0)"
+        })
+    );
+    let mut logit_relu = good.clone();
+    logit_relu.action_head.layer.relu = true;
+    assert_eq!(
+        Model::parse(&logit_relu.to_bytes().unwrap()).err(),
+        Some(LoadError::InvalidParameter {
+            layer: LayerRef::ActionHead,
+            what: "ReLU on the logits"
+        })
+    );
+    for mut old in [logit_zero_point, logit_relu] {
+        old.version = 1;
+        assert_eq!(Model::parse(&old.to_bytes().unwrap()).unwrap().version, 1);
+    }
 
     let mut multiplier = good.clone();
     multiplier.action_head.layer.multipliers[0] = -1;

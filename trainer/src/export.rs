@@ -43,8 +43,9 @@ impl Default for ExportOptions {
             calibration_observations: 20_000,
             holdout_observations: 10_000,
             range: RangeMethod::MinMax,
-            // The robot acts on the argmax: measured on the baseline policy, this raises
-            // greedy agreement (docs/model.md).
+            // The robot acts on the argmax. With int8 logits this raised greedy agreement on
+            // the baseline policy; with int16 logits (format version 2) it makes no measurable
+            // difference (docs/results.md, issue 5) and stays the default of `wheelleg export`.
             action_range: ActionRange::Contenders,
         }
     }
@@ -56,6 +57,8 @@ impl Default for ExportOptions {
 pub struct ModelCard {
     /// The checkpoint (or other source) the float network came from.
     pub source: String,
+    /// Weights format version of the file (2: int16 action logits).
+    pub format_version: u16,
     /// Size of the weights file.
     pub file_bytes: usize,
     /// Parameters.
@@ -78,8 +81,9 @@ pub struct ModelCard {
 
 /// Observations from stochastic rollouts of `network` in freshly generated scenes, until
 /// `count` are collected. Stochastic: the sampled actions visit more of the state space than
-/// the greedy path, so calibration also sees what a slightly off-course robot sees.
-fn rollout_observations(
+/// the greedy path, so calibration also sees what a slightly off-course robot sees. Public so
+/// that quantization variants can be compared on exactly the export's observations.
+pub fn rollout_observations(
     policy: &FloatPolicy,
     kind: SceneKind,
     seed: u64,
@@ -158,6 +162,7 @@ pub fn export_policy(
     drop(policy);
     let card = ModelCard {
         source: source.to_string(),
+        format_version: quantized.version,
         file_bytes: bytes.len(),
         parameters,
         macs_per_decision,

@@ -16,13 +16,27 @@
 //! so that it can check every sequence length against its capacity before storing anything.
 //! Tensors are byte strings borrowed from the file, never copied. The byte-level description for
 //! other readers is docs/weights-format.md.
+//!
+//! Versions. Version 2 (written since the int16 action head) has the same bytes as version 1;
+//! only the action head's output means something else. In version 1 it is an int8 tensor with
+//! the `output` record's scale and zero point, like every other layer. In version 2 the action
+//! logits are int16, symmetric: `output.scale` is real units per int16 step, `output.zero_point`
+//! must be 0 and `relu` false. Why: the robot acts on the argmax of each 3-way head, and the
+//! trained policy has many near ties (1% of head decisions have a float margin under 0.034 at a
+//! logit range of 40); rounding the logits to 255 int8 steps alone flipped 1.1% of head
+//! decisions. At 16 bits the output step is about 128 times finer and the argmax is decided by
+//! the int32 accumulator, not by output rounding. The runtime reads both versions (a version 1
+//! head becomes int16 logits with the int8 clamp, see `load`), so old files keep working.
 
 use serde::{Deserialize, Serialize};
 
 /// First four bytes of every weights file.
 pub const MAGIC: [u8; 4] = *b"WLWM";
-/// The format version this runtime reads and the trainer writes.
-pub const FORMAT_VERSION: u16 = 1;
+/// The format version the trainer writes and the newest this runtime reads (int16 action
+/// logits; see the module docs).
+pub const FORMAT_VERSION: u16 = 2;
+/// The oldest format version this runtime reads (int8 action logits).
+pub const OLDEST_FORMAT_VERSION: u16 = 1;
 
 /// The outer layer of the file. Serialized with postcard: 4 raw magic bytes, the version as a
 /// varint, the payload as varint length + bytes, then the 4 CRC bytes.
@@ -30,7 +44,7 @@ pub const FORMAT_VERSION: u16 = 1;
 pub struct Envelope<'a> {
     /// [`MAGIC`].
     pub magic: [u8; 4],
-    /// [`FORMAT_VERSION`] for files this runtime reads.
+    /// [`OLDEST_FORMAT_VERSION`] to [`FORMAT_VERSION`] for files this runtime reads.
     pub version: u16,
     /// The postcard-encoded model (see the module docs).
     #[serde(borrow)]
@@ -110,17 +124,18 @@ pub struct ConvRecord<'a> {
     pub shifts: &'a [u8],
 }
 
-/// One fully connected layer, optional ReLU, int8 in and out. Weights are int8 `[out][in]`,
-/// row-major; bias, multipliers and shifts as in [`ConvRecord`].
+/// One fully connected layer, optional ReLU, int8 in and int8 out (the action head of a version
+/// 2 file: int16 out, zero point 0, no ReLU). Weights are int8 `[out][in]`, row-major; bias,
+/// multipliers and shifts as in [`ConvRecord`].
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct DenseRecord<'a> {
     /// Input features.
     pub in_features: u16,
     /// Output features.
     pub out_features: u16,
-    /// Whether ReLU is fused.
+    /// Whether ReLU is fused (never for a version 2 action head).
     pub relu: bool,
-    /// Output activation quantization.
+    /// Output quantization (version 2 action head: the int16 logits' scale, zero point 0).
     pub output: ActQuantRecord,
     /// `out * in` int8 weights, row-major.
     #[serde(borrow)]

@@ -8,7 +8,7 @@
 
 use core::mem;
 
-use super::kernel::{linear_batch, padded_row_len, quantize_inputs, Kernel};
+use super::kernel::{linear_batch, padded_row_len, quantize_inputs, Kernel, Output};
 use super::load::{ConvLayer, Linear, Model, ACTION_LOGITS};
 use super::quant::quantize_mm;
 
@@ -78,15 +78,15 @@ impl<const ACT: usize, const ROW: usize> Default for Scratch<ACT, ROW> {
     }
 }
 
-/// Raw network outputs of one decision, int8 with their quantization.
+/// Raw network outputs of one decision with their quantization.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Outputs {
-    /// Five 3-way logits, head order `Dim::ALL`, choice order `Step::ALL`.
-    pub action_logits: [i8; ACTION_LOGITS],
+    /// Five 3-way logits, head order `Dim::ALL`, choice order `Step::ALL`: int16, zero point 0
+    /// (real logit = `action_scale * q`), so that comparing them is comparing real logits.
+    /// From a version 1 file they are the int8 logits minus their zero point.
+    pub action_logits: [i16; ACTION_LOGITS],
     /// Real units per step of `action_logits`.
     pub action_scale: f32,
-    /// Zero point of `action_logits`.
-    pub action_zero_point: i8,
     /// The value estimate, if the model has a value head, with its scale and zero point.
     pub value: Option<(i8, f32, i8)>,
 }
@@ -99,12 +99,12 @@ fn widen(input: &[i8], zero_point: i8, row: &mut [i16]) {
     }
 }
 
-fn layer(
+fn layer<T: Output>(
     kernel: Kernel,
     linear_layer: &Linear<'_>,
     input: &[i8],
     row: &mut [i16],
-    output: &mut [i8],
+    output: &mut [T],
 ) -> Result<(), InferError> {
     let row_len = linear_layer.row_len;
     let input = input.get(..row_len).ok_or(InferError::Internal)?;
@@ -330,7 +330,8 @@ pub fn forward<const ACT: usize, const ROW: usize>(
         mem::swap(&mut src, &mut dst);
     }
 
-    let mut action_logits = [0i8; ACTION_LOGITS];
+    // int16 logits (the loader set the head's bounds: see `load::Model::parse`).
+    let mut action_logits = [0i16; ACTION_LOGITS];
     layer(
         kernel,
         &model.action_head.linear,
@@ -354,7 +355,6 @@ pub fn forward<const ACT: usize, const ROW: usize>(
     Ok(Outputs {
         action_logits,
         action_scale: model.action_head.record.output.scale,
-        action_zero_point: model.action_head.record.output.zero_point,
         value,
     })
 }

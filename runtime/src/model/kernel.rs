@@ -1,6 +1,7 @@
 //! The one compute kernel every layer reduces to: for each output row, a dot product of an
 //! int16 input row (activations minus their zero point) with an int8 weight row, plus bias, then
-//! requantization. Conv layers call it on a batch of output pixels' gathered patches
+//! requantization to the layer's output type ([`Output`]: int8 activations, or the action
+//! head's int16 logits). Conv layers call it on a batch of output pixels' gathered patches
 //! ([`linear_batch`]); dense layers with the whole input vector as a batch of one.
 //!
 //! Two implementations, bit-exact by construction: integer sums are exact in any order (the
@@ -11,7 +12,82 @@
 
 use super::format::InputQuantRecord;
 use super::load::{i32_at, Linear};
-use super::quant::{quantize_mm, to_int8};
+use super::quant::{quantize_mm, requantize_clamped};
+
+mod sealed {
+    /// Only the runtime's own output types implement [`super::Output`].
+    pub trait Sealed {}
+    impl Sealed for i8 {}
+    impl Sealed for i16 {}
+}
+
+/// An output slice seen as its concrete type, so that a generic kernel picks the matching
+/// store (after monomorphization the match has one arm left: no run-time branch).
+#[derive(Debug)]
+pub enum OutputSlice<'a> {
+    /// int8 activations.
+    Int8(&'a mut [i8]),
+    /// int16 logits.
+    Int16(&'a mut [i16]),
+}
+
+/// What a layer writes: `i8` (activations between layers) or `i16` (the action head's logits,
+/// format version 2). The kernels are generic over it so that both share one dot product and
+/// one requantization, and stay bit-exact with each other by construction.
+pub trait Output: Copy + Default + sealed::Sealed {
+    /// Smallest value of the type.
+    const MIN: i16;
+    /// Largest value of the type.
+    const MAX: i16;
+    /// `value` as this type: exact for values in `[MIN, MAX]` (callers clamp to
+    /// [`output_bounds`] first), wrapping otherwise.
+    fn narrow(value: i16) -> Self;
+    /// The slice as its concrete type.
+    fn slice(out: &mut [Self]) -> OutputSlice<'_>;
+}
+
+impl Output for i8 {
+    const MIN: i16 = i8::MIN as i16;
+    const MAX: i16 = i8::MAX as i16;
+
+    #[inline(always)]
+    fn narrow(value: i16) -> i8 {
+        value as i8
+    }
+
+    #[inline(always)]
+    fn slice(out: &mut [i8]) -> OutputSlice<'_> {
+        OutputSlice::Int8(out)
+    }
+}
+
+impl Output for i16 {
+    const MIN: i16 = i16::MIN;
+    const MAX: i16 = i16::MAX;
+
+    #[inline(always)]
+    fn narrow(value: i16) -> i16 {
+        value
+    }
+
+    #[inline(always)]
+    fn slice(out: &mut [i16]) -> OutputSlice<'_> {
+        OutputSlice::Int16(out)
+    }
+}
+
+/// A layer's output bounds limited to the output type `T`, computed once per layer so that
+/// each output needs one clamp and an exact narrowing. The loader's bounds always fit the type
+/// (int8 layers `[-128, 127]` at most); limiting them keeps the kernels total and equal to the
+/// SIMD kernel's saturating packs for any hand-made `Linear` (clamping to limited bounds equals
+/// saturating a clamp to the original ones, as saturation is monotone).
+#[inline(always)]
+pub fn output_bounds<T: Output>(linear: &Linear<'_>) -> (i16, i16) {
+    (
+        linear.output_low.clamp(T::MIN, T::MAX),
+        linear.output_high.clamp(T::MIN, T::MAX),
+    )
+}
 
 /// Which implementation of the kernel runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -66,7 +142,7 @@ pub fn dot_scalar(input: &[i16], weights: &[u8]) -> i32 {
 
 /// Runs one layer's rows on `input` (length `linear.row_len`) into `output` (length
 /// `linear.rows`) with the portable kernel.
-pub fn linear_scalar(linear: &Linear<'_>, input: &[i16], output: &mut [i8]) {
+pub fn linear_scalar<T: Output>(linear: &Linear<'_>, input: &[i16], output: &mut [T]) {
     // Lock-step iterators over the per-row tensors: no index arithmetic or bounds checks per row.
     let rows = linear
         .weights
@@ -74,15 +150,17 @@ pub fn linear_scalar(linear: &Linear<'_>, input: &[i16], output: &mut [i8]) {
         .zip(linear.bias.chunks_exact(4))
         .zip(linear.multipliers.chunks_exact(4))
         .zip(linear.shifts);
+    let (low, high) = output_bounds::<T>(linear);
     for (out, (((weights, bias), multiplier), &shift)) in output.iter_mut().zip(rows) {
         let acc = dot_scalar(input, weights) + le_i32(bias);
-        *out = to_int8(
+        *out = T::narrow(requantize_clamped(
             acc,
             le_i32(multiplier),
             shift as i8,
             linear.output_zero_point,
-            linear.relu,
-        );
+            low,
+            high,
+        ));
     }
 }
 
@@ -97,21 +175,23 @@ fn le_i32(bytes: &[u8]) -> i32 {
 
 /// Requantizes one accumulator of row `row` (shared by every kernel).
 #[inline(always)]
-pub fn finish(linear: &Linear<'_>, row: usize, acc: i32) -> i8 {
+pub fn finish<T: Output>(linear: &Linear<'_>, row: usize, acc: i32) -> T {
     let shift = linear.shifts.get(row).map_or(0, |&s| s as i8);
-    to_int8(
+    let (low, high) = output_bounds::<T>(linear);
+    T::narrow(requantize_clamped(
         acc,
         i32_at(linear.multipliers, row),
         shift,
         linear.output_zero_point,
-        linear.relu,
-    )
+        low,
+        high,
+    ))
 }
 
 /// Runs one layer with the chosen kernel. The caller passes slices of exactly `row_len` and
 /// `rows` elements; an unsupported kernel falls back to the scalar one.
 #[inline]
-pub fn linear(kernel: Kernel, linear: &Linear<'_>, input: &[i16], output: &mut [i8]) {
+pub fn linear<T: Output>(kernel: Kernel, linear: &Linear<'_>, input: &[i16], output: &mut [T]) {
     linear_batch(kernel, linear, input, linear.row_len, output);
 }
 
@@ -135,12 +215,12 @@ pub const fn padded_row_len(row_len: usize) -> usize {
 /// between `row_len` and `stride` are never used, so their content does not matter. Mismatched
 /// lengths (a caller bug) make the scalar kernel run on what fits instead of panicking.
 #[inline]
-pub fn linear_batch(
+pub fn linear_batch<T: Output>(
     kernel: Kernel,
     linear: &Linear<'_>,
     inputs: &[i16],
     stride: usize,
-    outputs: &mut [i8],
+    outputs: &mut [T],
 ) {
     match kernel {
         #[cfg(target_arch = "x86_64")]
@@ -150,7 +230,12 @@ pub fn linear_batch(
 }
 
 /// [`linear_batch`] with the portable kernel: one [`linear_scalar`] per input row.
-pub fn linear_batch_scalar(linear: &Linear<'_>, inputs: &[i16], stride: usize, outputs: &mut [i8]) {
+pub fn linear_batch_scalar<T: Output>(
+    linear: &Linear<'_>,
+    inputs: &[i16],
+    stride: usize,
+    outputs: &mut [T],
+) {
     if linear.rows == 0 || stride == 0 {
         return;
     }

@@ -13,6 +13,7 @@ use serde::Deserialize;
 use super::crc32::crc32;
 use super::format::{
     ActQuantRecord, ConvRecord, DenseRecord, InputQuantRecord, InputRecord, FORMAT_VERSION, MAGIC,
+    OLDEST_FORMAT_VERSION,
 };
 use super::quant::{MAX_SHIFT, MIN_SHIFT};
 use crate::action::{CHOICES, DIMS};
@@ -74,11 +75,12 @@ pub enum LoadError {
         /// What the file starts with (zero-padded if shorter).
         found: [u8; 4],
     },
-    /// A format version this runtime does not read.
+    /// A format version this runtime does not read (it reads [`OLDEST_FORMAT_VERSION`] to
+    /// [`FORMAT_VERSION`]).
     UnsupportedVersion {
         /// Version in the file.
         found: u16,
-        /// Version this runtime reads.
+        /// Newest version this runtime reads.
         supported: u16,
     },
     /// The stored CRC-32 does not match the bytes.
@@ -140,7 +142,8 @@ impl fmt::Display for LoadError {
             }
             LoadError::UnsupportedVersion { found, supported } => write!(
                 f,
-                "weights format version {found} is not supported (this runtime reads {supported})"
+                "weights format version {found} is not supported (this runtime reads \
+                 {OLDEST_FORMAT_VERSION} to {supported})"
             ),
             LoadError::BadChecksum { stored, computed } => write!(
                 f,
@@ -175,7 +178,12 @@ impl fmt::Display for LoadError {
 }
 
 /// The arithmetic shared by conv and dense layers once the input row is laid out: `rows` dot
-/// products of length `row_len`, plus bias, requantized per row.
+/// products of length `row_len`, plus bias, requantized per row to
+/// `clamp(output_zero_point + rescale(acc), output_low, output_high)`.
+///
+/// The bounds are stored rather than derived from `relu` so that one kernel serves int8
+/// activations (`[-128 or the zero point under ReLU, 127]`) and the action head's int16 logits
+/// (`[-32768, 32767]`, zero point 0): only the store differs between the two.
 #[derive(Clone, Copy, Debug)]
 pub struct Linear<'a> {
     /// `rows * row_len` int8 weights (stored as bytes), row-major.
@@ -194,8 +202,20 @@ pub struct Linear<'a> {
     pub input_zero_point: i8,
     /// Zero point of the outputs.
     pub output_zero_point: i8,
-    /// Whether ReLU is fused.
+    /// Whether ReLU is fused (already part of `output_low`; kept for descriptions).
     pub relu: bool,
+    /// Smallest output value.
+    pub output_low: i16,
+    /// Largest output value.
+    pub output_high: i16,
+}
+
+impl Linear<'_> {
+    /// The int8 output bounds of a layer: `[zero_point, 127]` under ReLU (real values below 0
+    /// become 0), else `[-128, 127]`.
+    pub const fn int8_bounds(zero_point: i8, relu: bool) -> (i16, i16) {
+        (if relu { zero_point as i16 } else { -128 }, 127)
+    }
 }
 
 /// A validated conv layer with its input and output geometry.
@@ -239,6 +259,8 @@ pub struct Requirements {
 /// A weights file, checked and decoded; tensors borrow from the file bytes.
 #[derive(Clone, Debug)]
 pub struct Model<'a> {
+    /// Format version of the file (1: int8 action logits, 2: int16).
+    pub version: u16,
     /// Height-map shape and quantization.
     pub input: InputRecord,
     /// Per-state-feature quantization, in observation order.
@@ -247,7 +269,8 @@ pub struct Model<'a> {
     pub convs: Vec<ConvLayer<'a>, MAX_CONV_LAYERS>,
     /// The hidden dense stack.
     pub hidden: Vec<DenseLayer<'a>, MAX_DENSE_LAYERS>,
-    /// The action head ([`ACTION_LOGITS`] outputs).
+    /// The action head ([`ACTION_LOGITS`] int16 logits with zero point 0 and scale
+    /// `action_head.record.output.scale`, whatever the version: see [`Model::parse`]).
     pub action_head: DenseLayer<'a>,
     /// The value head (1 output), if stored.
     pub value_head: Option<DenseLayer<'a>>,
@@ -294,9 +317,9 @@ fn take_len<'a>(
     Ok((len, rest))
 }
 
-/// Splits a file into its checked payload: magic, then version, then structure, then checksum,
-/// so that each failure gets the most specific error.
-pub fn open_envelope(bytes: &[u8]) -> Result<&[u8], LoadError> {
+/// Splits a file into its version and checked payload: magic, then version, then structure,
+/// then checksum, so that each failure gets the most specific error.
+pub fn open_envelope(bytes: &[u8]) -> Result<(u16, &[u8]), LoadError> {
     let mut found = [0u8; 4];
     for (slot, byte) in found.iter_mut().zip(bytes) {
         *slot = *byte;
@@ -313,7 +336,7 @@ pub fn open_envelope(bytes: &[u8]) -> Result<&[u8], LoadError> {
     }
     let after_magic = bytes.get(MAGIC.len()..).ok_or(LoadError::Truncated)?;
     let (version, rest) = take::<u16>(after_magic, LoadError::Truncated, "version")?;
-    if version != FORMAT_VERSION {
+    if !(OLDEST_FORMAT_VERSION..=FORMAT_VERSION).contains(&version) {
         return Err(LoadError::UnsupportedVersion {
             found: version,
             supported: FORMAT_VERSION,
@@ -333,7 +356,7 @@ pub fn open_envelope(bytes: &[u8]) -> Result<&[u8], LoadError> {
     if stored != computed {
         return Err(LoadError::BadChecksum { stored, computed });
     }
-    Ok(payload)
+    Ok((version, payload))
 }
 
 /// Little-endian i32 number `index` of a byte tensor (0 past the end: lengths were checked).
@@ -421,6 +444,7 @@ fn check_linear<'a>(
         multipliers.len(),
     )?;
     expect_len(layer, "shift bytes", rows, shifts.len())?;
+    let (output_low, output_high) = Linear::int8_bounds(output.zero_point, relu);
     for row in 0..rows {
         let b = i32_at(bias, row);
         if b.unsigned_abs() > MAX_BIAS_ABS.unsigned_abs() {
@@ -455,6 +479,8 @@ fn check_linear<'a>(
         input_zero_point,
         output_zero_point: output.zero_point,
         relu,
+        output_low,
+        output_high,
     })
 }
 
@@ -485,6 +511,47 @@ fn dense_layer<'a>(
     Ok(DenseLayer { record, linear })
 }
 
+/// The action head's arithmetic as int16 logits with zero point 0, for either version.
+///
+/// Version 2 stores them so: the record's zero point must be 0 and ReLU off (a logit head has
+/// no use for either, and refusing them keeps one meaning per file). A version 1 head is int8
+/// `q = clamp(zp + r, low, 127)` read as real `scale * (q - zp)`; as the logit `q - zp` that is
+/// `clamp(r, low - zp, 127 - zp)`, the same values and argmax, so version 1 files run through
+/// the same int16 path with narrower bounds instead of a second code path.
+fn logit_head<'a>(
+    version: u16,
+    linear: Linear<'a>,
+    record: DenseRecord<'a>,
+) -> Result<Linear<'a>, LoadError> {
+    let zero_point = record.output.zero_point;
+    if version >= 2 {
+        if zero_point != 0 {
+            return Err(LoadError::InvalidParameter {
+                layer: LayerRef::ActionHead,
+                what: "logit zero point (must be 0)",
+            });
+        }
+        if record.relu {
+            return Err(LoadError::InvalidParameter {
+                layer: LayerRef::ActionHead,
+                what: "ReLU on the logits",
+            });
+        }
+        return Ok(Linear {
+            output_low: i16::MIN,
+            output_high: i16::MAX,
+            ..linear
+        });
+    }
+    let (low, high) = Linear::int8_bounds(zero_point, record.relu);
+    Ok(Linear {
+        output_zero_point: 0,
+        output_low: low - i16::from(zero_point),
+        output_high: high - i16::from(zero_point),
+        ..linear
+    })
+}
+
 fn layer_index(index: usize) -> u8 {
     u8::try_from(index).unwrap_or(u8::MAX)
 }
@@ -492,7 +559,7 @@ fn layer_index(index: usize) -> u8 {
 impl<'a> Model<'a> {
     /// Checks and decodes a weights file. Never panics, never allocates, never copies tensors.
     pub fn parse(bytes: &'a [u8]) -> Result<Model<'a>, LoadError> {
-        let payload = open_envelope(bytes)?;
+        let (version, payload) = open_envelope(bytes)?;
         let corrupt = |part| LoadError::Corrupt { part };
 
         let (input, rest) = take::<InputRecord>(payload, corrupt("input"), "input")?;
@@ -633,13 +700,14 @@ impl<'a> Model<'a> {
         row_elements = row_elements.max(width);
 
         let (record, rest) = take::<DenseRecord<'a>>(rest, corrupt("action head"), "action head")?;
-        let action_head = dense_layer(LayerRef::ActionHead, record, width, zero_point)?;
+        let mut action_head = dense_layer(LayerRef::ActionHead, record, width, zero_point)?;
         expect_len(
             LayerRef::ActionHead,
             "outputs",
             ACTION_LOGITS,
             action_head.linear.rows,
         )?;
+        action_head.linear = logit_head(version, action_head.linear, record)?;
         let (record, rest) =
             take::<Option<DenseRecord<'a>>>(rest, corrupt("value head"), "value head")?;
         let value_head = match record {
@@ -656,6 +724,7 @@ impl<'a> Model<'a> {
             });
         }
         Ok(Model {
+            version,
             input,
             state,
             convs,

@@ -14,7 +14,8 @@
 //!
 //! Scheme (TFLite / CMSIS-NN): weights int8, symmetric, one scale per output channel; activations
 //! int8 with scale and zero point; int32 bias and accumulators; requantization by a fixed-point
-//! multiplier and shift per output channel. Inputs arrive in millimetres (heights as i16, state
+//! multiplier and shift per output channel. The action head alone writes int16 logits (format
+//! version 2), so that the greedy action is not decided by rounding logits to 255 steps. Inputs arrive in millimetres (heights as i16, state
 //! as i32) and are quantized by the same integer multiply-shift.
 
 pub mod crc32;
@@ -27,7 +28,7 @@ pub mod quant;
 mod simd_x86;
 
 pub use infer::{InferError, Outputs, Scratch};
-pub use kernel::Kernel;
+pub use kernel::{Kernel, Output};
 pub use load::{Capacity, LayerRef, LoadError, Model, Requirements, ACTION_LOGITS};
 
 use crate::action::{Action, CHOICES, DIMS};
@@ -175,10 +176,9 @@ impl Outputs {
         Action::from_head_indices(indices).unwrap_or(Action::IDLE)
     }
 
-    /// The action logits in real units: `scale * (q - zero_point)`.
+    /// The action logits in real units: `scale * q` (int16 logits have zero point 0).
     pub fn action_logits_f32(&self) -> [f32; ACTION_LOGITS] {
-        self.action_logits
-            .map(|q| self.action_scale * (f32::from(q) - f32::from(self.action_zero_point)))
+        self.action_logits.map(|q| self.action_scale * f32::from(q))
     }
 
     /// The value estimate in real units, if the model has a value head.

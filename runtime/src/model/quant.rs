@@ -1,6 +1,7 @@
-//! Integer requantization, the only arithmetic between an int32 accumulator and an int8
-//! activation. No floating point: a real multiplier `m` is stored as `multiplier * 2^(shift-31)`
-//! with `multiplier` in `[2^30, 2^31)` (or 0), as in TFLite and CMSIS-NN.
+//! Integer requantization, the only arithmetic between an int32 accumulator and a layer output
+//! (an int8 activation, or an int16 action logit since weights format version 2). No floating
+//! point: a real multiplier `m` is stored as `multiplier * 2^(shift-31)` with `multiplier` in
+//! `[2^30, 2^31)` (or 0), as in TFLite and CMSIS-NN.
 
 /// Smallest shift the runtime accepts (multipliers down to about 2^-62).
 pub const MIN_SHIFT: i8 = -31;
@@ -32,6 +33,26 @@ pub fn to_int8(acc: i32, multiplier: i32, shift: i8, zero_point: i8, relu: bool)
     value.clamp(low, 127) as i8
 }
 
+/// Requantizes an accumulator to any layer output: `clamp(zero_point + requantize(acc), low,
+/// high)`. Every kernel's output goes through this formula: int8 activations use
+/// `[-128 or zero_point under ReLU, 127]`, the action head's int16 logits `[-32768, 32767]` with
+/// zero point 0 (see `load::Linear`). The order (min with `high`, then max with `low`) is the
+/// SIMD kernel's too, so that even `low > high` (never produced by the loader) gives the same
+/// result, `low`, in every kernel instead of a panic.
+#[inline(always)]
+pub fn requantize_clamped(
+    acc: i32,
+    multiplier: i32,
+    shift: i8,
+    zero_point: i8,
+    low: i16,
+    high: i16,
+) -> i16 {
+    let value = requantize(acc, multiplier, shift) + i64::from(zero_point);
+    // Between two i16 bounds after the two comparisons, so the narrowing is exact.
+    value.min(i64::from(high)).max(i64::from(low)) as i16
+}
+
 /// Quantizes one raw input (a height or a state value in millimetres) to int8.
 #[inline]
 pub fn quantize_mm(value_mm: i32, multiplier: i32, shift: i8, zero_point: i8) -> i8 {
@@ -56,6 +77,37 @@ mod tests {
         assert_eq!(
             requantize(i32::MIN, i32::MAX, MAX_SHIFT),
             -(1i64 << 61) + (1i64 << 30)
+        );
+    }
+
+    #[test]
+    fn requantize_clamped_matches_to_int8_and_reaches_int16() {
+        let one = 1 << 30;
+        for acc in [-100_000, -300, -129, -5, 0, 5, 127, 128, 100_000] {
+            for (zero_point, relu) in [(0, false), (-100, true), (17, false)] {
+                let low = if relu { i16::from(zero_point) } else { -128 };
+                assert_eq!(
+                    requantize_clamped(acc, one, 1, zero_point, low, 127),
+                    i16::from(to_int8(acc, one, 1, zero_point, relu))
+                );
+            }
+        }
+        assert_eq!(
+            requantize_clamped(1000, one, 1, 0, i16::MIN, i16::MAX),
+            1000
+        );
+        assert_eq!(
+            requantize_clamped(i32::MAX, one, 1, 0, i16::MIN, i16::MAX),
+            i16::MAX
+        );
+        assert_eq!(
+            requantize_clamped(i32::MIN, one, 1, 0, i16::MIN, i16::MAX),
+            i16::MIN
+        );
+        assert_eq!(
+            requantize_clamped(0, one, 1, 0, 5, -5),
+            5,
+            "inverted bounds: no panic"
         );
     }
 

@@ -23,15 +23,15 @@ use core::arch::x86_64::{
     _mm256_hadd_epi32, _mm256_loadu_si256, _mm256_madd_epi16, _mm256_permutevar8x32_epi32,
     _mm256_set1_epi32, _mm256_set1_epi64x, _mm256_setr_epi32, _mm256_setzero_si256,
     _mm256_sllv_epi64, _mm256_srlv_epi64, _mm256_sub_epi64, _mm256_xor_si256, _mm_add_epi32,
-    _mm_cvtsi128_si32, _mm_cvtsi32_si128, _mm_loadu_si128, _mm_max_epi8, _mm_min_epi8,
-    _mm_packs_epi16, _mm_packs_epi32, _mm_set1_epi32, _mm_set1_epi8, _mm_setzero_si128,
-    _mm_storeu_si128, _xgetbv,
+    _mm_cvtsi128_si32, _mm_cvtsi128_si64, _mm_cvtsi32_si128, _mm_loadu_si128, _mm_max_epi8,
+    _mm_min_epi8, _mm_packs_epi16, _mm_packs_epi32, _mm_set1_epi32, _mm_set1_epi8,
+    _mm_setzero_si128, _mm_storeu_si128, _xgetbv,
 };
 use core::sync::atomic::{AtomicU8, Ordering};
 
 use super::format::InputQuantRecord;
 use super::infer::gather_pixels;
-use super::kernel::{finish, linear_batch_scalar, quantize_inputs_scalar};
+use super::kernel::{finish, linear_batch_scalar, quantize_inputs_scalar, Output, OutputSlice};
 use super::load::{i32_at, ConvLayer, Linear};
 use super::quant::{MAX_SHIFT, MIN_SHIFT};
 
@@ -91,7 +91,12 @@ unsafe fn read_xcr0() -> u64 {
 
 /// [`super::kernel::linear_batch`] with AVX2 when the CPU has it (falls back to the scalar
 /// kernel otherwise, and on inconsistent lengths, so calling it is always safe).
-pub fn linear_batch_avx2(linear: &Linear<'_>, inputs: &[i16], stride: usize, outputs: &mut [i8]) {
+pub fn linear_batch_avx2<T: Output>(
+    linear: &Linear<'_>,
+    inputs: &[i16],
+    stride: usize,
+    outputs: &mut [T],
+) {
     let rows = linear.rows;
     let row_len = linear.row_len;
     let count = outputs.len().checked_div(rows).unwrap_or(0);
@@ -157,6 +162,7 @@ pub fn quantize_inputs_avx2(quant: &InputQuantRecord, values_mm: &[i16], out: &m
 
 /// Sums each of four 8-lane accumulators: `[sum(a), sum(b), sum(c), sum(d)]`.
 #[target_feature(enable = "avx2")]
+#[inline]
 fn hsum4(a: __m256i, b: __m256i, c: __m256i, d: __m256i) -> __m128i {
     // Within each 128-bit half: pairwise sums of a,b then c,d, then of those.
     let ab = _mm256_hadd_epi32(a, b);
@@ -224,31 +230,32 @@ struct Requant4 {
     offset: __m256i,
     /// Output zero point.
     zero_point: __m256i,
-    /// Lowest output (the zero point under ReLU, else -128).
+    /// Lowest output (int8: the zero point under ReLU, else -128; int16 logits: -32768).
     low: __m256i,
-    /// 127.
+    /// Highest output (int8: 127; int16 logits: 32767).
     high: __m256i,
 }
 
 impl Requant4 {
-    /// Constants from 4 multipliers and 4 shifts (shifts clamped as the scalar code does).
+    /// Constants from 4 multipliers and 4 shifts (shifts clamped as the scalar code does) and
+    /// the output bounds.
     #[target_feature(enable = "avx2")]
-    fn new(multipliers: __m128i, shifts: __m128i, zero_point: i8, relu: bool) -> Requant4 {
+    #[inline]
+    fn new(multipliers: __m128i, shifts: __m128i, zero_point: i8, low: i16, high: i16) -> Requant4 {
         let shifts = _mm_min_epi8(
             _mm_max_epi8(shifts, _mm_set1_epi8(MIN_SHIFT)),
             _mm_set1_epi8(MAX_SHIFT),
         );
         let right = _mm256_sub_epi64(_mm256_set1_epi64x(31), _mm256_cvtepi8_epi64(shifts));
         let one = _mm256_set1_epi64x(1);
-        let low = if relu { i64::from(zero_point) } else { -128 };
         Requant4 {
             multiplier: multipliers,
             right,
             half: _mm256_sllv_epi64(one, _mm256_sub_epi64(right, one)),
             offset: _mm256_srlv_epi64(_mm256_set1_epi64x(i64::MIN), right),
             zero_point: _mm256_set1_epi64x(i64::from(zero_point)),
-            low: _mm256_set1_epi64x(low),
-            high: _mm256_set1_epi64x(127),
+            low: _mm256_set1_epi64x(i64::from(low)),
+            high: _mm256_set1_epi64x(i64::from(high)),
         }
     }
 
@@ -258,6 +265,7 @@ impl Requant4 {
     /// AVX2 must be available and `row + 4 <= linear.rows`, with the tensor lengths checked by
     /// [`linear_batch_avx2`].
     #[target_feature(enable = "avx2")]
+    #[inline]
     unsafe fn for_rows(linear: &Linear<'_>, row: usize) -> Requant4 {
         // SAFETY: rows `row..row + 4` exist, so 16 multiplier bytes at 4 * row are in bounds.
         let multipliers =
@@ -270,16 +278,18 @@ impl Requant4 {
             multipliers,
             _mm_cvtsi32_si128(shifts),
             linear.output_zero_point,
-            linear.relu,
+            linear.output_low,
+            linear.output_high,
         )
     }
 }
 
-/// `to_int8` of 4 accumulators at once: `clamp(zp + floor((acc * M + 2^(r-1)) / 2^r), low,
-/// 127)` with the exact 64-bit product, as 4 i32 lanes. The arithmetic right shift is a logical
+/// `requantize_clamped` of 4 accumulators at once: `clamp(zp + floor((acc * M + 2^(r-1)) /
+/// 2^r), low, high)` (min with `high`, then max with `low`, as the scalar code) with the exact 64-bit product, as 4 i32 lanes. The arithmetic right shift is a logical
 /// one of `t + 2^63` (xor of the sign bit) minus `2^63 >> r`, exact because `2^r` divides
 /// `2^63`; `|t| < 2^62 + 2^61` so nothing wraps.
 #[target_feature(enable = "avx2")]
+#[inline]
 fn requant4(acc: __m128i, c: &Requant4) -> __m128i {
     let product = vpmuldq(
         _mm256_cvtepi32_epi64(acc),
@@ -293,7 +303,7 @@ fn requant4(acc: __m128i, c: &Requant4) -> __m128i {
     let q = _mm256_add_epi64(scaled, c.zero_point);
     let q = _mm256_blendv_epi8(q, c.high, _mm256_cmpgt_epi64(q, c.high));
     let q = _mm256_blendv_epi8(q, c.low, _mm256_cmpgt_epi64(c.low, q));
-    // Low 32 bits of each 64-bit lane (the values fit an i8 by now).
+    // Low 32 bits of each 64-bit lane (the values fit the output type by now).
     let low_halves = _mm256_permutevar8x32_epi32(q, _mm256_setr_epi32(0, 2, 4, 6, 0, 2, 4, 6));
     _mm256_castsi256_si128(low_halves)
 }
@@ -327,13 +337,30 @@ fn vpsrlvq(a: __m256i, count: __m256i) -> __m256i {
     out
 }
 
-/// Writes 4 requantized lanes (each in `[-128, 127]`) as bytes to `out[at..at + 4]`.
+/// Writes 4 requantized lanes (each within the output type's range) to `out[at..at + 4]`.
 #[target_feature(enable = "avx2")]
-fn store4(values: __m128i, out: &mut [i8], at: usize) {
-    let bytes = _mm_packs_epi16(_mm_packs_epi32(values, values), _mm_setzero_si128());
-    let word = _mm_cvtsi128_si32(bytes).to_le_bytes().map(|b| b as i8);
-    if let Some(slot) = out.get_mut(at..at + 4) {
-        slot.copy_from_slice(&word);
+#[inline]
+fn store4<T: Output>(values: __m128i, out: &mut [T], at: usize) {
+    // Saturating packs: exact, since the lanes are already within the output bounds.
+    let words = _mm_packs_epi32(values, values);
+    match T::slice(out) {
+        OutputSlice::Int8(out) => {
+            let bytes = _mm_packs_epi16(words, _mm_setzero_si128());
+            let word = _mm_cvtsi128_si32(bytes).to_le_bytes().map(|b| b as i8);
+            if let Some(slot) = out.get_mut(at..at + 4) {
+                slot.copy_from_slice(&word);
+            }
+        }
+        OutputSlice::Int16(out) => {
+            let bytes = _mm_cvtsi128_si64(words).to_le_bytes();
+            if let Some(slot) = out.get_mut(at..at + 4) {
+                for (o, pair) in slot.iter_mut().zip(bytes.chunks_exact(2)) {
+                    if let &[lo, hi] = pair {
+                        *o = i16::from_le_bytes([lo, hi]);
+                    }
+                }
+            }
+        }
     }
 }
 
@@ -343,13 +370,13 @@ fn store4(values: __m128i, out: &mut [i8], at: usize) {
 /// AVX2 must be available; every `starts[p] + row_len <= inputs.len()`, every
 /// `outs[p] + rows <= outputs.len()`, and the tensor lengths checked by [`linear_batch_avx2`].
 #[target_feature(enable = "avx2")]
-unsafe fn pixels<const P: usize, const TAIL: bool>(
+unsafe fn pixels<T: Output, const P: usize, const TAIL: bool>(
     linear: &Linear<'_>,
     inputs: &[i16],
     starts: [usize; P],
     outs: [usize; P],
     tail_mask: __m256i,
-    outputs: &mut [i8],
+    outputs: &mut [T],
 ) {
     let row_len = linear.row_len;
     let rows = linear.rows;
@@ -452,12 +479,12 @@ const SHORT_PAIRS: usize = 5;
 /// AVX2 must be available, the lengths checked by [`linear_batch_avx2`] must hold,
 /// `row_len <= 2 * SHORT_PAIRS` and `stride >= 2 * SHORT_PAIRS`.
 #[target_feature(enable = "avx2")]
-unsafe fn short_rows(
+unsafe fn short_rows<T: Output>(
     linear: &Linear<'_>,
     inputs: &[i16],
     stride: usize,
     count: usize,
-    outputs: &mut [i8],
+    outputs: &mut [T],
 ) {
     let rows = linear.rows;
     let row_len = linear.row_len;
@@ -532,7 +559,7 @@ fn chunk_constants(
     // SAFETY (loads): each array holds 16 elements, at least what is read.
     let bias_lo = unsafe { _mm256_loadu_si256(bias.as_ptr().cast()) };
     let bias_hi = unsafe { _mm256_loadu_si256(bias.as_ptr().add(8).cast()) };
-    let mut constants = [Requant4::new(_mm_setzero_si128(), _mm_setzero_si128(), 0, false); 4];
+    let mut constants = [Requant4::new(_mm_setzero_si128(), _mm_setzero_si128(), 0, -128, 127); 4];
     for (quarter, c) in constants.iter_mut().enumerate() {
         let m = unsafe { _mm_loadu_si128(multipliers.as_ptr().add(4 * quarter).cast()) };
         let s = match shifts.get(4 * quarter..4 * quarter + 4) {
@@ -543,7 +570,8 @@ fn chunk_constants(
             m,
             _mm_cvtsi32_si128(s),
             linear.output_zero_point,
-            linear.relu,
+            linear.output_low,
+            linear.output_high,
         );
     }
     (bias_lo, bias_hi, constants)
@@ -552,19 +580,47 @@ fn chunk_constants(
 /// Requantizes 16 accumulators (rows `0..16` of a chunk, as two 8-lane vectors) and writes
 /// the first `chunk` of them to `out[at..]`.
 #[target_feature(enable = "avx2")]
-fn store16(lo: __m256i, hi: __m256i, c: &[Requant4; 4], out: &mut [i8], at: usize, chunk: usize) {
+#[inline]
+fn store16<T: Output>(
+    lo: __m256i,
+    hi: __m256i,
+    c: &[Requant4; 4],
+    out: &mut [T],
+    at: usize,
+    chunk: usize,
+) {
     let [c0, c1, c2, c3] = c;
     let a = requant4(_mm256_castsi256_si128(lo), c0);
     let b = requant4(_mm256_extracti128_si256::<1>(lo), c1);
     let c = requant4(_mm256_castsi256_si128(hi), c2);
     let d = requant4(_mm256_extracti128_si256::<1>(hi), c3);
-    let bytes = _mm_packs_epi16(_mm_packs_epi32(a, b), _mm_packs_epi32(c, d));
-    let mut sixteen = [0i8; 16];
-    // SAFETY: `sixteen` is 16 bytes.
-    unsafe { _mm_storeu_si128(sixteen.as_mut_ptr().cast(), bytes) };
+    // Saturating packs: exact, since the lanes are already within the output bounds.
+    let (ab, cd) = (_mm_packs_epi32(a, b), _mm_packs_epi32(c, d));
+    match T::slice(out) {
+        OutputSlice::Int8(out) => {
+            let mut sixteen = [0i8; 16];
+            // SAFETY: `sixteen` is 16 bytes.
+            unsafe { _mm_storeu_si128(sixteen.as_mut_ptr().cast(), _mm_packs_epi16(ab, cd)) };
+            store_chunk(out, at, chunk, sixteen);
+        }
+        OutputSlice::Int16(out) => {
+            let mut sixteen = [0i16; 16];
+            // SAFETY: `sixteen` is 32 bytes: two 16-byte stores.
+            unsafe {
+                _mm_storeu_si128(sixteen.as_mut_ptr().cast(), ab);
+                _mm_storeu_si128(sixteen.as_mut_ptr().add(8).cast(), cd);
+            }
+            store_chunk(out, at, chunk, sixteen);
+        }
+    }
+}
+
+/// Copies the first `chunk` of `sixteen` values to `out[at..]` (nothing if out of bounds).
+#[inline(always)]
+fn store_chunk<V: Copy>(out: &mut [V], at: usize, chunk: usize, sixteen: [V; 16]) {
     if let Some(slot) = out.get_mut(at..at + chunk) {
         // A whole chunk is one fixed-size copy (a store, not a `memcpy` call).
-        match <&mut [i8; 16]>::try_from(&mut *slot) {
+        match <&mut [V; 16]>::try_from(&mut *slot) {
             Ok(slot) => *slot = sixteen,
             Err(_) => {
                 for (o, v) in slot.iter_mut().zip(sixteen) {
@@ -720,12 +776,12 @@ unsafe fn pair_at(inputs: &[i16], x: *const i32, start: usize, pair: usize) -> _
 /// # Safety
 /// AVX2 must be available and the lengths checked by [`linear_batch_avx2`] must hold.
 #[target_feature(enable = "avx2")]
-unsafe fn linear_batch_unchecked(
+unsafe fn linear_batch_unchecked<T: Output>(
     linear: &Linear<'_>,
     inputs: &[i16],
     stride: usize,
     count: usize,
-    outputs: &mut [i8],
+    outputs: &mut [T],
 ) {
     let rows = linear.rows;
     if linear.row_len <= 2 * SHORT_PAIRS && stride >= 2 * SHORT_PAIRS {
@@ -748,9 +804,9 @@ unsafe fn linear_batch_unchecked(
         // by the caller for the last row `count - 1`).
         unsafe {
             if tail == 0 {
-                pixels::<2, false>(linear, inputs, starts, outs, tail_mask, outputs);
+                pixels::<T, 2, false>(linear, inputs, starts, outs, tail_mask, outputs);
             } else {
-                pixels::<2, true>(linear, inputs, starts, outs, tail_mask, outputs);
+                pixels::<T, 2, true>(linear, inputs, starts, outs, tail_mask, outputs);
             }
         }
         pixel += 2;
@@ -760,9 +816,9 @@ unsafe fn linear_batch_unchecked(
         // SAFETY: as above for the single row `pixel < count`.
         unsafe {
             if tail == 0 {
-                pixels::<1, false>(linear, inputs, starts, outs, tail_mask, outputs);
+                pixels::<T, 1, false>(linear, inputs, starts, outs, tail_mask, outputs);
             } else {
-                pixels::<1, true>(linear, inputs, starts, outs, tail_mask, outputs);
+                pixels::<T, 1, true>(linear, inputs, starts, outs, tail_mask, outputs);
             }
         }
     }
@@ -774,7 +830,7 @@ unsafe fn linear_batch_unchecked(
 unsafe fn quantize_inputs_unchecked(quant: &InputQuantRecord, values_mm: &[i16], out: &mut [i8]) {
     let multipliers = _mm_set1_epi32(quant.multiplier);
     let shifts = _mm_set1_epi8(quant.shift);
-    let constants = Requant4::new(multipliers, shifts, quant.zero_point, false);
+    let constants = Requant4::new(multipliers, shifts, quant.zero_point, -128, 127);
     let mut chunks = values_mm.chunks_exact(8).zip(out.chunks_exact_mut(8));
     for (values, bytes) in &mut chunks {
         // SAFETY: `values` is 8 i16 (16 bytes).

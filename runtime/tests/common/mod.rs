@@ -11,9 +11,10 @@
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use wheelleg_runtime::model::format::FORMAT_VERSION;
 use wheelleg_trainer::network_f32::{Architecture, ConvSpec, NetworkF32};
 use wheelleg_trainer::quantize::{
-    quantize, Calibration, QuantizedLayer, QuantizedNetwork, RangeMethod,
+    quantize_for_version, Calibration, QuantizedLayer, QuantizedNetwork, RangeMethod,
 };
 
 /// A random architecture of the family: 0-3 convs of random channels, kernel, stride and
@@ -83,11 +84,22 @@ pub fn random_observation(rng: &mut ChaCha8Rng, arch: &Architecture) -> (Vec<f32
     (height, state)
 }
 
-/// A random network of `arch`, calibrated on random observations and quantized.
+/// A random network of `arch`, calibrated on random observations and quantized for the current
+/// format version.
 pub fn random_quantized(
     rng: &mut ChaCha8Rng,
     arch: &Architecture,
     method: RangeMethod,
+) -> (NetworkF32, QuantizedNetwork) {
+    random_quantized_version(rng, arch, method, FORMAT_VERSION)
+}
+
+/// [`random_quantized`] for a given weights format version (1: int8 logits, 2: int16).
+pub fn random_quantized_version(
+    rng: &mut ChaCha8Rng,
+    arch: &Architecture,
+    method: RangeMethod,
+    version: u16,
 ) -> (NetworkF32, QuantizedNetwork) {
     let network = NetworkF32::random(arch, rng);
     let observations: Vec<_> = (0..24).map(|_| random_observation(rng, arch)).collect();
@@ -97,7 +109,7 @@ pub fn random_quantized(
             .iter()
             .map(|(h, s)| (h.as_slice(), s.as_slice())),
     );
-    let quantized = quantize(&network, &calibration, method).unwrap();
+    let quantized = quantize_for_version(&network, &calibration, method, version).unwrap();
     (network, quantized)
 }
 
@@ -152,7 +164,8 @@ fn reference_int8(value: i64, zero_point: i8, relu: bool) -> i8 {
     v.max(low).min(127) as i8
 }
 
-fn reference_dense(layer: &QuantizedLayer, input: &[i8]) -> Vec<i8> {
+/// Each output's accumulator (bias plus products), rescaled: before zero point and clamping.
+fn reference_rescaled(layer: &QuantizedLayer, input: &[i8]) -> Vec<i64> {
     let in_len = input.len();
     (0..layer.bias.len())
         .map(|o| {
@@ -161,13 +174,33 @@ fn reference_dense(layer: &QuantizedLayer, input: &[i8]) -> Vec<i8> {
                 acc += (i64::from(input[i]) - i64::from(layer.input.zero_point))
                     * i64::from(layer.weights[o * in_len + i]);
             }
-            reference_int8(
-                reference_rescale(acc, layer.multipliers[o], layer.shifts[o]),
-                layer.output.zero_point,
-                layer.relu,
-            )
+            reference_rescale(acc, layer.multipliers[o], layer.shifts[o])
         })
         .collect()
+}
+
+fn reference_dense(layer: &QuantizedLayer, input: &[i8]) -> Vec<i8> {
+    reference_rescaled(layer, input)
+        .into_iter()
+        .map(|v| reference_int8(v, layer.output.zero_point, layer.relu))
+        .collect()
+}
+
+/// The action head's logits as the runtime reports them (zero point 0): in format version 2
+/// the rescaled value clamped to int16; in version 1 the int8 output minus its zero point.
+fn reference_logits(layer: &QuantizedLayer, input: &[i8], version: u16) -> Vec<i16> {
+    if version >= 2 {
+        assert_eq!(layer.output.zero_point, 0, "version 2 logits are symmetric");
+        reference_rescaled(layer, input)
+            .into_iter()
+            .map(|v| v.clamp(-32768, 32767) as i16)
+            .collect()
+    } else {
+        reference_dense(layer, input)
+            .into_iter()
+            .map(|q| i16::from(q) - i16::from(layer.output.zero_point))
+            .collect()
+    }
 }
 
 /// Action logits and value of the integer network, computed the plain way.
@@ -175,7 +208,7 @@ pub fn reference_forward(
     q: &QuantizedNetwork,
     height_mm: &[i16],
     state_mm: &[i32],
-) -> (Vec<i8>, Option<i8>) {
+) -> (Vec<i16>, Option<i8>) {
     let (mut h, mut w, mut c) = (q.arch.height_rows, q.arch.height_cols, 1usize);
     // CHW activations.
     let mut x: Vec<i8> = height_mm
@@ -236,7 +269,7 @@ pub fn reference_forward(
     for dense in &q.hidden {
         x = reference_dense(&dense.layer, &x);
     }
-    let logits = reference_dense(&q.action_head.layer, &x);
+    let logits = reference_logits(&q.action_head.layer, &x, q.version);
     let value = q
         .value_head
         .as_ref()

@@ -6,7 +6,7 @@ use serde::Serialize;
 use wheelleg_runtime::model::crc32::crc32;
 use wheelleg_runtime::model::format::{
     ActQuantRecord, ConvRecord, DenseRecord, Envelope, InputQuantRecord, InputRecord,
-    FORMAT_VERSION, MAGIC,
+    FORMAT_VERSION, MAGIC, OLDEST_FORMAT_VERSION,
 };
 use wheelleg_runtime::model::load::MAX_BIAS_ABS;
 
@@ -38,6 +38,8 @@ pub enum QuantizeError {
     },
     /// Serialization failed.
     Encode(String),
+    /// A format version this trainer cannot write.
+    Version(u16),
 }
 
 impl fmt::Display for QuantizeError {
@@ -51,6 +53,11 @@ impl fmt::Display for QuantizeError {
             }
             QuantizeError::TooLarge { what } => write!(f, "{what} does not fit the format"),
             QuantizeError::Encode(error) => write!(f, "encoding failed: {error}"),
+            QuantizeError::Version(version) => write!(
+                f,
+                "cannot write weights format version {version} (versions \
+                 {OLDEST_FORMAT_VERSION} to {FORMAT_VERSION})"
+            ),
         }
     }
 }
@@ -112,6 +119,9 @@ pub struct QuantizedDense {
 /// The whole network in int8, ready to be written.
 #[derive(Clone, Debug, PartialEq)]
 pub struct QuantizedNetwork {
+    /// Weights format version this network is quantized for and written as: 2 (int16 action
+    /// logits, `action_head.layer.output` symmetric with zero point 0) or 1 (int8 logits).
+    pub version: u16,
     /// Shape.
     pub arch: Architecture,
     /// Height map (millimetres, i16) to int8.
@@ -124,7 +134,7 @@ pub struct QuantizedNetwork {
     pub convs: Vec<QuantizedConv>,
     /// Hidden dense stack.
     pub hidden: Vec<QuantizedDense>,
-    /// Action head.
+    /// Action head (its `output` is the int16 logit quantization in version 2).
     pub action_head: QuantizedDense,
     /// Value head.
     pub value_head: Option<QuantizedDense>,
@@ -250,12 +260,28 @@ fn dense(
     })
 }
 
-/// Post-training quantization of `network` with the activation ranges of `calibration`.
+/// Post-training quantization of `network` with the activation ranges of `calibration`, for the
+/// current weights format ([`FORMAT_VERSION`]: int16 action logits).
 pub fn quantize(
     network: &NetworkF32,
     calibration: &Calibration,
     method: RangeMethod,
 ) -> Result<QuantizedNetwork, QuantizeError> {
+    quantize_for_version(network, calibration, method, FORMAT_VERSION)
+}
+
+/// [`quantize`] for a given format version: 2 gives the action head int16 logits
+/// ([`ActQuant::logits16`]), 1 the int8 logits of older runtimes (kept to write files for
+/// them and to measure what the int16 head gains).
+pub fn quantize_for_version(
+    network: &NetworkF32,
+    calibration: &Calibration,
+    method: RangeMethod,
+    version: u16,
+) -> Result<QuantizedNetwork, QuantizeError> {
+    if !(OLDEST_FORMAT_VERSION..=FORMAT_VERSION).contains(&version) {
+        return Err(QuantizeError::Version(version));
+    }
     let height = input_quant(&calibration.height, method, "height map")?;
     let state = calibration
         .state
@@ -322,18 +348,22 @@ pub fn quantize(
             None
         }
     };
+    let action_observer = match calibration.action_range {
+        ActionRange::AllLogits => &calibration.action,
+        ActionRange::Contenders => &calibration.action_contenders,
+    };
+    let action_output = if version >= 2 {
+        let (low, high) = action_observer.range(method);
+        ActQuant::logits16(low, high)
+    } else {
+        act_quant(action_observer, method)
+    };
     let action_head = dense(
         "action head",
         &network.action_head,
         heads_fold(&network.action_head),
         input,
-        act_quant(
-            match calibration.action_range {
-                ActionRange::AllLogits => &calibration.action,
-                ActionRange::Contenders => &calibration.action_contenders,
-            },
-            method,
-        ),
+        action_output,
         false,
     )?;
     let value_head = match &network.value_head {
@@ -348,6 +378,7 @@ pub fn quantize(
         None => None,
     };
     Ok(QuantizedNetwork {
+        version,
         arch: network.arch.clone(),
         height,
         state,
@@ -510,8 +541,12 @@ impl QuantizedNetwork {
         postcard::to_allocvec(&payload).map_err(|e| QuantizeError::Encode(e.to_string()))
     }
 
-    /// The complete `.wlw` file.
+    /// The complete `.wlw` file, of format version [`QuantizedNetwork::version`] (the payload
+    /// bytes are laid out the same in versions 1 and 2; only the head's meaning differs).
     pub fn to_bytes(&self) -> Result<Vec<u8>, QuantizeError> {
-        envelope_bytes(FORMAT_VERSION, &self.payload_bytes()?)
+        if !(OLDEST_FORMAT_VERSION..=FORMAT_VERSION).contains(&self.version) {
+            return Err(QuantizeError::Version(self.version));
+        }
+        envelope_bytes(self.version, &self.payload_bytes()?)
     }
 }

@@ -3,7 +3,8 @@
 //! 1. [`calibrate`]: run the float network on calibration observations (height maps from
 //!    rollouts) and record every quantized tensor's range (min/max or percentiles).
 //! 2. [`params`]: turn ranges into activation scales and zero points, weights into symmetric
-//!    per-output-channel int8, real multipliers into fixed-point multiplier + shift.
+//!    per-output-channel int8, real multipliers into fixed-point multiplier + shift; the action
+//!    head's output into symmetric int16 logits (format version 2).
 //! 3. [`build`]: quantize every layer ([`quantize`]), folding the state's own quantization into
 //!    the layer that reads features ++ state, and encode the `.wlw` file
 //!    ([`QuantizedNetwork::to_bytes`]).
@@ -18,7 +19,9 @@ pub mod calibrate;
 pub mod params;
 
 pub use agreement::{agreement, Agreement};
-pub use build::{quantize, InputQuant, QuantizeError, QuantizedLayer, QuantizedNetwork};
+pub use build::{
+    quantize, quantize_for_version, InputQuant, QuantizeError, QuantizedLayer, QuantizedNetwork,
+};
 pub use calibrate::{ActionRange, Calibration, RangeMethod, RangeObserver};
 pub use params::{quantize_multiplier, ActQuant};
 

@@ -39,7 +39,35 @@ impl ActQuant {
     pub fn dequantize(&self, q: i8) -> f32 {
         self.scale * (f32::from(q) - f32::from(self.zero_point))
     }
+
+    /// The action head's int16 logit quantization (format version 2): zero point 0, and a
+    /// scale that puts `LOGIT_HEADROOM` times the largest calibrated magnitude at 32,767.
+    /// Symmetric because the logits are signed and only compared, never padded or ReLU'd (no
+    /// need for an exact real 0 at an offset); [`ActQuant::quantize`] and
+    /// [`ActQuant::dequantize`] are int8 and do not apply to it. A degenerate range gets
+    /// scale 1 as in [`ActQuant::from_range`].
+    pub fn logits16(low: f32, high: f32) -> ActQuant {
+        let max = low.abs().max(high.abs()) * LOGIT_HEADROOM;
+        if max.is_nan() || max <= f32::EPSILON || !max.is_finite() {
+            return ActQuant {
+                scale: 1.0,
+                zero_point: 0,
+            };
+        }
+        ActQuant {
+            scale: max / f32::from(i16::MAX),
+            zero_point: 0,
+        }
+    }
 }
+
+/// How far beyond the calibrated range int16 logits stay unclamped. Why 2: held-out logits can
+/// exceed the calibration's extremes, and a clamp matters only when two logits of one head both
+/// clamp (a false tie); a factor of 2 makes that practically impossible while the step stays
+/// 64 times finer per unit of range than int8's 255 steps over `[min, max]` (about 128 times
+/// for the baseline policy's roughly symmetric logits), which is what removes the output
+/// rounding from the argmax.
+pub const LOGIT_HEADROOM: f32 = 2.0;
 
 /// A real multiplier is not representable by the runtime.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -125,6 +153,14 @@ mod tests {
         let signed = ActQuant::from_range(-1.0, 3.0);
         assert_eq!(signed.dequantize(signed.zero_point), 0.0);
         assert_eq!(ActQuant::from_range(0.0, 0.0).scale, 1.0);
+    }
+
+    #[test]
+    fn logit_quantization_is_symmetric_with_headroom() {
+        let q = ActQuant::logits16(-40.0, 10.0);
+        assert_eq!(q.zero_point, 0);
+        assert!((q.scale * 32767.0 - 80.0).abs() < 1e-3, "{}", q.scale);
+        assert_eq!(ActQuant::logits16(0.0, 0.0).scale, 1.0);
     }
 
     #[test]
