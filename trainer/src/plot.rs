@@ -1,5 +1,10 @@
 //! Learning curves of several runs on one PNG: success rate, return, collision-free rate and
-//! path length against environment steps (2 x 2 panels, one colour per run).
+//! path length against environment steps (2 x 2 panels, one colour per curve).
+//!
+//! A curve is a [`RunGroup`]: one run, or several seeds of one method drawn as their mean with
+//! a shaded band from the lowest to the highest seed at each step. Each run's iterations can be
+//! smoothed by a trailing moving average first, because one iteration's rates come from a few
+//! dozen episodes.
 //!
 //! Text is drawn with plotters' pure-Rust `ab_glyph` renderer from a TTF file: `font` if given,
 //! else the first of a few common system fonts. Without any font the curves are still drawn,
@@ -41,27 +46,111 @@ fn register_font(font: Option<&Path>) -> Result<bool, String> {
 
 type Series = fn(&IterationMetrics) -> Option<f32>;
 
-/// Draws the runs' curves into `out` (PNG, `width` x `height` pixels).
+/// One curve: a label and the run folders (seeds) averaged into it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RunGroup {
+    /// Legend text.
+    pub label: String,
+    /// Run folders, each with a metrics.jsonl.
+    pub runs: Vec<PathBuf>,
+}
+
+impl RunGroup {
+    /// Parses `DIR` (a group of one, labelled by the folder name) or `LABEL=DIR[,DIR...]`.
+    pub fn parse(text: &str) -> Result<RunGroup, String> {
+        let (label, dirs) = match text.split_once('=') {
+            Some((label, dirs)) => (label.to_string(), dirs),
+            None => {
+                let p = Path::new(text);
+                let label = p
+                    .file_name()
+                    .map_or_else(|| text.to_string(), |n| n.to_string_lossy().into_owned());
+                (label, text)
+            }
+        };
+        let runs: Vec<PathBuf> = dirs
+            .split(',')
+            .filter(|d| !d.is_empty())
+            .map(PathBuf::from)
+            .collect();
+        if label.is_empty() || runs.is_empty() {
+            return Err(format!(
+                "{text:?}: a curve is DIR or LABEL=DIR[,DIR...] with a label and a folder"
+            ));
+        }
+        Ok(RunGroup { label, runs })
+    }
+}
+
+/// A curve's points: env steps, then mean, lowest and highest over the group's runs.
+type Band = Vec<(f32, f32, f32, f32)>;
+
+/// Trailing moving average over `window` iterations of the values that exist.
+fn smooth(points: &[(u64, f32)], window: usize) -> Vec<(u64, f32)> {
+    let window = window.max(1);
+    (0..points.len())
+        .map(|i| {
+            let from = (i + 1).saturating_sub(window);
+            let slice = &points[from..=i];
+            let mean = slice.iter().map(|p| p.1).sum::<f32>() / slice.len() as f32;
+            (points[i].0, mean)
+        })
+        .collect()
+}
+
+/// Mean, low and high across runs at every env-step count some run reached.
+fn band(runs: &[Vec<IterationMetrics>], series: Series, window: usize) -> Band {
+    let mut by_step: std::collections::BTreeMap<u64, Vec<f32>> = Default::default();
+    for metrics in runs {
+        let points: Vec<(u64, f32)> = metrics
+            .iter()
+            .filter_map(|x| {
+                series(x)
+                    .filter(|v| v.is_finite())
+                    .map(|v| (x.env_steps, v))
+            })
+            .collect();
+        for (step, v) in smooth(&points, window) {
+            by_step.entry(step).or_default().push(v);
+        }
+    }
+    by_step
+        .into_iter()
+        .map(|(step, vs)| {
+            let mean = vs.iter().sum::<f32>() / vs.len() as f32;
+            let lo = vs.iter().copied().fold(f32::MAX, f32::min);
+            let hi = vs.iter().copied().fold(f32::MIN, f32::max);
+            (step as f32, mean, lo, hi)
+        })
+        .collect()
+}
+
+/// Draws the groups' curves into `out` (PNG, `width` x `height` pixels), each run smoothed over
+/// `smooth_iterations` iterations (1: as logged).
 pub fn plot_runs(
-    runs: &[PathBuf],
+    groups: &[RunGroup],
     out: &Path,
     font: Option<&Path>,
     size: (u32, u32),
+    smooth_iterations: usize,
 ) -> Result<(), String> {
-    if runs.is_empty() {
+    if groups.is_empty() {
         return Err("no runs to plot".into());
     }
-    let data: Vec<(String, Vec<IterationMetrics>)> = runs
+    let data: Vec<(String, Vec<Vec<IterationMetrics>>)> = groups
         .iter()
-        .map(|r| {
-            let name = r.file_name().map_or_else(
-                || r.display().to_string(),
-                |n| n.to_string_lossy().into_owned(),
-            );
-            // Iterations that finished no episode carry no rates; leave them out of the curves.
-            read_metrics(r).map(|m| (name, m.into_iter().filter(|x| x.episodes > 0).collect()))
+        .map(|g| {
+            let runs = g
+                .runs
+                .iter()
+                // Iterations that finished no episode carry no rates; leave them out.
+                .map(|r| {
+                    read_metrics(r).map(|m| m.into_iter().filter(|x| x.episodes > 0).collect())
+                })
+                .collect::<Result<Vec<Vec<_>>, _>>()?;
+            Ok((g.label.clone(), runs))
         })
-        .collect::<Result<_, _>>()?;
+        .collect::<Result<_, String>>()?;
     let text = register_font(font)?;
     let panels: [(&str, Series); 4] = [
         ("success rate", |m| Some(m.success_rate)),
@@ -78,20 +167,20 @@ pub fn plot_runs(
         let areas = root.split_evenly((2, 2));
         let max_steps = data
             .iter()
-            .flat_map(|(_, m)| m.iter().map(|x| x.env_steps))
+            .flat_map(|(_, runs)| runs.iter().flatten().map(|x| x.env_steps))
             .max()
             .unwrap_or(1)
             .max(1) as f32;
         for (area, (title, series)) in areas.iter().zip(panels) {
-            let values: Vec<f32> = data
+            let bands: Vec<(&String, Band)> = data
                 .iter()
-                .flat_map(|(_, m)| m.iter().filter_map(series))
-                .filter(|v| v.is_finite())
+                .map(|(name, runs)| (name, band(runs, series, smooth_iterations)))
                 .collect();
-            let (mut lo, mut hi) = values
+            let (mut lo, mut hi) = bands
                 .iter()
-                .fold((f32::MAX, f32::MIN), |(a, b), &v| (a.min(v), b.max(v)));
-            if values.is_empty() {
+                .flat_map(|(_, b)| b.iter())
+                .fold((f32::MAX, f32::MIN), |(a, b), p| (a.min(p.2), b.max(p.3)));
+            if lo > hi {
                 (lo, hi) = (0.0, 1.0);
             }
             if hi - lo < 1e-6 {
@@ -111,7 +200,9 @@ pub fn plot_runs(
                 .map_err(|e| e.to_string())?;
             let mut mesh = chart.configure_mesh();
             if text {
-                mesh.label_style((FONT_NAME, 12)).x_desc("env steps");
+                mesh.label_style((FONT_NAME, 12))
+                    .x_desc("env steps")
+                    .x_label_formatter(&|x| format!("{:.2}M", x / 1e6));
             } else {
                 mesh.disable_x_mesh()
                     .disable_y_mesh()
@@ -119,22 +210,30 @@ pub fn plot_runs(
                     .y_labels(0);
             }
             mesh.draw().map_err(|e| e.to_string())?;
-            for (k, (name, m)) in data.iter().enumerate() {
+            for (k, (name, points)) in bands.iter().enumerate() {
                 let colour = Palette99::pick(k).to_rgba();
-                let points: Vec<(f32, f32)> = m
-                    .iter()
-                    .filter_map(|x| {
-                        series(x)
-                            .filter(|v| v.is_finite())
-                            .map(|v| (x.env_steps as f32, v))
-                    })
-                    .collect();
+                let spread = points.iter().any(|p| p.3 > p.2);
+                if spread {
+                    // The band: the highest seed forwards, the lowest backwards, one polygon.
+                    let outline: Vec<(f32, f32)> = points
+                        .iter()
+                        .map(|p| (p.0, p.3))
+                        .chain(points.iter().rev().map(|p| (p.0, p.2)))
+                        .collect();
+                    chart
+                        .draw_series(std::iter::once(Polygon::new(
+                            outline,
+                            colour.mix(0.2).filled(),
+                        )))
+                        .map_err(|e| e.to_string())?;
+                }
+                let mean: Vec<(f32, f32)> = points.iter().map(|p| (p.0, p.1)).collect();
                 let drawn = chart
-                    .draw_series(LineSeries::new(points, colour.stroke_width(2)))
+                    .draw_series(LineSeries::new(mean, colour.stroke_width(2)))
                     .map_err(|e| e.to_string())?;
                 if text {
                     drawn
-                        .label(name.clone())
+                        .label(name.to_string())
                         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour));
                 }
             }
@@ -153,4 +252,46 @@ pub fn plot_runs(
             .map_err(|e| format!("cannot write {}: {e}", tmp.display()))?;
     }
     std::fs::rename(&tmp, out).map_err(|e| format!("cannot move plot to {}: {e}", out.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn groups_parse_from_a_folder_or_a_labelled_list() {
+        let g = RunGroup::parse("runs/baseline-s0").unwrap();
+        assert_eq!(g.label, "baseline-s0");
+        assert_eq!(g.runs, vec![PathBuf::from("runs/baseline-s0")]);
+        let g = RunGroup::parse("primary=runs/a,runs/b").unwrap();
+        assert_eq!(g.label, "primary");
+        assert_eq!(g.runs.len(), 2);
+        assert!(RunGroup::parse("primary=")
+            .unwrap_err()
+            .contains("LABEL=DIR"));
+        assert!(RunGroup::parse("=runs/a")
+            .unwrap_err()
+            .contains("LABEL=DIR"));
+    }
+
+    #[test]
+    fn the_band_spans_the_seeds_and_smoothing_averages_trailing_iterations() {
+        let run = |rates: &[f32]| -> Vec<IterationMetrics> {
+            rates
+                .iter()
+                .enumerate()
+                .map(|(i, &r)| IterationMetrics {
+                    env_steps: 100 * (i as u64 + 1),
+                    success_rate: r,
+                    ..IterationMetrics::default()
+                })
+                .collect()
+        };
+        let runs = vec![run(&[0.0, 0.5, 1.0]), run(&[0.2, 0.7, 0.6])];
+        let b = band(&runs, |m| Some(m.success_rate), 1);
+        assert_eq!(b.len(), 3);
+        assert!((b[1].1 - 0.6).abs() < 1e-6 && b[1].2 == 0.5 && b[1].3 == 0.7);
+        let b = band(&runs[..1], |m| Some(m.success_rate), 2);
+        assert!((b[2].1 - 0.75).abs() < 1e-6, "mean of 0.5 and 1.0");
+    }
 }

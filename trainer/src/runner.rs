@@ -36,7 +36,7 @@ pub const TRAJECTORIES_FILE: &str = "trajectories.wltb";
 pub const METRICS_FILE: &str = "metrics.jsonl";
 
 /// One iteration's line in `metrics.jsonl`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct IterationMetrics {
     /// Iteration number, from 1.
     pub iteration: u64,
