@@ -46,6 +46,50 @@ fn generate_plan_and_render_a_scenario_file() {
         assert!((7..=20).contains(&steps), "{r}");
     }
 
+    // One planner pass serves later evaluations: the same ratio as planning during the eval.
+    let plan_file = dir.join("plan.json");
+    std::fs::write(&plan_file, &out.stdout).unwrap();
+    let policy = concat!(env!("CARGO_MANIFEST_DIR"), "/weights/policy.wlw");
+    let eval = |extra: &[&str]| {
+        let mut args = vec![
+            "eval",
+            "--policy",
+            policy,
+            "--scenarios",
+            file_arg,
+            "--json",
+        ];
+        args.extend_from_slice(extra);
+        let out = wheelleg(&args);
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        serde_json::from_slice::<serde_json::Value>(&out.stdout).unwrap()
+    };
+    let planned = eval(&[]);
+    let cached = eval(&["--planner-results", plan_file.to_str().unwrap()]);
+    assert!(planned["steps_vs_shortest"].is_number(), "{planned}");
+    assert_eq!(planned["steps_vs_shortest"], cached["steps_vs_shortest"]);
+    let other = dir.join("other-plan.json");
+    std::fs::write(
+        &other,
+        r#"{"results":[{"name":"elsewhere","steps":9,"shortest":true}]}"#,
+    )
+    .unwrap();
+    let out = wheelleg(&[
+        "eval",
+        "--policy",
+        policy,
+        "--scenarios",
+        file_arg,
+        "--planner-results",
+        other.to_str().unwrap(),
+    ]);
+    assert!(!out.status.success());
+    assert!(
+        text(&out.stderr).contains("results name no scenario"),
+        "{}",
+        text(&out.stderr)
+    );
+
     let pictures = dir.join("pictures");
     let out = wheelleg(&[
         "render",

@@ -1,5 +1,5 @@
 //! `wheelleg eval --policy CKPT|WEIGHTS (--scenarios FILE | --generated N --kind K) --seed S [--json]
-//! [--stochastic]`.
+//! [--stochastic] [--planner-expansions N | --planner-results PLAN.json]`.
 
 use super::CliResult;
 use rand::SeedableRng;
@@ -41,6 +41,10 @@ pub struct Args {
     /// Planner budget per scenario (expanded states) for the shortest-path ratio; 0 skips it.
     #[arg(long, default_value_t = 20_000)]
     planner_expansions: usize,
+    /// Shortest paths already found by `wheelleg plan --json` on the same scenarios (a file);
+    /// the planner is then not run, so one planner pass serves every policy.
+    #[arg(long, conflicts_with = "planner_expansions")]
+    planner_results: Option<PathBuf>,
 }
 
 /// Runs `eval`.
@@ -60,9 +64,21 @@ pub fn run(args: Args) -> CliResult {
     if scenarios.is_empty() {
         return Err("no scenarios to evaluate".into());
     }
+    let known_shortest = match &args.planner_results {
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+            Some(
+                wheelleg_trainer::evaluate::read_plan_results(&text)
+                    .map_err(|e| format!("{}: {e}", path.display()))?,
+            )
+        }
+        None => None,
+    };
     let options = EvalOptions {
         stochastic: args.stochastic,
         planner_expansions: args.planner_expansions,
+        known_shortest,
         ..EvalOptions::default()
     };
     let mut rng = ChaCha8Rng::seed_from_u64(args.seed);

@@ -8,7 +8,8 @@
 use crate::batch_policy::BatchPolicy;
 use crate::network_f32::NetworkF32;
 use rand::Rng;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
 use wheelleg_runtime::action::Action;
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
 use wheelleg_sim::env::{Env, EnvConfig, Observation, Status};
@@ -60,6 +61,38 @@ pub struct EvalOptions {
     pub planner_expansions: usize,
     /// Episode rules.
     pub env_config: EnvConfig,
+    /// Shortest step counts already known by scenario name (none: not proven within the
+    /// planner's budget), read from `wheelleg plan --json` by [`read_plan_results`]. When
+    /// given, the planner is not run: one planner pass over a held-out set then serves every
+    /// policy evaluated on it.
+    pub known_shortest: Option<HashMap<String, Option<usize>>>,
+}
+
+#[derive(Deserialize)]
+struct PlanFile {
+    results: Vec<PlanLine>,
+}
+
+#[derive(Deserialize)]
+struct PlanLine {
+    name: String,
+    steps: Option<usize>,
+    shortest: bool,
+}
+
+/// Parses the JSON of `wheelleg plan --json` into shortest step counts by scenario name; a
+/// result the planner did not prove shortest (weighted fallback, budget) counts as unknown.
+pub fn read_plan_results(json: &str) -> Result<HashMap<String, Option<usize>>, String> {
+    let file: PlanFile = serde_json::from_str(json)
+        .map_err(|e| format!("not the output of `wheelleg plan --json`: {e}"))?;
+    let mut known = HashMap::with_capacity(file.results.len());
+    for line in file.results {
+        let steps = line.steps.filter(|_| line.shortest);
+        if known.insert(line.name.clone(), steps).is_some() {
+            return Err(format!("scenario {:?} appears twice", line.name));
+        }
+    }
+    Ok(known)
 }
 
 impl Default for EvalOptions {
@@ -68,6 +101,7 @@ impl Default for EvalOptions {
             stochastic: false,
             planner_expansions: 20_000,
             env_config: EnvConfig::default(),
+            known_shortest: None,
         }
     }
 }
@@ -154,7 +188,11 @@ pub fn evaluate(
     let mut results = Vec::with_capacity(scenarios.len());
     for (s, env) in scenarios.iter().zip(&envs) {
         let success = env.status() == Status::Success;
-        let planner_steps = if success && options.planner_expansions > 0 {
+        let planner_steps = if let Some(known) = &options.known_shortest {
+            *known
+                .get(&s.name)
+                .ok_or_else(|| format!("the planner results name no scenario {:?}", s.name))?
+        } else if success && options.planner_expansions > 0 {
             let fresh = Env::new(s, options.env_config)
                 .map_err(|e| format!("scenario {}: {e:?}", s.name))?;
             match plan(&fresh, &planner).outcome {
@@ -194,7 +232,9 @@ pub fn evaluate(
         collision_free_rate: results.iter().filter(|r| r.collision_free).count() as f32 / n,
         mean_steps,
         steps_vs_shortest,
-        planner_budget_exceeded: if options.planner_expansions > 0 {
+        planner_budget_exceeded: if options.planner_expansions > 0
+            || options.known_shortest.is_some()
+        {
             successes.len() - both.len()
         } else {
             0
