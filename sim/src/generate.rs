@@ -120,14 +120,60 @@ struct Layout {
     target: Point2<f32>,
 }
 
-/// Random start on the lattice, random yaw; the target `min_ahead_m..=1.0` ahead along x.
-fn layout(rng: &mut impl Rng, min_ahead_m: f32) -> Layout {
+/// How a scene's start yaw is drawn.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub enum StartYaw {
+    /// Any yaw on the 5 degree lattice: the task as specified.
+    #[default]
+    Any,
+    /// The body's long axis along world x (facing the target or away from it), give or take
+    /// `within_deg`, on the 5 degree lattice. Lift, spread and squeeze passages are only
+    /// passable lined up with the fence, and a policy that starts from the straight-line one
+    /// has never turned: from any yaw it must find a turn of up to 90 degrees (18 steps) and
+    /// the behaviour together before the first success. A training curriculum can first
+    /// teach the behaviour lined up and leave the turning to the primary policy.
+    AlongX {
+        /// Largest deviation from the world x axis, degrees.
+        within_deg: f32,
+    },
+}
+
+impl StartYaw {
+    /// `Any` from 90 degrees on (every heading is within 90 degrees of one of the two along
+    /// x), `AlongX` below.
+    pub fn within_deg(within_deg: f32) -> StartYaw {
+        if within_deg >= 90.0 {
+            StartYaw::Any
+        } else {
+            StartYaw::AlongX { within_deg }
+        }
+    }
+
+    fn draw(self, rng: &mut impl Rng) -> i32 {
+        match self {
+            StartYaw::Any => rng.random_range(0..YAW_STEPS_PER_TURN),
+            StartYaw::AlongX { within_deg } => {
+                let steps = (within_deg.max(0.0) / wheelleg_runtime::action::YAW_STEP_DEG) as i32;
+                let base = if rng.random_bool(0.5) {
+                    0
+                } else {
+                    YAW_STEPS_PER_TURN / 2
+                };
+                base + rng.random_range(-steps..=steps)
+            }
+        }
+    }
+}
+
+/// Random start on the lattice, yaw as `start_yaw`; the target `min_ahead_m..=1.0` ahead
+/// along x.
+fn layout(rng: &mut impl Rng, min_ahead_m: f32, start_yaw: StartYaw) -> Layout {
     let lattice = MOVE_STEP_M as f64;
     // Offset by half a step so that every obstacle cell centre (0.125 + 0.25 k) lies on the
     // robot's lattice: a passage centred on a cell can then be entered exactly on centre.
     let x = on_robot_lattice(rng.random_range(-2..=2));
     let y = on_robot_lattice(rng.random_range(-2..=2));
-    let yaw_steps = rng.random_range(0..YAW_STEPS_PER_TURN);
+    let yaw_steps = start_yaw.draw(rng);
     let min_k = ((min_ahead_m.max(0.5) as f64) / lattice).ceil() as i32;
     let k = rng.random_range(min_k.min(20)..=20);
     let start = RobotState::new(Point2::new(x, y), yaw_steps);
@@ -140,10 +186,20 @@ fn layout(rng: &mut impl Rng, min_ahead_m: f32) -> Layout {
 /// Generates one scene of `kind`. Scenes that come out invalid (robot starting inside an
 /// obstacle, target unreachable by construction) are redrawn, so the result always validates.
 pub fn generate(kind: SceneKind, rng: &mut impl Rng, name: String) -> Scenario {
+    generate_with_start(kind, StartYaw::Any, rng, name)
+}
+
+/// [`generate`] with the start yaw drawn as `start_yaw`.
+pub fn generate_with_start(
+    kind: SceneKind,
+    start_yaw: StartYaw,
+    rng: &mut impl Rng,
+    name: String,
+) -> Scenario {
     loop {
         let scenario = match kind {
-            SceneKind::Behaviour(b) => behaviour_scene(b, rng, name.clone()),
-            SceneKind::Complex => complex_scene(rng, name.clone()),
+            SceneKind::Behaviour(b) => behaviour_scene(b, rng, name.clone(), start_yaw),
+            SceneKind::Complex => complex_scene(rng, name.clone(), start_yaw),
         };
         if scenario.validate(&WHEELLEG).is_ok() && target_is_free(&scenario) {
             return scenario;
@@ -200,14 +256,19 @@ fn fence_cells(behaviour: Behaviour) -> Vec<(i32, ObstacleKind)> {
     }
 }
 
-fn behaviour_scene(behaviour: Behaviour, rng: &mut impl Rng, name: String) -> Scenario {
+fn behaviour_scene(
+    behaviour: Behaviour,
+    rng: &mut impl Rng,
+    name: String,
+    start_yaw: StartYaw,
+) -> Scenario {
     // The fence (or block) stands in the first cell at least 0.45 m ahead of the start, so the
     // robot starts clear of it at any yaw; the target is at least `beyond` past its centre.
     let beyond_m = match behaviour {
         Behaviour::Around => 0.45,
         _ => 0.25,
     };
-    let lay = layout(rng, 0.45 + beyond_m);
+    let lay = layout(rng, 0.45 + beyond_m, start_yaw);
     let fence_x = cell_centre_m(cell_index(lay.start.position.x + 0.45) + 1);
     let fence_x = if fence_x - GRID_CELL_M >= lay.start.position.x + 0.45 {
         fence_x - GRID_CELL_M
@@ -264,8 +325,8 @@ fn behaviour_scene(behaviour: Behaviour, rng: &mut impl Rng, name: String) -> Sc
     }
 }
 
-fn complex_scene(rng: &mut impl Rng, name: String) -> Scenario {
-    let lay = layout(rng, 0.5);
+fn complex_scene(rng: &mut impl Rng, name: String, start_yaw: StartYaw) -> Scenario {
+    let lay = layout(rng, 0.5, start_yaw);
     let count = rng.random_range(1..=8);
     let (x0, x1) = (
         cell_index(lay.start.position.x - 0.5),

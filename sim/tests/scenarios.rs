@@ -219,3 +219,33 @@ fn around_scenes_block_the_straight_line() {
         assert!(blocked, "{}", scene.name);
     }
 }
+
+#[test]
+fn lined_up_starts_stay_within_their_band_and_any_yaw_keeps_the_old_scenes() {
+    use wheelleg_sim::generate::{generate, generate_with_start, StartYaw};
+    let kind = SceneKind::Behaviour(Behaviour::SpreadOver);
+    let mut seen_backwards = false;
+    let mut r = rng(11);
+    for i in 0..200 {
+        let s = generate_with_start(
+            kind,
+            StartYaw::within_deg(15.0),
+            &mut r,
+            format!("s{i}"),
+        );
+        let yaw = s.start.yaw_deg().rem_euclid(360.0);
+        let from_x = yaw.min((yaw - 180.0).abs()).min(360.0 - yaw);
+        assert!(from_x <= 15.0 + 1e-3, "{} starts at {yaw} deg", s.name);
+        seen_backwards |= (yaw - 180.0).abs() <= 15.0;
+    }
+    assert!(seen_backwards, "facing away from the target is drawn too");
+    // `Any` is the generator as it was: same draws, same scenes.
+    let (mut a, mut b) = (rng(5), rng(5));
+    for i in 0..20 {
+        let name = format!("c{i}");
+        assert_eq!(
+            generate(SceneKind::Complex, &mut a, name.clone()),
+            generate_with_start(SceneKind::Complex, StartYaw::within_deg(90.0), &mut b, name)
+        );
+    }
+}

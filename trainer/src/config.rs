@@ -100,6 +100,9 @@ pub struct RunConfig {
     pub threads: usize,
     /// Deep-learning backend: `flex` (default), `ndarray`, `cubecl-cpu`, `cuda`.
     pub backend: String,
+    /// Start yaw of the training scenes: within this many degrees of the world x axis
+    /// (facing the target or away from it); 90 or more: any yaw, the task as specified.
+    pub start_yaw_within_deg: f32,
 }
 
 impl Default for RunConfig {
@@ -113,6 +116,7 @@ impl Default for RunConfig {
             checkpoint_interval: 5,
             threads: 2,
             backend: "flex".into(),
+            start_yaw_within_deg: 180.0,
         }
     }
 }
@@ -147,6 +151,9 @@ pub struct CurriculumConfig {
     /// Entropy coefficient of the secondary policies that start from the straight-line
     /// policy (the straight one uses `ppo.entropy_coef`), for the same reason.
     pub secondary_entropy_coef: f32,
+    /// `run.start_yaw_within_deg` of the secondary policies that start from the straight-line
+    /// one (see `wheelleg_sim::generate::StartYaw::AlongX` for why): 180 keeps any yaw.
+    pub secondary_start_yaw_within_deg: f32,
 }
 
 impl Default for CurriculumConfig {
@@ -163,6 +170,7 @@ impl Default for CurriculumConfig {
             primary_init: "scratch".into(),
             secondary_init_temperature: 1.0,
             secondary_entropy_coef: 0.003,
+            secondary_start_yaw_within_deg: 180.0,
         }
     }
 }
@@ -244,6 +252,10 @@ impl TrainConfig {
             "run.checkpoint_interval must be at least 1",
         )?;
         check(r.threads >= 1, "run.threads must be at least 1")?;
+        check(
+            r.start_yaw_within_deg.is_finite() && r.start_yaw_within_deg >= 0.0,
+            "run.start_yaw_within_deg must be a non-negative number of degrees",
+        )?;
         crate::network::BackendKind::from_name(&r.backend).map(|_| ())?;
         check(p.learning_rate > 0.0, "ppo.learning_rate must be positive")?;
         check(
@@ -297,7 +309,16 @@ impl TrainConfig {
             c.secondary_entropy_coef.is_finite() && c.secondary_entropy_coef >= 0.0,
             "curriculum.secondary_entropy_coef must be a non-negative number",
         )?;
+        check(
+            c.secondary_start_yaw_within_deg.is_finite() && c.secondary_start_yaw_within_deg >= 0.0,
+            "curriculum.secondary_start_yaw_within_deg must be a non-negative number of degrees",
+        )?;
         Ok(())
+    }
+
+    /// How the training scenes' start yaw is drawn.
+    pub fn start_yaw(&self) -> wheelleg_sim::generate::StartYaw {
+        wheelleg_sim::generate::StartYaw::within_deg(self.run.start_yaw_within_deg)
     }
 
     /// Environment steps each env takes per iteration.

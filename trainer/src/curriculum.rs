@@ -107,6 +107,7 @@ pub fn run_secondary(config: &TrainConfig, opts: &CurriculumOptions) -> Result<(
         stage.run.total_env_steps = config.curriculum.secondary_env_steps;
         if straight.is_some() {
             stage.ppo.entropy_coef = config.curriculum.secondary_entropy_coef;
+            stage.run.start_yaw_within_deg = config.curriculum.secondary_start_yaw_within_deg;
         }
         let dir = secondary_dir(&opts.out, behaviour);
         let summary = run_stage(

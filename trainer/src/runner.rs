@@ -156,7 +156,14 @@ pub fn train_stage(
         .seed
         .wrapping_mul(0x9E37_79B9_7F4A_7C15)
         .wrapping_add(3);
-    let mut envs = VecEnv::new(kind, n, env_seed, env_config, run.threads)?;
+    let mut envs = VecEnv::with_start_yaw(
+        kind,
+        config.start_yaw(),
+        n,
+        env_seed,
+        env_config,
+        run.threads,
+    )?;
     let random_init = init_policy(&config.architecture(), &mut init_rng);
     let mut ppo = Ppo::new(
         inputs.init.cloned().unwrap_or(random_init),

@@ -10,7 +10,7 @@ use rand_chacha::ChaCha8Rng;
 use wheelleg_runtime::action::{Action, DIMS};
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
 use wheelleg_sim::env::{Env, EnvConfig, Observation, Status};
-use wheelleg_sim::generate::{generate, SceneKind};
+use wheelleg_sim::generate::{generate_with_start, SceneKind, StartYaw};
 use wheelleg_sim::scenario::Scenario;
 
 /// How a finished episode went.
@@ -78,12 +78,24 @@ pub struct EnvSnapshot {
 pub struct VecEnv {
     slots: Vec<EnvSlot>,
     kind: SceneKind,
+    start_yaw: StartYaw,
     config: EnvConfig,
     threads: usize,
 }
 
-fn new_scene(kind: SceneKind, rng: &mut ChaCha8Rng, env: usize, episode: u64) -> Scenario {
-    generate(kind, rng, format!("{}-e{env}-{episode}", kind.name()))
+fn new_scene(
+    kind: SceneKind,
+    start_yaw: StartYaw,
+    rng: &mut ChaCha8Rng,
+    env: usize,
+    episode: u64,
+) -> Scenario {
+    generate_with_start(
+        kind,
+        start_yaw,
+        rng,
+        format!("{}-e{env}-{episode}", kind.name()),
+    )
 }
 
 impl EnvSlot {
@@ -108,7 +120,7 @@ impl EnvSlot {
     fn step(
         &mut self,
         choices: &[u8],
-        kind: SceneKind,
+        (kind, start_yaw): (SceneKind, StartYaw),
         config: EnvConfig,
         index: usize,
     ) -> StepResult {
@@ -151,7 +163,7 @@ impl EnvSlot {
                     .collect(),
             })
         });
-        self.reset(kind, config, index);
+        self.reset((kind, start_yaw), config, index);
         StepResult {
             reward,
             done: true,
@@ -160,11 +172,17 @@ impl EnvSlot {
         }
     }
 
-    fn reset(&mut self, kind: SceneKind, config: EnvConfig, index: usize) {
+    fn reset(&mut self, (kind, start_yaw): (SceneKind, StartYaw), config: EnvConfig, index: usize) {
         // Generated scenes are valid by construction; retry on the (unexpected) invalid one.
         loop {
             self.episodes_started += 1;
-            let scenario = new_scene(kind, &mut self.scene_rng, index, self.episodes_started);
+            let scenario = new_scene(
+                kind,
+                start_yaw,
+                &mut self.scene_rng,
+                index,
+                self.episodes_started,
+            );
             if let Ok(env) = Env::new(&scenario, config) {
                 self.env = env;
                 self.scenario = scenario;
@@ -186,17 +204,30 @@ impl VecEnv {
         config: EnvConfig,
         threads: usize,
     ) -> Result<VecEnv, String> {
+        VecEnv::with_start_yaw(kind, StartYaw::Any, num_envs, seed, config, threads)
+    }
+
+    /// [`VecEnv::new`] with the scenes' start yaw drawn as `start_yaw`.
+    pub fn with_start_yaw(
+        kind: SceneKind,
+        start_yaw: StartYaw,
+        num_envs: usize,
+        seed: u64,
+        config: EnvConfig,
+        threads: usize,
+    ) -> Result<VecEnv, String> {
         let slots = (0..num_envs)
             .map(|i| {
                 let mut rng = ChaCha8Rng::seed_from_u64(seed);
                 rng.set_stream(i as u64);
-                let scenario = new_scene(kind, &mut rng, i, 0);
+                let scenario = new_scene(kind, start_yaw, &mut rng, i, 0);
                 EnvSlot::start(scenario, config, rng, 0)
             })
             .collect::<Result<Vec<_>, _>>()?;
         Ok(VecEnv {
             slots,
             kind,
+            start_yaw,
             config,
             threads: threads.max(1),
         })
@@ -236,7 +267,7 @@ impl VecEnv {
         states: &mut [f32],
     ) -> Vec<StepResult> {
         let chunk = self.slots.len().div_ceil(self.threads);
-        let (kind, config) = (self.kind, self.config);
+        let (scenes, config) = ((self.kind, self.start_yaw), self.config);
         let mut results = vec![
             StepResult {
                 reward: 0.0,
@@ -260,7 +291,7 @@ impl VecEnv {
                     for (j, (slot, r)) in slots.iter_mut().zip(r.iter_mut()).enumerate() {
                         *r = slot.step(
                             &choices[j * DIMS..(j + 1) * DIMS],
-                            kind,
+                            scenes,
                             config,
                             k * chunk + j,
                         );
