@@ -141,8 +141,9 @@ def parse_wlw(data):
     r = Reader(data)
     r.take(4)
     version = r.u16()
-    # Version 2 has version 1's bytes; only the action head's output differs (int16 logits,
-    # zero point 0, no ReLU), see docs/weights-format.md.
+    # Version 2 has version 1's bytes; the action head's output (int16 logits, zero point 0,
+    # no ReLU) and the state features (int16, the int8 grid 256 times finer) differ, see
+    # docs/weights-format.md.
     if version not in (1, 2):
         raise ValueError(f"unsupported version {version}")
     payload = r.bytes()
@@ -179,6 +180,13 @@ def layer_arrays(np, record, rows):
     return weights.reshape(rows, -1), bias, multipliers, shifts
 
 
+def state_grid(model, quant):
+    """A state feature's int8 grid (metres per int8 step, zero point): the weight folding's
+    grid in both versions; a version 2 file stores the int16 step, 256 times smaller."""
+    fraction = 256 if model["version"] >= 2 else 1
+    return quant["scale_m"] * fraction, quant["zero_point"]
+
+
 def real_multiplier(np, multipliers, shifts):
     return multipliers.astype(np.float64) * np.power(2.0, shifts.astype(np.float64) - 31.0)
 
@@ -213,7 +221,7 @@ def dequantize(np, model):
         bf = bias * s_in * s_w
         if first:
             for j, quant in enumerate(model["state"]):
-                t_j, zp_j = quant["scale_m"], quant["zero_point"]
+                t_j, zp_j = state_grid(model, quant)
                 column = wf[:, features + j] * s_x / t_j
                 bf = bf - column * t_j * (zp_x - zp_j)
                 wf[:, features + j] = column
@@ -320,21 +328,39 @@ def int8_forward(np, model, height_mm, state_mm):
                             for oy in range(oh) for ox in range(ow)])
         x = requant(patches @ w.T, conv, o).reshape(oh, ow, o)
         zp = conv["output"]["zero_point"]
-    state_q = [np.clip(q["zero_point"] + rescale(np, np.int64(v), q["multiplier"], q["shift"]), -128, 127)
-               for q, v in zip(model["state"], state_mm)]
-    x = np.concatenate([x.transpose(2, 0, 1).reshape(-1), np.array(state_q, dtype=np.int64)])
+    features = x.transpose(2, 0, 1).reshape(-1)
+    if model["version"] >= 2:
+        # int16 state, kept apart: the first layer adds its columns' sum divided by 256.
+        state = np.array([np.clip(256 * q["zero_point"] + rescale(np, np.int64(v), q["multiplier"],
+                                                                  q["shift"]), -32768, 32767)
+                          for q, v in zip(model["state"], state_mm)], dtype=np.int64)
+        x = features
+    else:
+        state = np.zeros(0, dtype=np.int64)
+        state_q = [np.clip(q["zero_point"] + rescale(np, np.int64(v), q["multiplier"], q["shift"]),
+                           -128, 127) for q, v in zip(model["state"], state_mm)]
+        x = np.concatenate([features, np.array(state_q, dtype=np.int64)])
+
+    def dot(w, x, zp, state):
+        n = x.size
+        acc = w[:, :n] @ (x - zp)
+        if state.size:
+            acc = acc + np.floor_divide(w[:, n:] @ (state - 256 * zp) + 128, 256)
+        return acc
+
     for rec in model["hidden"]:
         w, _, _, _ = layer_arrays(np, rec, rec["out_features"])
-        x = requant(w @ (x - zp), rec, rec["out_features"])
+        x = requant(dot(w, x, zp, state), rec, rec["out_features"])
+        state = np.zeros(0, dtype=np.int64)
         zp = rec["output"]["zero_point"]
     head = model["action_head"]
     w, _, _, _ = layer_arrays(np, head, 15)
     if model["version"] >= 2:
         # int16 logits, zero point 0.
         _, bias, m, s = layer_arrays(np, head, 15)
-        logits = np.clip(rescale(np, w @ (x - zp) + bias, m, s), -32768, 32767)
+        logits = np.clip(rescale(np, dot(w, x, zp, state) + bias, m, s), -32768, 32767)
         return head["output"]["scale"] * logits
-    logits = requant(w @ (x - zp), head, 15)
+    logits = requant(dot(w, x, zp, state), head, 15)
     return head["output"]["scale"] * (logits - head["output"]["zero_point"])
 
 
@@ -346,9 +372,9 @@ def observations(np, model, count, seed):
     """Boxes on flat ground and a state (as the Rust benchmark), metres, kept inside the file's
     input ranges (`scale * (q - zero_point)` for q in -128..127) so that the int8 path does not
     saturate where the float graph does not."""
-    def span(quant):
-        return (quant["scale_m"] * (-128 - quant["zero_point"]),
-                quant["scale_m"] * (127 - quant["zero_point"]))
+    def span(quant, scale=None):
+        scale = quant["scale_m"] if scale is None else scale
+        return (scale * (-128 - quant["zero_point"]), scale * (127 - quant["zero_point"]))
 
     rng = np.random.default_rng(seed)
     rows, cols = model["input"]["rows"], model["input"]["cols"]
@@ -359,7 +385,8 @@ def observations(np, model, count, seed):
         for _ in range(4):
             r0, c0 = rng.integers(0, rows - 4), rng.integers(0, cols - 4)
             height[r0:r0 + 4, c0:c0 + 4] = rng.uniform(min(0.05, top), top)
-        state = np.array([rng.uniform(*span(q)) for q in model["state"]], dtype=np.float32)
+        state = np.array([rng.uniform(*span(q, state_grid(model, q)[0])) for q in model["state"]],
+                         dtype=np.float32)
         out.append((height, state))
     return out
 

@@ -17,9 +17,10 @@ pub fn run(args: Args) -> CliResult {
     let bytes = std::fs::read(&args.file).map_err(|e| format!("{}: {e}", args.file.display()))?;
     let model = Model::parse(&bytes).map_err(|e| format!("{}: {e}", args.file.display()))?;
     println!(
-        "{}: {} bytes, checksum and structure valid",
+        "{}: {} bytes, format version {}, checksum and structure valid",
         args.file.display(),
-        bytes.len()
+        bytes.len(),
+        model.version
     );
     let input = &model.input;
     println!(
@@ -29,11 +30,14 @@ pub fn run(args: Args) -> CliResult {
         input.height.scale_m * 1000.0,
         input.height.zero_point
     );
+    // A version 2 state feature is int16 with zero point 256 x the stored one (docs/model.md).
+    let state_zero_scale = if model.state_bits() == 16 { 256 } else { 1 };
     for (i, s) in model.state.iter().enumerate() {
         println!(
-            "state[{i}]  {:.3} mm per step, zero point {}",
+            "state[{i}]  int{} {:.4} mm per step, zero point {}",
+            model.state_bits(),
             s.scale_m * 1000.0,
-            s.zero_point
+            i32::from(s.zero_point) * state_zero_scale
         );
     }
     for (i, conv) in model.convs.iter().enumerate() {
@@ -73,6 +77,19 @@ pub fn run(args: Args) -> CliResult {
         dense(format!("dense{i}"), &d.linear);
     }
     dense("actions".into(), &model.action_head.linear);
+    println!(
+        "          logits int{}, {} per step{}",
+        model.logit_bits(),
+        model.action_head.record.output.scale,
+        if model.logit_bits() == 8 {
+            format!(
+                ", zero point {}",
+                model.action_head.record.output.zero_point
+            )
+        } else {
+            String::new()
+        }
+    );
     match &model.value_head {
         Some(v) => dense("value".into(), &v.linear),
         None => println!("value     (not stored)"),

@@ -120,6 +120,22 @@ fn main() {
             .collect();
         network.forward(h, &s).0
     });
+    // Version 2: the same grid 256 times finer (int16 state), after the millimetre rounding.
+    report("state rounding 16 bits", &|h, s| {
+        let s: Vec<f32> = s
+            .iter()
+            .zip(&state_q)
+            .map(|(&x, &q)| {
+                let step = q.scale / 256.0;
+                ((x * 1000.0).round() / 1000.0 / step).round() * step
+            })
+            .collect();
+        network.forward(h, &s).0
+    });
+    report("state mm rounding only", &|h, s| {
+        let s: Vec<f32> = s.iter().map(|&x| (x * 1000.0).round() / 1000.0).collect();
+        network.forward(h, &s).0
+    });
     report("height rounding", &|h, s| {
         let h: Vec<f32> = h
             .iter()

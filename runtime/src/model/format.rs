@@ -18,15 +18,21 @@
 //! other readers is docs/weights-format.md.
 //!
 //! Versions. Version 2 (written since the int16 action head) has the same bytes as version 1;
-//! only the action head's output means something else. In version 1 it is an int8 tensor with
-//! the `output` record's scale and zero point, like every other layer. In version 2 the action
-//! logits are int16, symmetric: `output.scale` is real units per int16 step, `output.zero_point`
-//! must be 0 and `relu` false. Why: the robot acts on the argmax of each 3-way head, and the
-//! trained policy has many near ties (1% of head decisions have a float margin under 0.034 at a
-//! logit range of 40); rounding the logits to 255 int8 steps alone flipped 1.1% of head
-//! decisions. At 16 bits the output step is about 128 times finer and the argmax is decided by
-//! the int32 accumulator, not by output rounding. The runtime reads both versions (a version 1
-//! head becomes int16 logits with the int8 clamp, see `load`), so old files keep working.
+//! two things mean something else. (1) The action head's output: in version 1 an int8 tensor
+//! with the `output` record's scale and zero point, like every other layer; in version 2 int16
+//! logits, symmetric: `output.scale` is real units per int16 step, `output.zero_point` must be 0
+//! and `relu` false. Why: the robot acts on the argmax of each 3-way head, and the trained
+//! policy has many near ties (1% of head decisions have a float margin under 0.034 at a logit
+//! range of 40); rounding the logits to 255 int8 steps alone flipped 1.1% of head decisions.
+//! At 16 bits the argmax is decided by the int32 accumulator, not by output rounding. (2) The
+//! state features: in version 1 each is an int8 slot of the flattened vector; in version 2 each
+//! is an int16, the int8 grid refined [`STATE_FRACTION_BITS`] bits (`scale_m` is metres per
+//! int16 step, the int16 zero point is `256 * zero_point`), and the layer that reads them adds
+//! their products with its (unchanged, folded) int8 weight columns as a separate sum divided by
+//! 256, rounded. Why: the target position on a 7.8 mm int8 grid alone flipped 0.58% of the
+//! trained policy's move-y decisions. Version 2 was amended with (2) before any release outside
+//! the repository. The runtime reads both versions (a version 1 head becomes int16 logits with
+//! the int8 clamp, see `load`), so old files keep working.
 
 use serde::{Deserialize, Serialize};
 
@@ -35,8 +41,15 @@ pub const MAGIC: [u8; 4] = *b"WLWM";
 /// The format version the trainer writes and the newest this runtime reads (int16 action
 /// logits; see the module docs).
 pub const FORMAT_VERSION: u16 = 2;
-/// The oldest format version this runtime reads (int8 action logits).
+/// The oldest format version this runtime reads (int8 action logits and state).
 pub const OLDEST_FORMAT_VERSION: u16 = 1;
+/// Bits by which a version 2 state feature refines its int8 grid: the feature is an int16
+/// `u = clamp(256 * zero_point + rescale(mm), -32768, 32767)` (`u / 256` is the value in steps
+/// of the version 1 int8 grid, before that grid's rounding), and the first layer's partial sum over the state columns is divided by
+/// `2^STATE_FRACTION_BITS` (rounded) before it joins the int8-domain accumulator. Fixed, so
+/// that the int8 weight folding of version 1 stays exactly as it is (see docs/weights-format.md,
+/// "Flatten and state").
+pub const STATE_FRACTION_BITS: u32 = 8;
 
 /// The outer layer of the file. Serialized with postcard: 4 raw magic bytes, the version as a
 /// varint, the payload as varint length + bytes, then the 4 CRC bytes.
@@ -62,15 +75,19 @@ pub struct ActQuantRecord {
     pub zero_point: i8,
 }
 
-/// How one raw input in millimetres becomes an int8 activation, in integers only:
+/// How one raw input in millimetres becomes an integer, in integers only:
 /// `q = clamp(zero_point + requantize(value_mm, multiplier, shift), -128, 127)` where
 /// `requantize` is [`super::quant::requantize`] (multiply by `multiplier * 2^(shift - 31)`,
-/// rounded).
+/// rounded). The height map always, and the state features of a version 1 file. A version 2
+/// state feature is int16: `u = clamp(256 * zero_point + requantize(..), -32768, 32767)` (see
+/// [`STATE_FRACTION_BITS`]).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct InputQuantRecord {
-    /// Real metres per integer step (informational: lets readers dequantize).
+    /// Real metres per integer step (informational: lets readers dequantize); for a version 2
+    /// state feature, per int16 step.
     pub scale_m: f32,
-    /// The integer that stands for 0 m.
+    /// The integer that stands for 0 m (a version 2 state feature: its int8-grid value, the
+    /// int16 zero point is 256 times it).
     pub zero_point: i8,
     /// Fixed-point multiplier, in `[0, 2^31)` (`1 mm / scale_m` = `multiplier * 2^(shift-31)`).
     pub multiplier: i32,

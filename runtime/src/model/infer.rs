@@ -8,9 +8,10 @@
 
 use core::mem;
 
+use super::format::STATE_FRACTION_BITS;
 use super::kernel::{linear_batch, padded_row_len, quantize_inputs, Kernel, Output};
-use super::load::{ConvLayer, Linear, Model, ACTION_LOGITS};
-use super::quant::quantize_mm;
+use super::load::{i32_at, ConvLayer, Linear, Model, ACTION_LOGITS, MAX_STATE_FEATURES};
+use super::quant::{quantize_mm, quantize_mm16};
 
 /// Why a decision could not be computed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -121,6 +122,114 @@ fn layer<T: Output>(
     widen(input, linear_layer.input_zero_point, values);
     linear_batch(kernel, linear_layer, row, row_len, output);
     Ok(())
+}
+
+/// Output rows per kernel call of [`layer_with_state`]: its adjusted biases live in a stack
+/// buffer of this many entries (128 bytes), whatever the layer's size.
+const STATE_ROWS_PER_CALL: usize = 32;
+
+/// `2^(STATE_FRACTION_BITS - 1)`: rounds the state columns' sum to nearest, halves up.
+const STATE_HALF: i32 = 1 << (STATE_FRACTION_BITS - 1);
+
+/// The layer that reads the flattened features and an int16 state (weights format version 2).
+///
+/// The state columns' int8 weights are folded exactly as in version 1, for inputs in int8
+/// steps; the int16 state is that value times 256 (plus the fraction the int8 grid dropped).
+/// So the columns' partial sum `sum_j w[o][j] * (u_j - 256 * zp_in)` is divided by 256,
+/// rounded, and added to the bias of row `o`; the kernel itself sees 0 in the state columns.
+/// That keeps the kernels (and their bit-exactness) untouched: the extra work is a few
+/// multiply-adds per output row, the same code for every kernel. Nothing overflows:
+/// `|u - 256 zp| <= 65,535`, `|w| <= 128`, at most 16 features, so the sum is below 2^27, and
+/// after the division each column adds at most 32,768, which the loader's accumulator bound
+/// allows for (see `load::MAX_DOT_LEN`).
+fn layer_with_state<T: Output>(
+    kernel: Kernel,
+    linear_layer: &Linear<'_>,
+    input: &[i8],
+    state: &[i16],
+    row: &mut [i16],
+    output: &mut [T],
+) -> Result<(), InferError> {
+    let row_len = linear_layer.row_len;
+    let features = row_len
+        .checked_sub(state.len())
+        .ok_or(InferError::Internal)?;
+    let input = input.get(..features).ok_or(InferError::Internal)?;
+    let output = output
+        .get_mut(..linear_layer.rows)
+        .ok_or(InferError::Internal)?;
+    let padded = padded_row_len(row_len).min(row.len());
+    let row = row.get_mut(..padded).ok_or(InferError::Internal)?;
+    let (values, _) = row
+        .split_at_mut_checked(row_len)
+        .ok_or(InferError::Internal)?;
+    let (feature_values, state_values) = values
+        .split_at_mut_checked(features)
+        .ok_or(InferError::Internal)?;
+    widen(input, linear_layer.input_zero_point, feature_values);
+    state_values.fill(0);
+    // The state in the layer's input domain, 256 times finer: u - 256 * zp_in.
+    let zero_point = i32::from(linear_layer.input_zero_point) << STATE_FRACTION_BITS;
+    let mut wide = [0i32; MAX_STATE_FEATURES];
+    for (v, &u) in wide.iter_mut().zip(state) {
+        *v = i32::from(u) - zero_point;
+    }
+    let mut bias = [0u8; 4 * STATE_ROWS_PER_CALL];
+    for (chunk, out) in output.chunks_mut(STATE_ROWS_PER_CALL).enumerate() {
+        let first = chunk * STATE_ROWS_PER_CALL;
+        let count = out.len();
+        let weights = linear_layer
+            .weights
+            .get(first * row_len..(first + count) * row_len)
+            .ok_or(InferError::Internal)?;
+        for ((slot, weights), o) in bias
+            .chunks_exact_mut(4)
+            .zip(weights.chunks_exact(row_len))
+            .zip(first..)
+        {
+            let columns = weights.get(features..).unwrap_or(&[]);
+            let sum: i32 = columns
+                .iter()
+                .zip(&wide)
+                .map(|(&w, &v)| i32::from(w as i8) * v)
+                .sum();
+            let adjusted =
+                i32_at(linear_layer.bias, o) + ((sum + STATE_HALF) >> STATE_FRACTION_BITS);
+            slot.copy_from_slice(&adjusted.to_le_bytes());
+        }
+        let part = Linear {
+            weights,
+            bias: bias.get(..4 * count).ok_or(InferError::Internal)?,
+            multipliers: linear_layer
+                .multipliers
+                .get(4 * first..4 * (first + count))
+                .ok_or(InferError::Internal)?,
+            shifts: linear_layer
+                .shifts
+                .get(first..first + count)
+                .ok_or(InferError::Internal)?,
+            rows: count,
+            ..*linear_layer
+        };
+        linear_batch(kernel, &part, row, row_len, out);
+    }
+    Ok(())
+}
+
+/// A layer that reads the flattened vector: with the int16 state of a version 2 file, or
+/// ([`layer`]) with the int8 state slots already in the vector.
+fn first_layer<T: Output>(
+    kernel: Kernel,
+    linear_layer: &Linear<'_>,
+    input: &[i8],
+    state: Option<&[i16]>,
+    row: &mut [i16],
+    output: &mut [T],
+) -> Result<(), InferError> {
+    match state {
+        Some(state) => layer_with_state(kernel, linear_layer, input, state, row, output),
+        None => layer(kernel, linear_layer, input, row, output),
+    }
 }
 
 /// Gathers the patches of output pixels `first..` into `patches`, one every `stride` elements
@@ -314,35 +423,50 @@ pub fn forward<const ACT: usize, const ROW: usize>(
             *slot = q;
         }
     }
-    for ((slot, &mm), quant) in flat
-        .get_mut(features..)
-        .ok_or(InferError::Internal)?
+    // Version 1: int8 state slots after the features. Version 2: the int16 state goes to the
+    // layer that reads the vector (its slots in `flat` stay unused).
+    let mut state16 = [0i16; MAX_STATE_FEATURES];
+    let wide_state = model.state_bits() == 16;
+    let slots = flat.get_mut(features..).ok_or(InferError::Internal)?;
+    for (((slot, wide), &mm), quant) in slots
         .iter_mut()
+        .zip(state16.iter_mut())
         .zip(state_mm)
         .zip(&model.state)
     {
-        *slot = quantize_mm(mm, quant.multiplier, quant.shift, quant.zero_point);
+        if wide_state {
+            *wide = quantize_mm16(mm, quant.multiplier, quant.shift, quant.zero_point);
+        } else {
+            *slot = quantize_mm(mm, quant.multiplier, quant.shift, quant.zero_point);
+        }
     }
+    let mut state = if wide_state {
+        Some(state16.get(..state_mm.len()).ok_or(InferError::Internal)?)
+    } else {
+        None
+    };
     mem::swap(&mut src, &mut dst);
 
     for dense in &model.hidden {
-        layer(kernel, &dense.linear, src, row, dst)?;
+        first_layer(kernel, &dense.linear, src, state.take(), row, dst)?;
         mem::swap(&mut src, &mut dst);
     }
 
-    // int16 logits (the loader set the head's bounds: see `load::Model::parse`).
+    // int16 logits (the loader set the head's bounds: see `load::Model::parse`). Without
+    // hidden layers the heads read the flattened vector, so `state` is still there for them.
     let mut action_logits = [0i16; ACTION_LOGITS];
-    layer(
+    first_layer(
         kernel,
         &model.action_head.linear,
         src,
+        state,
         row,
         &mut action_logits,
     )?;
     let value = match &model.value_head {
         Some(head) => {
             let mut value = [0i8; 1];
-            layer(kernel, &head.linear, src, row, &mut value)?;
+            first_layer(kernel, &head.linear, src, state, row, &mut value)?;
             let [value] = value;
             Some((
                 value,

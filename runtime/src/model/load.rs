@@ -26,6 +26,9 @@ pub const MAX_DENSE_LAYERS: usize = 8;
 pub const MAX_STATE_FEATURES: usize = 16;
 /// Longest dot product (inputs per output) the format allows: with |x - zp| <= 255 and
 /// |w| <= 128 the sum stays below 2^30, and with |bias| <= 2^30 the accumulator fits an i32.
+/// A version 2 file's int16 state columns add at most 32,768 each (their sum divided by 256,
+/// see `infer`), 128 more than an int8 column's `255 * 128`: with at most 16 of them the bound
+/// still holds (`32,768 * 255 * 128 + 16 * 128 + 2^30 < 2^31`).
 pub const MAX_DOT_LEN: usize = 32_768;
 /// Largest bias magnitude the format allows (see [`MAX_DOT_LEN`]).
 pub const MAX_BIAS_ABS: i32 = 1 << 30;
@@ -259,7 +262,8 @@ pub struct Requirements {
 /// A weights file, checked and decoded; tensors borrow from the file bytes.
 #[derive(Clone, Debug)]
 pub struct Model<'a> {
-    /// Format version of the file (1: int8 action logits, 2: int16).
+    /// Format version of the file (1: int8 state and action logits; 2: int16 state and
+    /// logits, see [`Model::state_bits`] and [`Model::logit_bits`]).
     pub version: u16,
     /// Height-map shape and quantization.
     pub input: InputRecord,
@@ -740,6 +744,26 @@ impl<'a> Model<'a> {
                 row_elements,
             },
         })
+    }
+
+    /// Bits of each quantized state feature: 8 in a version 1 file, 16 in version 2 (the int8
+    /// grid refined by [`super::format::STATE_FRACTION_BITS`] bits).
+    pub fn state_bits(&self) -> u32 {
+        if self.version >= 2 {
+            16
+        } else {
+            8
+        }
+    }
+
+    /// Bits of the action logits as stored: 8 in a version 1 file, 16 in version 2 (the
+    /// runtime reports both as int16, see [`Model::action_head`]).
+    pub fn logit_bits(&self) -> u32 {
+        if self.version >= 2 {
+            16
+        } else {
+            8
+        }
     }
 
     /// Number of weights and biases (int8 weights + int32 biases), the usual parameter count.

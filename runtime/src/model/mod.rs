@@ -14,9 +14,11 @@
 //!
 //! Scheme (TFLite / CMSIS-NN): weights int8, symmetric, one scale per output channel; activations
 //! int8 with scale and zero point; int32 bias and accumulators; requantization by a fixed-point
-//! multiplier and shift per output channel. The action head alone writes int16 logits (format
-//! version 2), so that the greedy action is not decided by rounding logits to 255 steps. Inputs arrive in millimetres (heights as i16, state
-//! as i32) and are quantized by the same integer multiply-shift.
+//! multiplier and shift per output channel. Two exceptions at 16 bits (format version 2), both
+//! where rounding to 255 steps decided the greedy action: the action head writes int16 logits,
+//! and the state features (clearance, track, target x and y) enter the first dense layer as
+//! int16. Inputs arrive in millimetres (heights as i16, state as i32) and are quantized by the
+//! same integer multiply-shift.
 
 pub mod crc32;
 pub mod format;

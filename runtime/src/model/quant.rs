@@ -59,6 +59,18 @@ pub fn quantize_mm(value_mm: i32, multiplier: i32, shift: i8, zero_point: i8) ->
     to_int8(value_mm, multiplier, shift, zero_point, false)
 }
 
+/// Quantizes one state feature in millimetres to the int16 grid of weights format version 2:
+/// `clamp(256 * zero_point + rescale(value_mm), -32768, 32767)`, the int8 grid of `zero_point`
+/// refined by [`super::format::STATE_FRACTION_BITS`] bits: `u / 256` is, in int8 steps, the
+/// value [`quantize_mm`] rounds to an integer (with a multiplier 256 times smaller).
+#[inline]
+pub fn quantize_mm16(value_mm: i32, multiplier: i32, shift: i8, zero_point: i8) -> i16 {
+    let offset = i64::from(zero_point) << super::format::STATE_FRACTION_BITS;
+    let value = requantize(value_mm, multiplier, shift) + offset;
+    // Clamped into the i16 range just before, so the narrowing is exact.
+    value.clamp(i64::from(i16::MIN), i64::from(i16::MAX)) as i16
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -109,6 +121,26 @@ mod tests {
             5,
             "inverted bounds: no panic"
         );
+    }
+
+    #[test]
+    fn state_at_16_bits_refines_the_int8_grid() {
+        // 1 mm per int8 step as multiplier 2^30, shift 1; 256 times that for int16.
+        let (m, s8, s16) = (1 << 30, 1i8, 9i8);
+        for mm in [-300, -129, -5, 0, 3, 100, 127, 128, 5000] {
+            for zero_point in [-128i8, -7, 0, 40] {
+                let q16 = quantize_mm16(mm, m, s16, zero_point);
+                let q8 = quantize_mm(mm, m, s8, zero_point);
+                // Where the int8 value is not clamped, the int16 one is exactly 256 times it.
+                if (-128..127).contains(&(i32::from(zero_point) + mm)) {
+                    assert_eq!(i32::from(q16), 256 * i32::from(q8), "{mm} {zero_point}");
+                }
+                // Inputs on the int8 grid: u / 256 is the int8 value (clamps included).
+                assert_eq!(q16 >> 8, i16::from(q8), "{mm} {zero_point}");
+            }
+        }
+        assert_eq!(quantize_mm16(i32::MAX, m, s16, 0), i16::MAX);
+        assert_eq!(quantize_mm16(i32::MIN, m, s16, 0), i16::MIN);
     }
 
     #[test]

@@ -165,22 +165,33 @@ fn reference_int8(value: i64, zero_point: i8, relu: bool) -> i8 {
 }
 
 /// Each output's accumulator (bias plus products), rescaled: before zero point and clamping.
-fn reference_rescaled(layer: &QuantizedLayer, input: &[i8]) -> Vec<i64> {
+/// `state16` (version 2, only for the layer reading the flattened vector) are int16 state
+/// features after the int8 `input`: their columns' sum of `w * (u - 256 zp)` joins the
+/// accumulator divided by 256, rounded half up.
+fn reference_rescaled(layer: &QuantizedLayer, input: &[i8], state16: &[i16]) -> Vec<i64> {
     let in_len = input.len();
+    let row_len = in_len + state16.len();
+    let zero_point = i64::from(layer.input.zero_point);
     (0..layer.bias.len())
         .map(|o| {
             let mut acc = i64::from(layer.bias[o]);
             for i in 0..in_len {
-                acc += (i64::from(input[i]) - i64::from(layer.input.zero_point))
-                    * i64::from(layer.weights[o * in_len + i]);
+                acc +=
+                    (i64::from(input[i]) - zero_point) * i64::from(layer.weights[o * row_len + i]);
             }
+            let mut state_sum = 0i64;
+            for j in 0..state16.len() {
+                state_sum += (i64::from(state16[j]) - 256 * zero_point)
+                    * i64::from(layer.weights[o * row_len + in_len + j]);
+            }
+            acc += (state_sum + 128).div_euclid(256);
             reference_rescale(acc, layer.multipliers[o], layer.shifts[o])
         })
         .collect()
 }
 
-fn reference_dense(layer: &QuantizedLayer, input: &[i8]) -> Vec<i8> {
-    reference_rescaled(layer, input)
+fn reference_dense(layer: &QuantizedLayer, input: &[i8], state16: &[i16]) -> Vec<i8> {
+    reference_rescaled(layer, input, state16)
         .into_iter()
         .map(|v| reference_int8(v, layer.output.zero_point, layer.relu))
         .collect()
@@ -188,15 +199,20 @@ fn reference_dense(layer: &QuantizedLayer, input: &[i8]) -> Vec<i8> {
 
 /// The action head's logits as the runtime reports them (zero point 0): in format version 2
 /// the rescaled value clamped to int16; in version 1 the int8 output minus its zero point.
-fn reference_logits(layer: &QuantizedLayer, input: &[i8], version: u16) -> Vec<i16> {
+fn reference_logits(
+    layer: &QuantizedLayer,
+    input: &[i8],
+    state16: &[i16],
+    version: u16,
+) -> Vec<i16> {
     if version >= 2 {
         assert_eq!(layer.output.zero_point, 0, "version 2 logits are symmetric");
-        reference_rescaled(layer, input)
+        reference_rescaled(layer, input, state16)
             .into_iter()
             .map(|v| v.clamp(-32768, 32767) as i16)
             .collect()
     } else {
-        reference_dense(layer, input)
+        reference_dense(layer, input, state16)
             .into_iter()
             .map(|q| i16::from(q) - i16::from(layer.output.zero_point))
             .collect()
@@ -259,20 +275,26 @@ pub fn reference_forward(
         (h, w, c) = (oh, ow, s.out_channels);
         x = out;
     }
+    // Version 1: int8 state appended to the features. Version 2: int16 state, kept apart for
+    // the layer that reads the flattened vector.
+    let mut state16: Vec<i16> = Vec::new();
     for (quant, &mm) in q.state.iter().zip(state_mm) {
-        x.push(reference_int8(
-            reference_rescale(i64::from(mm), quant.multiplier, quant.shift),
-            quant.act.zero_point,
-            false,
-        ));
+        let rescaled = reference_rescale(i64::from(mm), quant.multiplier, quant.shift);
+        if q.version >= 2 {
+            let u = rescaled + 256 * i64::from(quant.act.zero_point);
+            state16.push(u.clamp(-32768, 32767) as i16);
+        } else {
+            x.push(reference_int8(rescaled, quant.act.zero_point, false));
+        }
     }
     for dense in &q.hidden {
-        x = reference_dense(&dense.layer, &x);
+        x = reference_dense(&dense.layer, &x, &state16);
+        state16.clear();
     }
-    let logits = reference_logits(&q.action_head.layer, &x, q.version);
+    let logits = reference_logits(&q.action_head.layer, &x, &state16, q.version);
     let value = q
         .value_head
         .as_ref()
-        .map(|head| reference_dense(&head.layer, &x)[0]);
+        .map(|head| reference_dense(&head.layer, &x, &state16)[0]);
     (logits, value)
 }

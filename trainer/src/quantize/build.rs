@@ -6,7 +6,7 @@ use serde::Serialize;
 use wheelleg_runtime::model::crc32::crc32;
 use wheelleg_runtime::model::format::{
     ActQuantRecord, ConvRecord, DenseRecord, Envelope, InputQuantRecord, InputRecord,
-    FORMAT_VERSION, MAGIC, OLDEST_FORMAT_VERSION,
+    FORMAT_VERSION, MAGIC, OLDEST_FORMAT_VERSION, STATE_FRACTION_BITS,
 };
 use wheelleg_runtime::model::load::MAX_BIAS_ABS;
 
@@ -64,15 +64,19 @@ impl fmt::Display for QuantizeError {
 
 impl std::error::Error for QuantizeError {}
 
-/// How a raw input in millimetres becomes int8.
+/// How a raw input in millimetres becomes int8 (or, for a version 2 state feature, int16).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct InputQuant {
-    /// Scale (metres per step) and zero point.
+    /// Scale (metres per int8 step) and zero point: the int8 grid, which the weight folding
+    /// uses in both versions.
     pub act: ActQuant,
-    /// Fixed-point multiplier of `1 mm / scale`.
+    /// Fixed-point multiplier of `1 mm / scale`, times 256 for a version 2 state feature
+    /// (int16 steps, [`STATE_FRACTION_BITS`]).
     pub multiplier: i32,
     /// Its shift.
     pub shift: i8,
+    /// Bits the integer refines the int8 grid by: 0, or [`STATE_FRACTION_BITS`].
+    pub fraction_bits: u32,
 }
 
 /// One layer's integer tensors (conv or dense), rows = output channels.
@@ -126,7 +130,7 @@ pub struct QuantizedNetwork {
     pub arch: Architecture,
     /// Height map (millimetres, i16) to int8.
     pub height: InputQuant,
-    /// Each state feature (millimetres, i32) to int8.
+    /// Each state feature (millimetres, i32) to int8 (version 1) or int16 (version 2).
     pub state: Vec<InputQuant>,
     /// Quantization of the flattened features, which the state shares after folding.
     pub features: ActQuant,
@@ -145,13 +149,18 @@ fn act_quant(observer: &RangeObserver, method: RangeMethod) -> ActQuant {
     ActQuant::from_range(low, high)
 }
 
+/// An input's int8 grid from its calibrated range, and the millimetre multiplier of that grid
+/// refined by `fraction_bits` (0 for int8; [`STATE_FRACTION_BITS`] for a version 2 state
+/// feature, whose int16 steps are 256 times finer: the grid, zero point and weight folding
+/// stay those of int8, only the multiplier grows).
 fn input_quant(
     observer: &RangeObserver,
     method: RangeMethod,
     what: &str,
+    fraction_bits: u32,
 ) -> Result<InputQuant, QuantizeError> {
     let act = act_quant(observer, method);
-    let real = 0.001 / f64::from(act.scale);
+    let real = 0.001 * f64::from(1u32 << fraction_bits) / f64::from(act.scale);
     let (multiplier, shift) =
         quantize_multiplier(real).map_err(|error| QuantizeError::Multiplier {
             layer: what.to_owned(),
@@ -161,6 +170,7 @@ fn input_quant(
         act,
         multiplier,
         shift,
+        fraction_bits,
     })
 }
 
@@ -216,7 +226,9 @@ fn quantize_layer(
 ///
 /// State slot j holds `q_j = zp_j + x_j / t_j`, but the layer reads it as `s_x (q_j - zp_x)`.
 /// With column j scaled by `t_j / s_x` and `sum_j W_j t_j (zp_x - zp_j)` added to the bias, the
-/// layer computes exactly `W x + b` in real arithmetic.
+/// layer computes exactly `W x + b` in real arithmetic. The same folding serves version 2's
+/// int16 state: the runtime divides those columns' sum by 256, i.e. reads `u_j / 256`, the
+/// same `q_j` in int8 steps without its rounding.
 fn fold_state(
     layer: &DenseF32,
     features_len: usize,
@@ -282,11 +294,12 @@ pub fn quantize_for_version(
     if !(OLDEST_FORMAT_VERSION..=FORMAT_VERSION).contains(&version) {
         return Err(QuantizeError::Version(version));
     }
-    let height = input_quant(&calibration.height, method, "height map")?;
+    let height = input_quant(&calibration.height, method, "height map", 0)?;
+    let state_bits = if version >= 2 { STATE_FRACTION_BITS } else { 0 };
     let state = calibration
         .state
         .iter()
-        .map(|observer| input_quant(observer, method, "state"))
+        .map(|observer| input_quant(observer, method, "state", state_bits))
         .collect::<Result<Vec<_>, _>>()?;
 
     let mut input = height.act;
@@ -435,7 +448,8 @@ fn u8_of(value: usize, what: &str) -> Result<u8, QuantizeError> {
 
 fn input_record(quant: &InputQuant) -> InputQuantRecord {
     InputQuantRecord {
-        scale_m: quant.act.scale,
+        // Metres per stored integer step (int16 steps for a version 2 state feature).
+        scale_m: quant.act.scale / (1u32 << quant.fraction_bits) as f32,
         zero_point: quant.act.zero_point,
         multiplier: quant.multiplier,
         shift: quant.shift,
