@@ -18,7 +18,9 @@
 //!   `CONTROLLER_FAILED` and idles the axis (an ODrive disarms on a controller error).
 //! - **Estop** latches `ESTOP_REQUESTED` and idles; **Clear_Errors** clears every latched bit.
 //! - **Reports**: encoder estimates and heartbeats at their own periods, plus on request (RTR).
-//! - **Fault injection**: a silent axis keeps executing commands but transmits nothing.
+//! - **Fault injection**: a silent axis keeps executing commands but transmits nothing (a
+//!   broken transmitter); a deaf one hears nothing (with silence: a node off the bus), so it
+//!   runs on its last setpoint until its watchdog idles it, as a real ODrive would.
 
 use wheelleg_runtime::can::protocol::{
     axis_error, encode, AxisState, CmdId, ControlMode, InputMode, Message, NodeId,
@@ -110,6 +112,7 @@ pub struct SimAxis {
     next_heartbeat_us: u64,
     pending_requests: [bool; 2],
     silent: bool,
+    deaf: bool,
     stats: AxisStats,
 }
 
@@ -134,6 +137,7 @@ impl SimAxis {
             next_heartbeat_us: 0,
             pending_requests: [false; 2],
             silent: false,
+            deaf: false,
             stats: AxisStats::default(),
         }
     }
@@ -189,6 +193,17 @@ impl SimAxis {
         self.silent
     }
 
+    /// Makes the axis stop (or resume) receiving: commands for it are lost, so it keeps its
+    /// last setpoint until its watchdog idles it.
+    pub fn set_deaf(&mut self, deaf: bool) {
+        self.deaf = deaf;
+    }
+
+    /// Whether the axis receives nothing.
+    pub fn is_deaf(&self) -> bool {
+        self.deaf
+    }
+
     fn fail(&mut self, bits: u32) {
         self.error |= bits;
         self.state = AxisState::Idle;
@@ -199,8 +214,11 @@ impl SimAxis {
         vel.abs() <= self.config.vel_limit_turns_per_s
     }
 
-    /// Executes one command received at `now_us`.
+    /// Executes one command received at `now_us` (nothing, if the axis is deaf).
     pub fn handle(&mut self, message: &Message, now_us: u64) {
+        if self.deaf {
+            return;
+        }
         match *message {
             Message::Estop => {
                 self.error |= axis_error::ESTOP_REQUESTED;
@@ -475,6 +493,29 @@ mod tests {
         e.handle(&Message::Estop, 0);
         assert_eq!(e.error(), axis_error::ESTOP_REQUESTED);
         assert_eq!(e.state(), AxisState::Idle);
+    }
+
+    #[test]
+    fn a_deaf_axis_runs_on_its_last_setpoint_until_its_watchdog() {
+        let mut a = armed(AxisConfig::WHEEL, ControlMode::Velocity);
+        let go = Message::SetInputVel {
+            vel_turns_per_s: 5.0,
+            torque_ff_nm: 0.0,
+        };
+        run(&mut a, 0, 300_000, Some(go));
+        a.set_deaf(true);
+        // The stop command is lost: the wheel keeps its speed until the watchdog fires.
+        let stop = Message::SetInputVel {
+            vel_turns_per_s: 0.0,
+            torque_ff_nm: 0.0,
+        };
+        run(&mut a, 300_000, 390_000, Some(stop));
+        assert!((a.vel_turns_per_s() - 5.0).abs() < 1e-3);
+        assert_eq!(a.stats().watchdog_trips, 0);
+        run(&mut a, 390_000, 1_000_000, Some(stop));
+        assert_eq!(a.state(), AxisState::Idle);
+        assert_eq!(a.error(), axis_error::WATCHDOG_TIMER_EXPIRED);
+        assert!(a.vel_turns_per_s().abs() < 1e-3);
     }
 
     #[test]

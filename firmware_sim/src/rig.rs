@@ -9,8 +9,13 @@
 //! through here, so the policy's world and the motors' world meet in one place.
 //!
 //! Safety: every control tick the controller checks [`Health`]. A node silent for longer than
-//! `health_timeout_us`, or reporting an error, puts the rig in safe stop for good: wheels to
-//! zero, joints held at their measured positions, reported as [`StopReason`].
+//! `health_timeout_us`, or reporting an error, puts the rig in safe stop for good, reported as
+//! [`StopReason`]. Inside a step the robot decelerates along the step's own path
+//! ([`StepMotion::stop_after`]: all 16 axes, the silent one included, ramp the step's progress
+//! rate to zero over `MotionConfig::stop_s`) and then holds the pose reached ([`Rig::stop_rest`]);
+//! between steps it holds the last pose commanded. Legs and wheels thus stop together on a pose
+//! the step passes through anyway, instead of wheels coasting while the legs freeze
+//! (docs/can-protocol.md, "Safety").
 //!
 //! For fault tests on the in-process bus the rig also keeps the *ground truth* the controller
 //! cannot see ([`Rig::true_pose`], [`Rig::true_legs`]: integrated from the simulated motors' own
@@ -30,7 +35,9 @@ use wheelleg_runtime::can::node_map::{Axis, Joint, NodeMap};
 use wheelleg_runtime::can::protocol::AxisState;
 use wheelleg_runtime::can::CanFrame;
 use wheelleg_runtime::leg::{IkError, JointAngles, LegConfig};
-use wheelleg_runtime::motion::{ideal_step, MotionConfig, MotionError, Setpoint, StepMotion};
+use wheelleg_runtime::motion::{
+    ideal_step, MotionConfig, MotionError, Setpoint, StepMotion, StopMotion,
+};
 use wheelleg_runtime::robot::{LegId, RobotGeometry};
 
 /// Capacity of the controller's transmit queue: two ticks' worth of start-up frames.
@@ -126,8 +133,11 @@ pub enum StopReason {
 /// test can hit the middle of a motion rather than the gap between two steps.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum TimedFault {
-    /// The axis stops transmitting for good (it still obeys commands): a broken transceiver.
+    /// The axis stops transmitting for good (it still obeys commands): a broken transmitter.
     Silence(Axis),
+    /// The axis drops off the bus for good: it neither transmits nor receives (a cut cable, a
+    /// node in bus-off), so it runs on its last setpoint until its watchdog idles it.
+    Disconnect(Axis),
     /// The controller's transmit path hangs (it keeps listening), as [`Rig::pause_commands`].
     HangCommands,
 }
@@ -224,6 +234,15 @@ pub struct Rig {
     legs: LegConfig,
     stopped: Option<StopReason>,
     stopped_at_us: Option<u64>,
+    /// The step being executed, while its setpoints are sent: what a stop decelerates along.
+    active: Option<StepMotion>,
+    /// The controlled stop in progress, if the stop came in the middle of a step.
+    stopping: Option<StopMotion>,
+    /// What the safe stop holds once the robot has come to rest; `None` if the stop had
+    /// nothing planned to rest on (then the measured joints are held).
+    rest: Option<Setpoint>,
+    /// The last setpoint sent: where a stop outside a known step rests.
+    last_sent: Option<Setpoint>,
     commands_paused: bool,
     log: Option<CandumpWriter<Box<dyn Write>>>,
     traffic: TrafficCounts,
@@ -231,6 +250,20 @@ pub struct Rig {
     scheduled: Vec<(u64, TimedFault)>,
     /// Pose integrated from the simulated wheels' true speeds (in-process only).
     true_odometry: Odometry,
+    /// Ground truth at the end of every control tick, while recording ([`Rig::record_truth`]).
+    truth: Option<Vec<TrueSample>>,
+}
+
+/// Where the robot really was at one instant (in-process bus only): what a fault test checks
+/// for collisions at every control tick, not only after each step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TrueSample {
+    /// Simulated time.
+    pub at_us: u64,
+    /// [`Rig::true_pose`] then.
+    pub pose: Isometry2<f32>,
+    /// [`Rig::true_legs`] then.
+    pub legs: LegConfig,
 }
 
 impl Rig {
@@ -259,11 +292,16 @@ impl Rig {
             legs: start,
             stopped: None,
             stopped_at_us: None,
+            active: None,
+            stopping: None,
+            rest: None,
+            last_sent: None,
             commands_paused: false,
             log: None,
             traffic: TrafficCounts::default(),
             scheduled: Vec::new(),
             true_odometry: Odometry::default(),
+            truth: None,
         })
     }
 
@@ -293,11 +331,16 @@ impl Rig {
             legs: start,
             stopped: None,
             stopped_at_us: None,
+            active: None,
+            stopping: None,
+            rest: None,
+            last_sent: None,
             commands_paused: false,
             log: None,
             traffic: TrafficCounts::default(),
             scheduled: Vec::new(),
             true_odometry: Odometry::default(),
+            truth: None,
         })
     }
 
@@ -431,6 +474,21 @@ impl Rig {
         Some(speeds)
     }
 
+    /// Starts (or stops) recording the ground truth at the end of every control tick; what was
+    /// recorded so far is kept until [`Rig::take_truth`].
+    pub fn record_truth(&mut self, on: bool) {
+        match (on, &self.truth) {
+            (true, None) => self.truth = Some(Vec::new()),
+            (false, Some(_)) => self.truth = None,
+            _ => {}
+        }
+    }
+
+    /// The ground truth recorded since the last call (empty when not recording).
+    pub fn take_truth(&mut self) -> Vec<TrueSample> {
+        self.truth.as_mut().map(std::mem::take).unwrap_or_default()
+    }
+
     /// Applies the scheduled faults that are due at `now_us`.
     fn inject_due_faults(&mut self) {
         let now_us = self.now_us;
@@ -444,6 +502,12 @@ impl Rig {
                 TimedFault::Silence(axis) => {
                     if let Some(motor) = self.firmware.axis_mut(axis) {
                         motor.set_silent(true);
+                    }
+                }
+                TimedFault::Disconnect(axis) => {
+                    if let Some(motor) = self.firmware.axis_mut(axis) {
+                        motor.set_silent(true);
+                        motor.set_deaf(true);
                     }
                 }
                 TimedFault::HangCommands => self.commands_paused = true,
@@ -512,14 +576,21 @@ impl Rig {
             }
             if self.stopped.is_some() {
                 self.stopped_at_us = Some(self.now_us);
+                self.begin_stop(setpoint.tick);
             }
         }
         if !self.commands_paused {
             if self.stopped.is_some() {
-                self.commander
-                    .queue_safe_stop(&mut self.tx, &self.tracker)?;
+                match self.next_stop_setpoint() {
+                    Some(stop) => self.commander.queue_setpoint(&mut self.tx, &stop)?,
+                    None => {
+                        self.commander
+                            .queue_safe_stop(&mut self.tx, &self.tracker)?;
+                    }
+                }
             } else {
                 self.commander.queue_setpoint(&mut self.tx, setpoint)?;
+                self.last_sent = Some(*setpoint);
             }
             while let Some(frame) = self.tx.pop() {
                 if let Some(log) = &mut self.log {
@@ -547,6 +618,16 @@ impl Rig {
                         self.inject_due_faults();
                     }
                 }
+                if self.truth.is_some() {
+                    if let Some(legs) = self.true_legs() {
+                        let sample = TrueSample {
+                            at_us: self.now_us,
+                            pose: self.true_odometry.pose,
+                            legs,
+                        };
+                        self.truth.get_or_insert_with(Vec::new).push(sample);
+                    }
+                }
             }
             (false, Some(origin)) => {
                 let deadline = origin + std::time::Duration::from_micros(end_us);
@@ -560,6 +641,48 @@ impl Rig {
         Ok(())
     }
 
+    /// Plans the safe stop the moment it is decided, before this tick's setpoint (tick
+    /// `tick_in_step` of the active step) goes out: inside a step, decelerate along the step's
+    /// path ([`StepMotion::stop_after`]) for every axis, the silent one included (if it still
+    /// hears, it follows; if not, its own watchdog idles it); outside a step, rest where the
+    /// last setpoint sent put the robot.
+    fn begin_stop(&mut self, tick_in_step: u32) {
+        self.stopping = self
+            .active
+            .as_ref()
+            .and_then(|motion| motion.stop_after(tick_in_step).ok());
+        self.rest = match &self.stopping {
+            Some(stop) => Some(stop.rest()),
+            None => self.last_sent.map(|sent| Setpoint {
+                joint_rates: Default::default(),
+                base: wheelleg_runtime::base::BaseVelocity::ZERO,
+                wheels: WheelSpeeds::ZERO,
+                ..sent
+            }),
+        };
+    }
+
+    /// The safe stop's command for this tick: the next setpoint of the controlled stop, then
+    /// its rest pose; `None` when no plan is known (the commander then holds the measured
+    /// joints).
+    fn next_stop_setpoint(&mut self) -> Option<Setpoint> {
+        if let Some(stop) = &mut self.stopping {
+            match stop.next() {
+                Some(setpoint) => return Some(setpoint),
+                None => {
+                    self.rest = Some(stop.rest());
+                    self.stopping = None;
+                }
+            }
+        }
+        self.rest
+    }
+
+    /// Where the safe stop holds the legs, once it has been decided.
+    pub fn stop_rest(&self) -> Option<Setpoint> {
+        self.rest
+    }
+
     /// Sends Estop to every axis (they disarm and latch `ESTOP_REQUESTED`) and keeps the rig in
     /// safe stop; then runs one control period so the motors see it.
     pub fn estop(&mut self) -> Result<(), RigError> {
@@ -567,9 +690,11 @@ impl Rig {
         let health = self
             .tracker
             .health(self.now_us, self.config.health_timeout_us);
-        self.stopped
-            .get_or_insert(StopReason::AxisError(health.errored));
-        self.stopped_at_us.get_or_insert(self.now_us);
+        if self.stopped.is_none() {
+            self.stopped = Some(StopReason::AxisError(health.errored));
+            self.stopped_at_us = Some(self.now_us);
+            self.begin_stop(0);
+        }
         let hold = Setpoint::hold(&self.geometry, self.legs)?;
         self.control_tick(&hold, false)
     }
@@ -581,6 +706,8 @@ impl Rig {
         self.commander.queue_clear_errors(&mut self.tx)?;
         self.stopped = None;
         self.stopped_at_us = None;
+        self.stopping = None;
+        self.rest = None;
         self.commands_paused = false;
         self.start_up()
     }
@@ -614,14 +741,25 @@ impl Rig {
     /// Executes any planned motion (a lattice step, or a move off the lattice such as backing
     /// out of a step the world refused), then `settle_s` of holding its target. The motion
     /// should start from [`Rig::legs`]; the legs it ends at become the commanded ones.
-    pub fn execute(&mut self, motion: StepMotion) -> Result<StepReport, RigError> {
+    pub fn execute(&mut self, mut motion: StepMotion) -> Result<StepReport, RigError> {
         let ideal_pose = motion.displacement().isometry();
         let ideal_legs = motion.target();
         let start_pose = self.odometry.pose;
-        for setpoint in motion {
-            self.control_tick(&setpoint, true)?;
-        }
-        self.legs = ideal_legs;
+        self.active = Some(motion.clone());
+        let sent = motion.try_for_each(|setpoint| self.control_tick(&setpoint, true));
+        self.active = None;
+        sent?;
+        // A stop in the middle of the step rests on the step's path, not at its target: the
+        // commanded legs are where the stop holds them (a later recovery starts from there).
+        self.legs = match (&self.stopping, self.rest) {
+            (Some(stop), _) => {
+                let mut to_the_end = stop.clone();
+                to_the_end.by_ref().for_each(drop);
+                to_the_end.rest().legs
+            }
+            (None, Some(rest)) => rest.legs,
+            (None, None) => ideal_legs,
+        };
         self.hold(self.config.settle_s)?;
         let achieved_legs =
             self.tracker

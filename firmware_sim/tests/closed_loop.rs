@@ -290,3 +290,78 @@ fn logged_traffic_replays_into_the_same_feedback() {
         std::fs::write(path, text).unwrap();
     }
 }
+
+#[test]
+fn a_stop_in_the_middle_of_a_step_rests_on_the_steps_path() {
+    use wheelleg_firmware_sim::rig::TimedFault;
+    use wheelleg_runtime::action::{CLEARANCE_STEP_M, TRACK_STEP_M};
+    use wheelleg_runtime::motion::BaseDisplacement;
+    // Moving, turning, lifting and narrowing at once: freezing any part while another goes
+    // on would leave the path.
+    let action = Action {
+        move_x: Step::Plus,
+        yaw: Step::Plus,
+        clearance: Step::Plus,
+        track: Step::Minus,
+        ..Action::IDLE
+    };
+    let cases = [
+        // A mute knee still hears: the whole robot follows the stop (the residual is the
+        // motors' lag and the sampled odometry).
+        (
+            TimedFault::Silence(Axis::Joint(LegId::RearLeft, Joint::Knee)),
+            0.001,
+            0.0005,
+        ),
+        // A wheel off the bus runs on at its last speed until its watchdog idles it: the base
+        // strays a few millimetres, the legs stay on the path.
+        (
+            TimedFault::Disconnect(Axis::Wheel(LegId::FrontRight)),
+            0.006,
+            0.0005,
+        ),
+    ];
+    for (fault, pose_tolerance_m, legs_tolerance_m) in cases {
+        let mut rig = started(RigConfig::default());
+        let start = rig.legs();
+        rig.schedule(rig.now_us() + 150_000, fault);
+        let report = rig.step(action).unwrap();
+        assert!(
+            matches!(report.stopped, Some(StopReason::Silent(_))),
+            "{fault:?}: {report:?}"
+        );
+        rig.hold(0.3).unwrap();
+        assert!(true_wheel_speed_sum(rig.firmware()) < 1e-3, "{fault:?}");
+        // Where along the step the legs really stopped, and what the path has there.
+        let legs = rig.true_legs().unwrap();
+        let s = (legs.clearance_m - start.clearance_m) / CLEARANCE_STEP_M;
+        assert!(s > 0.1 && s < 0.9, "{fault:?}: stopped at progress {s}");
+        let track_on_path_m = start.track_m - s * TRACK_STEP_M;
+        assert!(
+            (legs.track_m - track_on_path_m).abs() < legs_tolerance_m,
+            "{fault:?}: legs {legs:?} off the path at progress {s}"
+        );
+        let on_path = BaseDisplacement::of_action(action).isometry_at(s);
+        let off = on_path.inverse() * rig.true_pose();
+        assert!(
+            off.translation.vector.norm() < pose_tolerance_m,
+            "{fault:?}: rests {} m off the path at progress {s}",
+            off.translation.vector.norm()
+        );
+        // The controller holds a pose of the path: its commanded rest is the step's at the
+        // progress the stop reached.
+        let rest = rig.stop_rest().unwrap();
+        let rest_s = (rest.legs.clearance_m - start.clearance_m) / CLEARANCE_STEP_M;
+        assert!((rest.legs.track_m - (start.track_m - rest_s * TRACK_STEP_M)).abs() < 1e-5);
+        assert_eq!(
+            rig.legs(),
+            rest.legs,
+            "{fault:?}: recovery starts from the rest"
+        );
+        if let TimedFault::Disconnect(axis) = fault {
+            let motor = rig.firmware().axis(axis).unwrap();
+            assert_eq!(motor.state(), AxisState::Idle, "idled by its own watchdog");
+            assert_ne!(motor.error() & axis_error::WATCHDOG_TIMER_EXPIRED, 0);
+        }
+    }
+}

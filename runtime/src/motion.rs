@@ -24,6 +24,13 @@
 //! **Legs**: the (clearance, track) pair is interpolated on a straight line in that space and
 //! every intermediate point is solved by the leg IK, so the legs never leave the reachable set
 //! without [`StepMotion::plan`] refusing the step first.
+//!
+//! **Stopping** ([`StepMotion::stop_after`], [`StopMotion`]): base pose and legs are one
+//! function of progress, so a stop that only slows progress down keeps the robot on the step's
+//! path. The controller's safe stop does that: the progress rate ramps down to zero over
+//! [`MotionConfig::stop_s`] for every axis at once, and the robot rests at a pose the step
+//! passes through anyway (one the world validated with the step, see docs/robustness.md),
+//! instead of wheels coasting while the legs freeze, which leaves the path.
 
 use crate::action::{Action, CLEARANCE_STEP_M, MOVE_STEP_M, TRACK_STEP_M, YAW_STEP_DEG};
 use crate::base::{BaseError, BaseVelocity, MecanumBase, WheelSpeeds};
@@ -47,18 +54,25 @@ pub struct MotionConfig {
     pub max_wheel_radps: f32,
     /// Joint speed limit for hip, knee and wheel mount (joint output, not motor).
     pub max_joint_radps: f32,
+    /// How long a stop in the middle of a step takes ([`StepMotion::stop_after`]): the
+    /// progress rate falls linearly from its last value to zero over this time.
+    pub stop_s: f32,
 }
 
 impl Default for MotionConfig {
     /// 100 Hz, half a second per step. The limits leave margin over what a lattice step needs
     /// at that duration (peak wheel speed about 11 rad/s for a combined move and turn at full
-    /// track, peak joint speed well under 1 rad/s).
+    /// track, peak joint speed well under 1 rad/s). A stop takes 0.1 s: from the step's peak
+    /// progress rate (4 /s) that is a deceleration of 40 /s², 1.6 times the step profile's own
+    /// peak (2π / 0.25 s²), far inside the motors' acceleration limits, and it adds at most a
+    /// fifth of a step (1 cm, 1°) to the motion.
     fn default() -> Self {
         MotionConfig {
             control_rate_hz: 100.0,
             step_duration_s: 0.5,
             max_wheel_radps: 20.0,
             max_joint_radps: 3.0,
+            stop_s: 0.1,
         }
     }
 }
@@ -66,7 +80,7 @@ impl Default for MotionConfig {
 /// Why a step cannot be executed.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum MotionError {
-    /// Control rate or step duration not finite and positive, or more than
+    /// Control rate, step duration or stop time not finite and positive, or more than
     /// [`MAX_TICKS_PER_STEP`] ticks.
     BadTiming,
     /// A limit is not finite and positive.
@@ -130,6 +144,15 @@ impl BaseDisplacement {
     /// The pose change as an isometry: `end = start * displacement.isometry()`.
     pub fn isometry(&self) -> Isometry2<f32> {
         Isometry2::new(Vector2::new(self.dx_m, self.dy_m), self.dyaw_rad)
+    }
+
+    /// The pose change after `progress` (0 to 1) of the step: the step's straight line and
+    /// steady turn, stopped part-way ([`progress`] maps time to this).
+    pub fn isometry_at(&self, progress: f32) -> Isometry2<f32> {
+        Isometry2::new(
+            Vector2::new(self.dx_m * progress, self.dy_m * progress),
+            self.dyaw_rad * progress,
+        )
     }
 
     fn is_finite(&self) -> bool {
@@ -234,6 +257,8 @@ pub struct StepMotion {
     target: LegConfig,
     displacement: BaseDisplacement,
     ticks: u32,
+    /// Ticks a stop in the middle of the step takes.
+    stop_ticks: u32,
     tick_s: f32,
     next_tick: u32,
     /// Joint angles at the end of the previous tick, for the velocity feed-forward.
@@ -272,7 +297,10 @@ impl StepMotion {
             && config.step_duration_s.is_finite()
             && config.control_rate_hz > 0.0
             && config.step_duration_s > 0.0
-            && ticks_f <= MAX_TICKS_PER_STEP as f32)
+            && ticks_f <= MAX_TICKS_PER_STEP as f32
+            && config.stop_s.is_finite()
+            && config.stop_s > 0.0
+            && config.stop_s * config.control_rate_hz <= MAX_TICKS_PER_STEP as f32)
         {
             return Err(MotionError::BadTiming);
         }
@@ -285,12 +313,14 @@ impl StepMotion {
         }
         // At least one tick, so a very short step still ends exactly at its target.
         let ticks = (libm::roundf(ticks_f) as u32).max(1);
+        let stop_ticks = (libm::roundf(config.stop_s * config.control_rate_hz) as u32).max(1);
         let motion = StepMotion {
             geometry: *geometry,
             start,
             target,
             displacement,
             ticks,
+            stop_ticks,
             tick_s: config.step_duration_s / ticks as f32,
             next_tick: 0,
             previous_joints: geometry.leg_ik(start)?,
@@ -352,10 +382,30 @@ impl StepMotion {
         }
     }
 
+    /// Progress at the end of tick `tick - 1`, i.e. after `tick` setpoints of the step.
+    fn progress_after(&self, ticks_sent: u32) -> f32 {
+        progress(ticks_sent as f32 / self.ticks as f32)
+    }
+
     fn sample(&self, tick: u32, previous: JointAngles) -> Result<Setpoint, MotionError> {
-        let n = self.ticks as f32;
-        let s0 = progress(tick as f32 / n);
-        let s1 = progress((tick + 1) as f32 / n);
+        self.sample_span(
+            tick,
+            self.progress_after(tick),
+            self.progress_after(tick + 1),
+            previous,
+        )
+    }
+
+    /// The setpoint of one tick that moves the step's progress from `s0` to `s1`: every
+    /// quantity (base pose, legs) is the same function of progress as in the step itself, so
+    /// any progress sequence stays on the step's path.
+    fn sample_span(
+        &self,
+        tick: u32,
+        s0: f32,
+        s1: f32,
+        previous: JointAngles,
+    ) -> Result<Setpoint, MotionError> {
         let ds = s1 - s0;
         let d = self.displacement;
         let legs = self.legs_at(s1);
@@ -371,7 +421,7 @@ impl StepMotion {
         };
         let mean_legs = self.legs_at(0.5 * (s0 + s1));
         let wheels = MecanumBase::at(&self.geometry, mean_legs)?.wheel_speeds(base)?;
-        let ideal_pose = Isometry2::new(Vector2::new(d.dx_m * s1, d.dy_m * s1), d.dyaw_rad * s1);
+        let ideal_pose = d.isometry_at(s1);
         Ok(Setpoint {
             tick,
             start_s: tick as f32 * self.tick_s,
@@ -382,6 +432,124 @@ impl StepMotion {
             wheels,
             ideal_pose,
         })
+    }
+}
+
+impl StepMotion {
+    /// The controlled stop of this step after `ticks_sent` of its setpoints have been sent:
+    /// the robot decelerates *along the step's own path* (base pose and legs stay the same
+    /// function of progress as in the step), so wherever it comes to rest is a pose the step
+    /// itself passes through. The progress rate falls linearly from that of the last tick sent
+    /// to zero over the configured stop time ([`MotionConfig::stop_s`]), never faster than the
+    /// step itself would go, so the stop ends no later than the step would have and never
+    /// beyond its target. Fails only if the legs at the current progress have no IK solution
+    /// (impossible for a planned step; the caller then falls back to holding the measured
+    /// joints).
+    pub fn stop_after(&self, ticks_sent: u32) -> Result<StopMotion, MotionError> {
+        let sent = ticks_sent.min(self.ticks);
+        let progress_now = self.progress_after(sent);
+        let rate_per_s = match sent.checked_sub(1) {
+            Some(last) => (progress_now - self.progress_after(last)) / self.tick_s,
+            None => 0.0,
+        };
+        let legs = self.legs_at(progress_now);
+        Ok(StopMotion {
+            step: self.clone(),
+            from_tick: sent,
+            progress: progress_now,
+            rate0_per_s: rate_per_s.max(0.0),
+            next: 0,
+            joints: self.geometry.leg_ik(legs)?,
+            legs,
+        })
+    }
+}
+
+/// A controlled stop in the middle of a step ([`StepMotion::stop_after`]): yields the
+/// decelerating setpoints, then [`StopMotion::rest`] is the pose to hold.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StopMotion {
+    step: StepMotion,
+    /// Setpoints of the step sent before the stop began.
+    from_tick: u32,
+    /// Progress along the step reached by the setpoints yielded so far.
+    progress: f32,
+    /// Progress rate of the last step setpoint sent, per second.
+    rate0_per_s: f32,
+    /// Stop ticks yielded so far.
+    next: u32,
+    /// Legs and joint angles at `progress`.
+    legs: LegConfig,
+    joints: JointAngles,
+}
+
+impl StopMotion {
+    /// Progress along the step the robot is commanded to so far; once the stop has been
+    /// yielded whole, where it rests.
+    pub fn progress(&self) -> f32 {
+        self.progress
+    }
+
+    /// Where the robot rests once the stop is over (or now, if it is cut short): the legs at
+    /// the progress reached, wheels stopped. Needs no IK: the joints are those of the last
+    /// setpoint.
+    pub fn rest(&self) -> Setpoint {
+        Setpoint {
+            tick: self.from_tick + self.next,
+            start_s: (self.from_tick + self.next) as f32 * self.step.tick_s,
+            legs: self.legs,
+            joints: self.joints,
+            joint_rates: JointRates::default(),
+            base: BaseVelocity::ZERO,
+            wheels: WheelSpeeds::ZERO,
+            ideal_pose: self.step.displacement.isometry_at(self.progress),
+        }
+    }
+
+    /// The pose change from the step's start to where the stop rests (so far).
+    pub fn rest_pose(&self) -> Isometry2<f32> {
+        self.step.displacement.isometry_at(self.progress)
+    }
+
+    /// The stop's next setpoint, or `None` once it is over.
+    fn advance(&mut self) -> Result<Option<Setpoint>, MotionError> {
+        let m = self.step.stop_ticks;
+        if self.next >= m {
+            return Ok(None);
+        }
+        let j = self.next + 1;
+        let tick = self.from_tick + self.next;
+        // What the step itself would do in this tick (zero past its end) ...
+        let planned_ds = self.step.progress_after(tick + 1) - self.step.progress_after(tick);
+        // ... capped by the linear ramp of the rate, taken at the tick's middle.
+        let ramp = 1.0 - (j as f32 - 0.5) / m as f32;
+        let ramp_ds = self.rate0_per_s * self.step.tick_s * ramp;
+        let ds = planned_ds.min(ramp_ds).max(0.0);
+        let s1 = (self.progress + ds).min(1.0);
+        let sample = self
+            .step
+            .sample_span(tick, self.progress, s1, self.joints)?;
+        self.next = j;
+        self.progress = s1;
+        self.legs = sample.legs;
+        self.joints = sample.joints;
+        Ok(Some(sample))
+    }
+}
+
+impl Iterator for StopMotion {
+    type Item = Setpoint;
+
+    fn next(&mut self) -> Option<Setpoint> {
+        // Between two points of a planned step the legs are reachable; if IK somehow failed,
+        // ending the stop here is the safe reaction: `rest` holds the last pose sent.
+        match self.advance() {
+            Ok(sample) => sample,
+            Err(_) => {
+                self.next = self.step.stop_ticks;
+                None
+            }
+        }
     }
 }
 
@@ -412,7 +580,7 @@ impl ExactSizeIterator for StepMotion {}
 mod tests {
     use super::*;
     use crate::action::Step;
-    use crate::base::Odometry;
+    use crate::base::{Odometry, WheelSpeeds};
     use crate::robot::WHEELLEG;
 
     fn default_legs() -> LegConfig {
@@ -568,6 +736,59 @@ mod tests {
             StepMotion::plan(&WHEELLEG, &no_rate, default_legs(), forward),
             Err(MotionError::BadTiming)
         );
+    }
+
+    #[test]
+    fn a_stop_decelerates_along_the_steps_own_path() {
+        let config = MotionConfig::default();
+        let start = default_legs();
+        let step = StepMotion::plan(&WHEELLEG, &config, start, busy_action()).unwrap();
+        let tick_s = step.tick_s();
+        for sent in [0, 1, 10, 25, 40, 49, 50] {
+            let stop = step.stop_after(sent).unwrap();
+            let s0 = stop.progress();
+            let r0 = if sent == 0 {
+                0.0
+            } else {
+                (progress(sent as f32 / 50.0) - progress((sent - 1) as f32 / 50.0)) / tick_s
+            };
+            let mut odo = Odometry {
+                pose: step.displacement().isometry_at(s0),
+            };
+            let mut previous_s = s0;
+            let mut count = 0;
+            let mut stop_iter = stop.clone();
+            for sp in stop_iter.by_ref() {
+                count += 1;
+                // On the path: legs and pose are the step's at some progress, never going back.
+                let s = (sp.legs.clearance_m - start.clearance_m) / CLEARANCE_STEP_M;
+                assert!(s >= previous_s - 1e-5 && s <= 1.0 + 1e-5, "{sent}: {s}");
+                let ideal = step.displacement().isometry_at(s);
+                assert!(
+                    (ideal.translation.vector - sp.ideal_pose.translation.vector).norm() < 1e-5
+                );
+                assert!(sp.wheels.max_abs_radps() <= config.max_wheel_radps);
+                let previous_track_m = start.track_m - previous_s * TRACK_STEP_M;
+                let base = MecanumBase::new(&WHEELLEG, 0.5 * (previous_track_m + sp.legs.track_m))
+                    .unwrap();
+                odo.integrate(base.body_velocity(sp.wheels).unwrap(), tick_s)
+                    .unwrap();
+                previous_s = s;
+            }
+            assert!(count <= 10, "a stop takes at most stop_s");
+            let rest = stop_iter.rest();
+            assert_eq!(rest.wheels, WheelSpeeds::ZERO);
+            // Never beyond the step's end, never more than the ramp allows.
+            assert!(stop_iter.progress() <= 1.0);
+            assert!(stop_iter.progress() <= s0 + 0.5 * r0 * config.stop_s + 1e-5);
+            // The wheel commands integrate to the rest pose: the base stops on the path too.
+            let err = odo.pose.inverse() * stop_iter.rest_pose();
+            assert!(err.translation.vector.norm() < 1e-5, "{sent}: {err:?}");
+            assert!(err.rotation.angle().abs() < 1e-5);
+        }
+        // Nothing sent yet: the robot rests where the step starts.
+        let stop = step.stop_after(0).unwrap();
+        assert_eq!(stop.rest().legs, start);
     }
 
     #[test]

@@ -179,6 +179,65 @@ impl ObstacleSet {
         self.aabbs.iter().any(|b| b.intersects(aabb))
     }
 
+    /// How deep the robot's parts reach into the obstacles: the largest penetration depth of
+    /// any part into any obstacle, 0 when nothing touches (a measure for reports and tests of
+    /// how bad a contact is; [`ObstacleSet::collides`] is the rule).
+    pub fn penetration_m(&self, robot: &RobotParts) -> f32 {
+        let mut deepest_m = 0.0f32;
+        for (i, obstacle_aabb) in self.aabbs.iter().enumerate() {
+            if !obstacle_aabb.intersects(&robot.aabb) {
+                continue;
+            }
+            for (part, part_aabb) in robot.parts.iter().zip(&robot.aabbs) {
+                if !part_aabb.intersects(obstacle_aabb) {
+                    continue;
+                }
+                let (pose, shape): (Isometry3<f32>, &dyn Shape) = match part {
+                    Part::Body { pose, shape } => (*pose, shape),
+                    Part::Link(capsule) => (Isometry3::identity(), capsule),
+                    Part::Wheel { pose, shape } => (*pose, shape),
+                };
+                if let Ok(Some(contact)) =
+                    query::contact(&pose, shape, &self.poses[i], &self.shapes[i], 0.0)
+                {
+                    deepest_m = deepest_m.max(-contact.dist);
+                }
+            }
+        }
+        deepest_m
+    }
+
+    /// Whether any robot part comes within `margin_m` of any obstacle (touching included):
+    /// [`ObstacleSet::collides`] with every obstacle grown by the margin, for motions whose
+    /// real pose may stray from the checked one by up to the margin.
+    pub fn within_margin(&self, robot: &RobotParts, margin_m: f32) -> bool {
+        let robot_aabb = robot.aabb.loosened(margin_m);
+        for (i, obstacle_aabb) in self.aabbs.iter().enumerate() {
+            if !obstacle_aabb.intersects(&robot_aabb) {
+                continue;
+            }
+            for (part, part_aabb) in robot.parts.iter().zip(&robot.aabbs) {
+                if !part_aabb.loosened(margin_m).intersects(obstacle_aabb) {
+                    continue;
+                }
+                let (pose, shape): (Isometry3<f32>, &dyn Shape) = match part {
+                    Part::Body { pose, shape } => (*pose, shape),
+                    Part::Link(capsule) => (Isometry3::identity(), capsule),
+                    Part::Wheel { pose, shape } => (*pose, shape),
+                };
+                // A contact "predicted" within the margin is a pair closer than the margin
+                // (parry's contact query; its plain distance query misjudged box pairs here).
+                // Convex-convex, always supported; an error counts as too close (safe side).
+                let close = query::contact(&pose, shape, &self.poses[i], &self.shapes[i], margin_m)
+                    .map_or(true, |contact| contact.is_some());
+                if close {
+                    return true;
+                }
+            }
+        }
+        false
+    }
+
     /// Whether any robot part intersects any obstacle.
     pub fn collides(&self, robot: &RobotParts) -> bool {
         for (i, obstacle_aabb) in self.aabbs.iter().enumerate() {
@@ -194,5 +253,48 @@ impl ObstacleSet {
             }
         }
         false
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::obstacle::{ObstacleKind, ObstacleYaw};
+    use wheelleg_runtime::robot::WHEELLEG;
+
+    fn robot_at(x_m: f32) -> RobotParts {
+        let legs = LegConfig {
+            clearance_m: WHEELLEG.default_clearance_m,
+            track_m: WHEELLEG.default_track_m,
+        };
+        RobotParts::new(&WHEELLEG, Point2::new(x_m, 0.0), 0.0, legs).unwrap()
+    }
+
+    #[test]
+    fn margin_and_depth_agree_with_the_contact_rule() {
+        // A block 0.20 m long centred 1 m ahead: its near face at x = 0.9 m.
+        let set = ObstacleSet::new(&[Obstacle::new(
+            ObstacleKind::Block,
+            1.0,
+            0.0,
+            ObstacleYaw::default(),
+        )]);
+        // Drive up in millimetres until the first contact.
+        let touch_m = (0..1000)
+            .map(|mm| mm as f32 * 1e-3)
+            .find(|&x_m| set.collides(&robot_at(x_m)))
+            .unwrap();
+        // 2 cm short of it: free, and within a 3 cm margin but not a 1 cm one.
+        let near = robot_at(touch_m - 0.02);
+        assert!(!set.collides(&near));
+        assert_eq!(set.penetration_m(&near), 0.0);
+        assert!(!set.within_margin(&near, 0.01));
+        assert!(set.within_margin(&near, 0.03));
+        // 1 cm further than the first contact: colliding, about 1 cm deep, within any margin.
+        let into = robot_at(touch_m + 0.01);
+        assert!(set.collides(&into));
+        let depth_m = set.penetration_m(&into);
+        assert!(depth_m > 0.008 && depth_m < 0.012, "{depth_m}");
+        assert!(set.within_margin(&into, 0.0));
     }
 }

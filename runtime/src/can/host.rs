@@ -213,10 +213,16 @@ impl Commander {
         self.queue_broadcast(queue, Message::ClearErrors)
     }
 
-    /// Queues the safe stop: every wheel to 0 turns/s, every joint held where it was last
-    /// measured (zero feed-forward). Axes never heard from get no position command (there is
-    /// nothing safe to send them); their own watchdog idles them. Returns how many frames were
-    /// queued.
+    /// Queues the fallback safe stop, for a controller that knows no motion to stop along:
+    /// every wheel to 0 turns/s, every joint held where it was last measured (zero
+    /// feed-forward). Axes never heard from get no position command (there is nothing safe to
+    /// send them); their own watchdog idles them. Returns how many frames were queued.
+    ///
+    /// Inside a step, the controlled stop is better: [`crate::motion::StepMotion::stop_after`]
+    /// yields setpoints (sent with [`Commander::queue_setpoint`]) that decelerate legs and
+    /// wheels together along the step's path. This one leaves the path (wheels coast while the
+    /// joints freeze, and a silent joint's last measurement is up to the silence timeout old),
+    /// so it is the last resort (docs/can-protocol.md, "Safety").
     pub fn queue_safe_stop<F: Frame, const N: usize>(
         &self,
         queue: &mut TxQueue<F, N>,
