@@ -28,7 +28,8 @@
 //!   stopped, legs at their commanded configuration) and stops, because the world could no
 //!   longer say where the robot is.
 //! - **the controller stopped the robot** (a silent node, an axis error): [`Fault::SafeStop`];
-//!   the rig is already in safe stop (wheels to zero, joints held where measured) and stays so.
+//!   the rig is already in safe stop (the step's motion slowed to rest along its own path, then
+//!   that pose held, wheels at zero; docs/can-protocol.md) and stays so.
 //!
 //! # Collisions and other refused actions
 //!
