@@ -97,7 +97,7 @@ fn quantized(network: &NetworkF32, observations: &[(Vec<f32>, Vec<f32>)]) -> Qua
     quantized_version(network, observations, FORMAT_VERSION)
 }
 
-/// The network quantized for a weights format version (1: int8 logits, 2: int16 logits).
+/// The network quantized for a weights format version (1: int8 state and logits, 2: int16).
 fn quantized_version(
     network: &NetworkF32,
     observations: &[(Vec<f32>, Vec<f32>)],
@@ -129,7 +129,8 @@ fn weights_seeds(out: &Path) {
         .collect();
     let q = quantized(&network, &observations);
     write(out, "weights_file", "default.wlw", &q.to_bytes().unwrap());
-    // The runtime still reads version 1 files (int8 logits): keep that path fuzzed too.
+    // The runtime still reads version 1 files (int8 state and logits): keep that path fuzzed
+    // too.
     let old = quantized_version(&network, &observations, 1);
     write(
         out,

@@ -57,8 +57,12 @@ impl Default for ExportOptions {
 pub struct ModelCard {
     /// The checkpoint (or other source) the float network came from.
     pub source: String,
-    /// Weights format version of the file (2: int16 action logits).
+    /// Weights format version of the file (2: int16 state features and action logits).
     pub format_version: u16,
+    /// Bits of each quantized state feature (16 in version 2, 8 in version 1).
+    pub state_bits: u32,
+    /// Bits of the stored action logits (16 in version 2, 8 in version 1).
+    pub logit_bits: u32,
     /// Size of the weights file.
     pub file_bytes: usize,
     /// Parameters.
@@ -159,10 +163,13 @@ pub fn export_policy(
     )?;
     let agreement = agreement(network, &policy, &holdout)?;
     let (parameters, macs_per_decision) = (policy.model().parameter_count(), policy.model().macs());
+    let (state_bits, logit_bits) = (policy.model().state_bits(), policy.model().logit_bits());
     drop(policy);
     let card = ModelCard {
         source: source.to_string(),
         format_version: quantized.version,
+        state_bits,
+        logit_bits,
         file_bytes: bytes.len(),
         parameters,
         macs_per_decision,

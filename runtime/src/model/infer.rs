@@ -9,8 +9,8 @@
 use core::mem;
 
 use super::format::STATE_FRACTION_BITS;
-use super::kernel::{linear_batch, padded_row_len, quantize_inputs, Kernel, Output};
-use super::load::{i32_at, ConvLayer, Linear, Model, ACTION_LOGITS, MAX_STATE_FEATURES};
+use super::kernel::{le_i32, linear_batch, padded_row_len, quantize_inputs, Kernel, Output};
+use super::load::{ConvLayer, Linear, Model, ACTION_LOGITS, MAX_STATE_FEATURES};
 use super::quant::{quantize_mm, quantize_mm16};
 
 /// Why a decision could not be computed.
@@ -125,8 +125,9 @@ fn layer<T: Output>(
 }
 
 /// Output rows per kernel call of [`layer_with_state`]: its adjusted biases live in a stack
-/// buffer of this many entries (128 bytes), whatever the layer's size.
-const STATE_ROWS_PER_CALL: usize = 32;
+/// buffer of this many entries (512 bytes), whatever the layer's size. The default network's
+/// 128 rows take one call (each call has a fixed set-up cost in the SIMD kernel).
+const STATE_ROWS_PER_CALL: usize = 128;
 
 /// `2^(STATE_FRACTION_BITS - 1)`: rounds the state columns' sum to nearest, halves up.
 const STATE_HALF: i32 = 1 << (STATE_FRACTION_BITS - 1);
@@ -174,6 +175,7 @@ fn layer_with_state<T: Output>(
     for (v, &u) in wide.iter_mut().zip(state) {
         *v = i32::from(u) - zero_point;
     }
+    let wide = wide.get(..state.len()).ok_or(InferError::Internal)?;
     let mut bias = [0u8; 4 * STATE_ROWS_PER_CALL];
     for (chunk, out) in output.chunks_mut(STATE_ROWS_PER_CALL).enumerate() {
         let first = chunk * STATE_ROWS_PER_CALL;
@@ -182,19 +184,23 @@ fn layer_with_state<T: Output>(
             .weights
             .get(first * row_len..(first + count) * row_len)
             .ok_or(InferError::Internal)?;
-        for ((slot, weights), o) in bias
+        let biases = linear_layer
+            .bias
+            .get(4 * first..4 * (first + count))
+            .ok_or(InferError::Internal)?;
+        // Lock-step iterators over the rows: no index arithmetic or bounds checks per row.
+        for ((slot, weights), stored) in bias
             .chunks_exact_mut(4)
             .zip(weights.chunks_exact(row_len))
-            .zip(first..)
+            .zip(biases.chunks_exact(4))
         {
-            let columns = weights.get(features..).unwrap_or(&[]);
-            let sum: i32 = columns
-                .iter()
-                .zip(&wide)
-                .map(|(&w, &v)| i32::from(w as i8) * v)
-                .sum();
-            let adjusted =
-                i32_at(linear_layer.bias, o) + ((sum + STATE_HALF) >> STATE_FRACTION_BITS);
+            let mut sum = 0i32;
+            if let Some(columns) = weights.get(features..) {
+                for (&w, &v) in columns.iter().zip(wide) {
+                    sum += i32::from(w as i8) * v;
+                }
+            }
+            let adjusted = le_i32(stored) + ((sum + STATE_HALF) >> STATE_FRACTION_BITS);
             slot.copy_from_slice(&adjusted.to_le_bytes());
         }
         let part = Linear {

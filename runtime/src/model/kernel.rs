@@ -166,7 +166,7 @@ pub fn linear_scalar<T: Output>(linear: &Linear<'_>, input: &[i16], output: &mut
 
 /// An i32 from 4 little-endian bytes (0 if fewer: lengths were checked by the loader).
 #[inline(always)]
-fn le_i32(bytes: &[u8]) -> i32 {
+pub fn le_i32(bytes: &[u8]) -> i32 {
     match bytes {
         &[a, b, c, d] => i32::from_le_bytes([a, b, c, d]),
         _ => 0,
