@@ -95,6 +95,20 @@ fn main() {
         fake_rows(&mut n.action_head.weights, row);
         variants.push(("head weights".into(), n));
     }
+    {
+        // Every layer's weights at once (activations and inputs float): how much of the int8
+        // network's disagreement the weights alone explain.
+        let mut n = network.clone();
+        for conv in &mut n.convs {
+            let row = conv.weights.len() / conv.spec.out_channels;
+            fake_rows(&mut conv.weights, row);
+        }
+        for layer in n.hidden.iter_mut().chain([&mut n.action_head]) {
+            let row = layer.in_features;
+            fake_rows(&mut layer.weights, row);
+        }
+        variants.push(("all weights".into(), n));
+    }
     let report = |name: &str, f: &dyn Fn(&[f32], &[f32]) -> Vec<f32>| {
         let mut same = [0usize; 5];
         for (h, s) in &holdout {
