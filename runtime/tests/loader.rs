@@ -235,8 +235,15 @@ fn inconsistent_layers_are_shape_or_parameter_errors() {
     );
     for mut old in [logit_zero_point, logit_relu] {
         old.version = 1;
-        assert_eq!(Model::parse(&old.to_bytes().unwrap()).unwrap().version, 1);
+        let bytes = old.to_bytes().unwrap();
+        let model = Model::parse(&bytes).unwrap();
+        assert_eq!(model.version, 1);
+        // Version 1: int8 state and logits; version 2: int16 both (what `inspect` prints).
+        assert_eq!((model.state_bits(), model.logit_bits()), (8, 8));
     }
+    let bytes = good.to_bytes().unwrap();
+    let current = Model::parse(&bytes).unwrap();
+    assert_eq!((current.state_bits(), current.logit_bits()), (16, 16));
 
     let mut multiplier = good.clone();
     multiplier.action_head.layer.multipliers[0] = -1;
