@@ -19,17 +19,8 @@ if ! command -v valgrind >/dev/null; then
 fi
 (cd "$root" && cargo build --quiet --release -p wheelleg-runtime --example decisions)
 bin="${CARGO_TARGET_DIR:-$root/target}/release/examples/decisions"
-out="$(mktemp -d)"
-trap 'rm -rf "$out"' EXIT
-
-# Instructions ("I refs") of one run.
-refs() {
-    valgrind --tool=callgrind --callgrind-out-file="$out/cg.out" "$bin" "$@" 2>&1 >/dev/null |
-        sed -n 's/.*I *refs: *\([0-9,]*\).*/\1/p' | tr -d ,
-}
-
-kernels="scalar"
-if grep -qw avx2 /proc/cpuinfo 2>/dev/null; then kernels="scalar avx2"; fi
+# shellcheck source=tools/callgrind_lib.sh
+source "$root/tools/callgrind_lib.sh"
 printf '%-8s %12s %16s\n' kernel decisions instr/decision
 for kernel in $kernels f32; do
     count="$n"

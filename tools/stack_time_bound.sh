@@ -18,14 +18,8 @@ if ! command -v valgrind >/dev/null; then
     echo "stack_time_bound: valgrind not found, instruction counts skipped" >&2
     exit 0
 fi
-out="$(mktemp -d)"
-trap 'rm -rf "$out"' EXIT
-refs() {
-    valgrind --tool=callgrind --callgrind-out-file="$out/cg.out" "$bin" "$@" 2>&1 >/dev/null |
-        sed -n 's/.*I *refs: *\([0-9,]*\).*/\1/p' | tr -d ,
-}
-kernels="scalar"
-if grep -qw avx2 /proc/cpuinfo 2>/dev/null; then kernels="scalar avx2"; fi
+# shellcheck source=tools/callgrind_lib.sh
+source "$root/tools/callgrind_lib.sh"
 printf '%-8s %-8s %14s\n' kernel input instr/decision
 for kernel in $kernels; do
     for input in zeros ramp extreme; do
