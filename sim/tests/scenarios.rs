@@ -227,12 +227,7 @@ fn lined_up_starts_stay_within_their_band_and_any_yaw_keeps_the_old_scenes() {
     let mut seen_backwards = false;
     let mut r = rng(11);
     for i in 0..200 {
-        let s = generate_with_start(
-            kind,
-            StartYaw::within_deg(15.0),
-            &mut r,
-            format!("s{i}"),
-        );
+        let s = generate_with_start(kind, StartYaw::within_deg(15.0), &mut r, format!("s{i}"));
         let yaw = s.start.yaw_deg().rem_euclid(360.0);
         let from_x = yaw.min((yaw - 180.0).abs()).min(360.0 - yaw);
         assert!(from_x <= 15.0 + 1e-3, "{} starts at {yaw} deg", s.name);
