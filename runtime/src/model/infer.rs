@@ -100,6 +100,23 @@ fn widen(input: &[i8], zero_point: i8, row: &mut [i16]) {
     }
 }
 
+/// A dense layer's output rows, and the input row buffer cut to what the kernel reads: the
+/// padded row when the buffer has room, so that it reads the last, partial block directly
+/// instead of copying it. The first `row_len` values are the caller's to fill.
+#[inline(always)]
+fn layer_buffers<'r, 'o, T>(
+    linear_layer: &Linear<'_>,
+    row: &'r mut [i16],
+    output: &'o mut [T],
+) -> Result<(&'o mut [T], &'r mut [i16]), InferError> {
+    let output = output
+        .get_mut(..linear_layer.rows)
+        .ok_or(InferError::Internal)?;
+    let padded = padded_row_len(linear_layer.row_len).min(row.len());
+    let row = row.get_mut(..padded).ok_or(InferError::Internal)?;
+    Ok((output, row))
+}
+
 fn layer<T: Output>(
     kernel: Kernel,
     linear_layer: &Linear<'_>,
@@ -109,16 +126,8 @@ fn layer<T: Output>(
 ) -> Result<(), InferError> {
     let row_len = linear_layer.row_len;
     let input = input.get(..row_len).ok_or(InferError::Internal)?;
-    let output = output
-        .get_mut(..linear_layer.rows)
-        .ok_or(InferError::Internal)?;
-    // Hand the kernel the padded row when the buffer has room, so that it reads the last,
-    // partial block directly instead of copying it.
-    let padded = padded_row_len(row_len).min(row.len());
-    let row = row.get_mut(..padded).ok_or(InferError::Internal)?;
-    let (values, _) = row
-        .split_at_mut_checked(row_len)
-        .ok_or(InferError::Internal)?;
+    let (output, row) = layer_buffers(linear_layer, row, output)?;
+    let values = row.get_mut(..row_len).ok_or(InferError::Internal)?;
     widen(input, linear_layer.input_zero_point, values);
     linear_batch(kernel, linear_layer, row, row_len, output);
     Ok(())
@@ -156,14 +165,8 @@ fn layer_with_state<T: Output>(
         .checked_sub(state.len())
         .ok_or(InferError::Internal)?;
     let input = input.get(..features).ok_or(InferError::Internal)?;
-    let output = output
-        .get_mut(..linear_layer.rows)
-        .ok_or(InferError::Internal)?;
-    let padded = padded_row_len(row_len).min(row.len());
-    let row = row.get_mut(..padded).ok_or(InferError::Internal)?;
-    let (values, _) = row
-        .split_at_mut_checked(row_len)
-        .ok_or(InferError::Internal)?;
+    let (output, row) = layer_buffers(linear_layer, row, output)?;
+    let values = row.get_mut(..row_len).ok_or(InferError::Internal)?;
     let (feature_values, state_values) = values
         .split_at_mut_checked(features)
         .ok_or(InferError::Internal)?;
