@@ -72,7 +72,6 @@ fn planned_scenes() -> Vec<Planned> {
         (SceneKind::Complex, 4, 21),
         (SceneKind::Behaviour(Behaviour::LiftOver), 1, 22),
     ];
-    let mut passing_through = Vec::new();
     for (kind, count, seed) in kinds {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let mut found = 0;
@@ -84,17 +83,19 @@ fn planned_scenes() -> Vec<Planned> {
             };
             let mut actions = Vec::new();
             // Where a safe stop can leave the robot: anywhere along a step's path. The world
-            // judges three poses per step (start, half-way, end); a plan can pass through an
-            // obstacle between them (docs/robustness.md, open finding), and then the robot
-            // does so with or without a fault. Listed here; the episodes tell such steps apart.
-            let mut free_path = true;
+            // proves every step clear all the way, so sampled at every control tick the planned
+            // path touches nothing either.
             while !env.status().is_done() {
                 let action = driver.decide(&env).unwrap();
                 let from = *env.state();
                 env.step(action).unwrap();
-                free_path &= env
-                    .check_swept(&from, env.state(), SWEEP_SAMPLES, 0.0)
-                    .is_ok();
+                let on_the_way = env.check_swept(&from, env.state(), SWEEP_SAMPLES, 0.0);
+                assert!(
+                    on_the_way.is_ok(),
+                    "{}: step {} of the plan touches an obstacle on the way: {on_the_way:?}",
+                    scene.name,
+                    actions.len()
+                );
                 actions.push(action);
             }
             assert_eq!(env.status(), Status::Success);
@@ -103,9 +104,6 @@ fn planned_scenes() -> Vec<Planned> {
                 0,
                 "the planner's paths are collision-free"
             );
-            if !free_path {
-                passing_through.push(scene.name.clone());
-            }
             out.push(Planned { scene, actions });
             found += 1;
             if found == count {
@@ -115,10 +113,7 @@ fn planned_scenes() -> Vec<Planned> {
         assert_eq!(found, count, "not enough solvable {} scenes", kind.name());
     }
     let steps: usize = out.iter().map(|p| p.actions.len()).sum();
-    eprintln!(
-        "planned steps: {steps}; plans whose path touches an obstacle between the world's \
-         three poses per step: {passing_through:?}",
-    );
+    eprintln!("planned steps: {steps}");
     out
 }
 
@@ -171,16 +166,8 @@ struct Figures {
     best_watchdog_us: u64,
     true_pose_checks: u32,
     worst_true_drift_m: f32,
-    /// Episodes whose true pose touched an obstacle at a step's end, at rest or at any
-    /// control tick from the stop decision on (asserted empty).
+    /// Episodes whose true pose touched an obstacle at any control tick (asserted empty).
     contacts: Vec<u64>,
-    /// Control ticks in the middle of a step under control whose true pose touched an
-    /// obstacle, all in steps whose planned path touches it between the world's three checked
-    /// poses (asserted), and ticks of a stop doing the same; their episodes. Reported, see
-    /// docs/robustness.md.
-    path_contact_ticks: u32,
-    stop_ticks_on_touching_path: u32,
-    path_contact_episodes: Vec<u64>,
     /// Stops in the middle of a step (silent node, or a watchdog trip the lossy bus caused).
     mid_step_stops: u32,
     /// Silent nodes that still heard commands / that dropped off the bus.
@@ -265,32 +252,14 @@ fn run_episode(planned: &Planned, episode: u64, figures: &mut Figures) {
     );
     let obstacles = closed_loop.env().obstacles().clone();
     closed_loop.rig_mut().record_truth(true);
-    // Every recorded instant of the true motion is checked against the obstacles.
-    // Every control tick of the true motion is checked against the obstacles. The pose at a
-    // step's end and at rest must be free, always. In between, the robot may touch only where
-    // the planned path itself does (the step's path is not free at tick resolution): the
-    // world's three-pose rule, which the robot follows with or without a fault.
-    let check_truth = |rig: &mut Rig, figures: &mut Figures, when: &str, path_free: bool| {
+    // Every control tick of the true motion is checked against the obstacles: at no tick,
+    // under control, stopping or at rest, may the robot touch one (the world proves every
+    // planned step clear all the way; a fault stops the robot on that way).
+    let check_truth = |rig: &mut Rig, figures: &mut Figures, when: &str| {
         let samples = rig.take_truth();
-        let stop_us = rig.stopped_at_us();
-        for (i, sample) in samples.iter().enumerate() {
+        for sample in &samples {
             figures.true_pose_checks += 1;
-            if !true_pose_collides(sample, start, &obstacles) {
-                continue;
-            }
-            let stopping = stop_us.is_some_and(|t| sample.at_us >= t);
-            if i + 1 < samples.len() && !path_free {
-                if stopping {
-                    figures.stop_ticks_on_touching_path += 1;
-                } else {
-                    figures.path_contact_ticks += 1;
-                }
-                if figures.path_contact_episodes.last() != Some(&episode) {
-                    figures.path_contact_episodes.push(episode);
-                }
-                continue;
-            }
-            {
+            if true_pose_collides(sample, start, &obstacles) {
                 figures.contacts.push(episode);
                 panic!(
                     "{what}: {when}: the robot's true pose touches an obstacle at {} µs \
@@ -304,7 +273,6 @@ fn run_episode(planned: &Planned, episode: u64, figures: &mut Figures) {
     };
     let mut truth_log: Vec<TrueSample> = Vec::new();
     let mut faulted_step: Option<(RobotState, RobotState)> = None;
-    let mut last_path_free = true;
     let fault_step = rng.random_range(0..planned.actions.len());
     let step_us = 500_000;
     let offset_us = rng.random_range(0..step_us);
@@ -338,13 +306,6 @@ fn run_episode(planned: &Planned, episode: u64, figures: &mut Figures) {
                 }
             };
         }
-        let path_free = {
-            let env = closed_loop.env();
-            let from = *env.state();
-            env.check_swept(&from, &from.after(action), SWEEP_SAMPLES, 0.0)
-                .is_ok()
-        };
-        last_path_free = path_free;
         let record = closed_loop
             .step(action)
             .unwrap_or_else(|e| panic!("{what}: step {index}: loop error {e}"));
@@ -362,7 +323,6 @@ fn run_episode(planned: &Planned, episode: u64, figures: &mut Figures) {
             closed_loop.rig_mut(),
             figures,
             &format!("step {index}"),
-            path_free,
         ));
         if record.kind == StepKind::Faulted {
             faulted_step = Some((from, from.after(action)));
@@ -372,13 +332,7 @@ fn run_episode(planned: &Planned, episode: u64, figures: &mut Figures) {
     // Let whatever the fault set in motion come to rest (a stop in the last tick of the
     // episode, a watchdog that has just fired), then check the rest state twice.
     closed_loop.rig_mut().hold(0.4).unwrap();
-    truth_log.extend(check_truth(
-        closed_loop.rig_mut(),
-        figures,
-        "at rest",
-        // What follows the last step (its settling, or the rest of its stop) is on its path.
-        last_path_free,
-    ));
+    truth_log.extend(check_truth(closed_loop.rig_mut(), figures, "at rest"));
     let rig = closed_loop.rig();
     figures.episodes += 1;
     let kind = match injected {

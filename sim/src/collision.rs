@@ -47,12 +47,17 @@ impl Part {
         }
     }
 
-    fn intersects(&self, obstacle_pose: &Isometry3<f32>, obstacle: &Cuboid) -> bool {
-        let (pose, shape): (Isometry3<f32>, &dyn Shape) = match self {
+    /// The part as parry's queries take it: a pose and a shape.
+    fn placed(&self) -> (Isometry3<f32>, &dyn Shape) {
+        match self {
             Part::Body { pose, shape } => (*pose, shape),
             Part::Link(capsule) => (Isometry3::identity(), capsule),
             Part::Wheel { pose, shape } => (*pose, shape),
-        };
+        }
+    }
+
+    fn intersects(&self, obstacle_pose: &Isometry3<f32>, obstacle: &Cuboid) -> bool {
+        let (pose, shape) = self.placed();
         // Every pair here is convex-convex, which parry always supports; an unsupported pair
         // would be a programming error, and counting it as a collision is the safe side.
         query::intersection_test(&pose, shape, obstacle_pose, obstacle).unwrap_or(true)
@@ -174,6 +179,17 @@ impl ObstacleSet {
         })
     }
 
+    /// Whether any obstacle's footprint comes within `reach_m` of the straight segment from
+    /// `a` to `b` (as a test on the box spanning both ends, grown by `reach_m`: cheap, and
+    /// conservative).
+    pub fn any_within_span(&self, a: Point2<f32>, b: Point2<f32>, reach_m: f32) -> bool {
+        let (min_x, max_x) = (a.x.min(b.x) - reach_m, a.x.max(b.x) + reach_m);
+        let (min_y, max_y) = (a.y.min(b.y) - reach_m, a.y.max(b.y) + reach_m);
+        self.boxes.iter().any(|g| {
+            g.min_x_m <= max_x && g.max_x_m >= min_x && g.min_y_m <= max_y && g.max_y_m >= min_y
+        })
+    }
+
     /// Whether the box `aabb` overlaps any obstacle's bounding box.
     pub fn may_touch(&self, aabb: &Aabb) -> bool {
         self.aabbs.iter().any(|b| b.intersects(aabb))
@@ -192,11 +208,7 @@ impl ObstacleSet {
                 if !part_aabb.intersects(obstacle_aabb) {
                     continue;
                 }
-                let (pose, shape): (Isometry3<f32>, &dyn Shape) = match part {
-                    Part::Body { pose, shape } => (*pose, shape),
-                    Part::Link(capsule) => (Isometry3::identity(), capsule),
-                    Part::Wheel { pose, shape } => (*pose, shape),
-                };
+                let (pose, shape) = part.placed();
                 if let Ok(Some(contact)) =
                     query::contact(&pose, shape, &self.poses[i], &self.shapes[i], 0.0)
                 {
@@ -220,11 +232,7 @@ impl ObstacleSet {
                 if !part_aabb.loosened(margin_m).intersects(obstacle_aabb) {
                     continue;
                 }
-                let (pose, shape): (Isometry3<f32>, &dyn Shape) = match part {
-                    Part::Body { pose, shape } => (*pose, shape),
-                    Part::Link(capsule) => (Isometry3::identity(), capsule),
-                    Part::Wheel { pose, shape } => (*pose, shape),
-                };
+                let (pose, shape) = part.placed();
                 // A contact "predicted" within the margin is a pair closer than the margin
                 // (parry's contact query; its plain distance query misjudged box pairs here).
                 // Convex-convex, always supported; an error counts as too close (safe side).
@@ -236,6 +244,53 @@ impl ObstacleSet {
             }
         }
         false
+    }
+
+    /// How far the robot is from the nearest obstacle, looked for up to `up_to_m`: `None` when
+    /// a part touches or enters an obstacle (the contact rule of [`ObstacleSet::collides`]),
+    /// otherwise the smallest part-to-obstacle distance, or `up_to_m` when nothing is closer.
+    /// The swept check of a step ([`crate::env::Env::check_transition`]) proves a stretch of
+    /// motion clear from these distances.
+    pub fn clearance_m(&self, robot: &RobotParts, up_to_m: f32) -> Option<f32> {
+        let mut nearest_m = up_to_m.max(0.0);
+        let robot_aabb = robot.aabb.loosened(nearest_m);
+        for (i, obstacle_aabb) in self.aabbs.iter().enumerate() {
+            if !obstacle_aabb.intersects(&robot_aabb) {
+                continue;
+            }
+            for (part, part_aabb) in robot.parts.iter().zip(&robot.aabbs) {
+                // Boxes farther apart than the nearest distance so far cannot lower it.
+                if !part_aabb.loosened(nearest_m).intersects(obstacle_aabb) {
+                    continue;
+                }
+                let (pose, shape) = part.placed();
+                // parry's contact query with a prediction distance: its plain distance query
+                // misjudged box pairs (see `within_margin`). Convex-convex pairs are always
+                // supported; an error counts as touching (the safe side).
+                match query::contact(&pose, shape, &self.poses[i], &self.shapes[i], nearest_m) {
+                    Ok(Some(contact)) if contact.dist <= 0.0 => return None,
+                    Ok(Some(contact)) => nearest_m = nearest_m.min(contact.dist),
+                    Ok(None) => {}
+                    Err(_) => return None,
+                }
+            }
+        }
+        Some(nearest_m)
+    }
+
+    /// Whether some part, anywhere within `grow_m` of the box spanning its places in `start`
+    /// and `end`, could meet an obstacle's box. When not, a motion from `start` to `end` that
+    /// moves no point of the robot farther than `2 * grow_m` touches nothing on the way: every
+    /// point of a part at any moment is within `grow_m` of where it was at one end.
+    pub fn sweep_may_touch(&self, start: &RobotParts, end: &RobotParts, grow_m: f32) -> bool {
+        let whole = start.aabb.merged(&end.aabb).loosened(grow_m);
+        self.aabbs.iter().filter(|o| o.intersects(&whole)).any(|o| {
+            start
+                .aabbs
+                .iter()
+                .zip(&end.aabbs)
+                .any(|(a, b)| a.merged(b).loosened(grow_m).intersects(o))
+        })
     }
 
     /// Whether any robot part intersects any obstacle.

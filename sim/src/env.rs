@@ -2,8 +2,9 @@
 //!
 //! An invalid action (collision, impossible leg pose, leaving the arena) is undone: the state
 //! stays as before the action, the step counts, and the reward carries the invalid penalty.
-//! Collision is checked at the end pose and, when the robot is near an obstacle, at the
-//! half-way pose too, so that no part can jump through a thin obstacle within one step.
+//! Collision is checked at the end pose and, when the robot is near an obstacle, along the
+//! whole way there (proven clear from distances, not sampled), so that no part passes through
+//! an obstacle within a step.
 
 use crate::collision::{ObstacleSet, RobotParts};
 use crate::height_map::{self, HeightMap};
@@ -11,10 +12,28 @@ use crate::reward::RewardTerms;
 use crate::scenario::{Scenario, ScenarioError};
 use crate::state::RobotState;
 use nalgebra::{Point2, Vector2};
-use wheelleg_runtime::action::{Action, CLEARANCE_STEP_M, TRACK_STEP_M, YAW_STEP_DEG};
+use wheelleg_runtime::action::{Action, YAW_STEP_DEG};
 use wheelleg_runtime::leg::{IkError, LegConfig};
 use wheelleg_runtime::observation::STATE_LEN;
 use wheelleg_runtime::robot::{RobotGeometry, WHEELLEG};
+
+/// Motion shorter than this that cannot be proven clear of an obstacle counts as touching it
+/// (see [`Env::check_transition`]): 0.1 mm, far below what a real robot tracks, far above
+/// parry's rounding.
+pub const GRAZE_TOLERANCE_M: f32 = 1.0e-4;
+
+/// Pieces the knee's curved path is measured in by [`Env::motion_bound_m`].
+const LEG_PATH_PIECES: u32 = 16;
+
+/// Padding of the measured leg speed for how it varies between the pieces: near full stretch
+/// the knee speeds up sharply. `sim/tests/swept_motion.rs` measures every lattice leg
+/// transition at 200 pieces: the fastest comes to 0.80 of the padded bound (0.96 with a 1.25
+/// padding, so 1.5).
+const LEG_PATH_SAFETY: f32 = 1.5;
+
+/// Stretches the clearance proof can hold at once: one per halving level, and a step's motion
+/// (under 0.2 m) halves below [`GRAZE_TOLERANCE_M`] in 11 levels.
+const PROOF_STACK: usize = 40;
 
 /// Episode rules. Defaults are documented in docs/simulator.md.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -220,8 +239,17 @@ impl Env {
         (self.target - self.state.position).norm()
     }
 
-    /// Whether `state` is a valid place for the robot (reachable legs, inside the arena, no
-    /// collision), given it comes from `from` in one step.
+    /// Whether the step from `from` to `to` is valid: the end pose reachable by the legs and
+    /// inside the arena, and no part of the robot touching an obstacle at the end pose **or
+    /// anywhere on the way** (the straight path the controller drives:
+    /// [`Env::pose_between`]).
+    ///
+    /// The way is proven clear, not sampled: a pose at clearance `d` from every obstacle keeps
+    /// the stretch of motion within `d / D` of it clear, where `D` bounds how far any point of
+    /// the robot moves over the whole step ([`Env::motion_bound_m`]). The step is bisected
+    /// until every stretch is covered this way; a pose that touches is a collision, and so is a
+    /// stretch shorter than [`GRAZE_TOLERANCE_M`] of motion that still cannot be proven clear
+    /// (the robot would graze an obstacle within that tolerance).
     pub fn check_transition(
         &self,
         from: &RobotState,
@@ -240,58 +268,175 @@ impl Env {
             .leg_ik(legs)
             .map_err(InvalidAction::Impossible)?;
         // Most steps are far from every obstacle: one box test then settles them, without
-        // placing the robot's 13 parts.
-        if !self.obstacles.any_within(p, self.reach_m)
-            && !self.obstacles.any_within(from.position, self.reach_m)
+        // placing the robot's 13 parts. The box spans both ends, so it holds every pose on the
+        // way too.
+        if !self
+            .obstacles
+            .any_within_span(from.position, p, self.reach_m)
         {
             return Ok(());
         }
         let end = RobotParts::new(&self.geometry, p, to.yaw_rad(), legs)
             .map_err(InvalidAction::Impossible)?;
-        if !self.obstacles.may_touch(&end.aabb()) {
-            return Ok(());
-        }
-        if self.obstacles.collides(&end) {
+        if self.obstacles.may_touch(&end.aabb()) && self.obstacles.collides(&end) {
             return Err(InvalidAction::Collision);
         }
         if from == to {
             return Ok(());
         }
-        // Half-way pose of the motion: positions, yaw and leg pose interpolated.
-        let from_legs = from.leg_config(&self.geometry);
-        let mid_legs = LegConfig {
-            clearance_m: 0.5 * (from_legs.clearance_m + legs.clearance_m),
-            track_m: 0.5 * (from_legs.track_m + legs.track_m),
-        };
-        debug_assert!((legs.track_m - from_legs.track_m).abs() <= TRACK_STEP_M + 1e-6);
-        debug_assert!((legs.clearance_m - from_legs.clearance_m).abs() <= CLEARANCE_STEP_M + 1e-6);
-        let yaw_delta =
-            (to.yaw_steps - from.yaw_steps + 1).rem_euclid(crate::state::YAW_STEPS_PER_TURN) - 1;
-        let mid_yaw = from.yaw_rad() + 0.5 * (yaw_delta as f32 * YAW_STEP_DEG).to_radians();
-        let mid = RobotParts::new(
-            &self.geometry,
-            from.position + 0.5 * (p - from.position),
-            mid_yaw,
-            mid_legs,
-        )
-        .map_err(InvalidAction::Impossible)?;
-        if self.obstacles.collides(&mid) {
-            return Err(InvalidAction::Collision);
+        let bound_m = self
+            .motion_bound_m(from, to)
+            .map_err(InvalidAction::Impossible)?;
+        let start = self
+            .pose_between(from, to, 0.0)
+            .map_err(InvalidAction::Impossible)?;
+        if !self.obstacles.sweep_may_touch(&start, &end, 0.5 * bound_m) {
+            return Ok(());
+        }
+        self.prove_way_clear(from, to, bound_m, &start, &end)
+    }
+
+    /// Bisects the step until the clearance at the poses covers every stretch between them
+    /// (see [`Env::check_transition`]).
+    fn prove_way_clear(
+        &self,
+        from: &RobotState,
+        to: &RobotState,
+        bound_m: f32,
+        start: &RobotParts,
+        end: &RobotParts,
+    ) -> Result<(), InvalidAction> {
+        // A start that touches (only possible within parry's rounding of a pose the contact
+        // rule accepted) counts as clearance 0: the motion must then prove itself from the
+        // other end.
+        // Clearance is only looked for as far as it can help: a stretch of travel `T` needs
+        // its two ends' clearances to sum to more than `T`, so each pose's search stops a
+        // little past half the travel of the stretch it ends (fewer part/obstacle pairs get
+        // parry's exact query). Capped values are lower bounds, so the proof stays sound; a
+        // capped pair may just split once more.
+        let enough = |travel_m: f32| 0.5 * travel_m * (1.0 + 1.0e-3) + GRAZE_TOLERANCE_M;
+        let start_m = self
+            .obstacles
+            .clearance_m(start, enough(bound_m))
+            .unwrap_or(0.0);
+        let end_m = self
+            .obstacles
+            .clearance_m(end, enough(bound_m))
+            .ok_or(InvalidAction::Collision)?;
+        // Stretches still to prove: (from, clearance there, to, clearance there), as fractions
+        // of the step. The depth is bounded: each split halves a stretch, and a stretch
+        // shorter than the graze tolerance ends the search.
+        let mut open: heapless::Vec<(f32, f32, f32, f32), PROOF_STACK> = heapless::Vec::new();
+        // Room for a split at every level down to the tolerance; a full stack (only with a
+        // robot that moves kilometres per step) is a step not proven clear.
+        let full = |_| InvalidAction::Collision;
+        open.push((0.0, start_m, 1.0, end_m)).map_err(full)?;
+        while let Some((a, a_m, b, b_m)) = open.pop() {
+            let travel_m = bound_m * (b - a);
+            if a_m + b_m > travel_m {
+                continue;
+            }
+            if travel_m < GRAZE_TOLERANCE_M {
+                return Err(InvalidAction::Collision);
+            }
+            let mid = 0.5 * (a + b);
+            let parts = self
+                .pose_between(from, to, mid)
+                .map_err(InvalidAction::Impossible)?;
+            let mid_m = self
+                .obstacles
+                .clearance_m(&parts, enough(travel_m))
+                .ok_or(InvalidAction::Collision)?;
+            open.push((mid, mid_m, b, b_m)).map_err(full)?;
+            open.push((a, a_m, mid, mid_m)).map_err(full)?;
         }
         Ok(())
     }
 
+    /// The robot's parts at fraction `t` of the step from `from` to `to` (0 = start, 1 = end):
+    /// position on the straight line, heading turning steadily the short way, legs on the
+    /// straight line in (clearance, track). This is the path
+    /// `wheelleg_runtime::motion::StepMotion` drives and a controlled stop rests on. Fails when
+    /// the legs cannot take the in-between configuration.
+    pub fn pose_between(
+        &self,
+        from: &RobotState,
+        to: &RobotState,
+        t: f32,
+    ) -> Result<RobotParts, IkError> {
+        let (legs0, legs1) = (
+            from.leg_config(&self.geometry),
+            to.leg_config(&self.geometry),
+        );
+        let legs = LegConfig {
+            clearance_m: legs0.clearance_m + t * (legs1.clearance_m - legs0.clearance_m),
+            track_m: legs0.track_m + t * (legs1.track_m - legs0.track_m),
+        };
+        RobotParts::new(
+            &self.geometry,
+            from.position + t * (to.position - from.position),
+            from.yaw_rad() + t * yaw_change_rad(from, to),
+            legs,
+        )
+    }
+
+    /// A bound on how fast any point of the robot moves over the step from `from` to `to`, in
+    /// metres per whole step: over any fraction `f` of the step no point moves farther than
+    /// `f` times this. Three motions add up:
+    /// - the body centre's straight line;
+    /// - the turn: no point is farther than the horizontal reach from the turning axis;
+    /// - the legs in the body frame (the body rising or sinking, knees and wheels moving as
+    ///   the leg IK follows the interpolated (clearance, track)). The knee moves on a curve, so
+    ///   its path is measured at [`LEG_PATH_PIECES`] pieces and padded by
+    ///   [`LEG_PATH_SAFETY`]; `sim/tests/swept_motion.rs` checks the bound against finely sampled
+    ///   paths over every leg transition of the lattice.
+    ///
+    /// Every other point of a part is a fixed combination of these (capsules between hip,
+    /// knee and wheel; the wheel and body turning with the body), so it moves no farther.
+    pub fn motion_bound_m(&self, from: &RobotState, to: &RobotState) -> Result<f32, IkError> {
+        let travel_m = (to.position - from.position).norm();
+        let turn_m = self.reach_m * yaw_change_rad(from, to).abs();
+        let (legs0, legs1) = (
+            from.leg_config(&self.geometry),
+            to.leg_config(&self.geometry),
+        );
+        let leg_m = if legs0 == legs1 {
+            0.0
+        } else {
+            // One leg stands for all four: they mirror each other.
+            let leg = wheelleg_runtime::robot::LegId::FrontLeft;
+            let mut previous: Option<[nalgebra::Point3<f32>; 3]> = None;
+            let mut longest_piece_m = 0.0f32;
+            for piece in 0..=LEG_PATH_PIECES {
+                let t = piece as f32 / LEG_PATH_PIECES as f32;
+                let legs = LegConfig {
+                    clearance_m: legs0.clearance_m + t * (legs1.clearance_m - legs0.clearance_m),
+                    track_m: legs0.track_m + t * (legs1.track_m - legs0.track_m),
+                };
+                let points = self.geometry.leg_points(leg, self.geometry.leg_ik(legs)?);
+                let lift =
+                    nalgebra::Vector3::z() * self.geometry.body_centre_height_m(legs.clearance_m);
+                let now = [points.hip + lift, points.knee + lift, points.wheel + lift];
+                if let Some(before) = previous {
+                    for (a, b) in before.iter().zip(&now) {
+                        longest_piece_m = longest_piece_m.max((b - a).norm());
+                    }
+                }
+                previous = Some(now);
+            }
+            LEG_PATH_SAFETY * LEG_PATH_PIECES as f32 * longest_piece_m
+        };
+        Ok(travel_m + turn_m + leg_m)
+    }
+
     /// Whether the whole motion from `from` to `to` keeps `margin_m` from every obstacle (0:
-    /// does not touch), judged at `samples` + 1
-    /// evenly spaced poses of the robot's path (position on the straight line, heading turning
-    /// steadily, legs on the straight line in (clearance, track): the path
-    /// `wheelleg_runtime::motion::StepMotion` drives and a controlled stop rests on), both ends
-    /// included. [`Env::check_transition`] judges the start, half-way and end poses only, which
-    /// is what training uses and what the planner plans with; this finer check is for the
-    /// closed loop, where a fault can stop the robot anywhere along a step (50 samples = one
-    /// per control tick of a 0.5 s step at 100 Hz); the margin covers how far the real robot
-    /// strays from the ideal path (tracking, odometry drift). Reports the first fraction that
-    /// comes too close.
+    /// does not touch), judged at `samples` + 1 evenly spaced poses of the path
+    /// ([`Env::pose_between`]), both ends included. Reports the first fraction that comes too
+    /// close. [`Env::check_transition`] already proves every accepted step touches nothing on
+    /// the way; this sampled check with a margin is for the closed loop, where the real robot
+    /// strays from the ideal path (tracking, odometry drift) and a fault can stop it anywhere
+    /// along a step (50 samples = one per control tick of a 0.5 s step at 100 Hz), and for
+    /// tests that check the proof against sampling.
     pub fn check_swept(
         &self,
         from: &RobotState,
@@ -299,31 +444,17 @@ impl Env {
         samples: u32,
         margin_m: f32,
     ) -> Result<(), SweptCollision> {
-        let (p0, p1) = (from.position, to.position);
         let reach_m = self.reach_m + margin_m.max(0.0);
-        if !self.obstacles.any_within(p0, reach_m) && !self.obstacles.any_within(p1, reach_m) {
+        if !self
+            .obstacles
+            .any_within_span(from.position, to.position, reach_m)
+        {
             return Ok(());
         }
-        let (legs0, legs1) = (
-            from.leg_config(&self.geometry),
-            to.leg_config(&self.geometry),
-        );
-        let yaw_delta =
-            (to.yaw_steps - from.yaw_steps + 1).rem_euclid(crate::state::YAW_STEPS_PER_TURN) - 1;
-        let yaw_delta_rad = (yaw_delta as f32 * YAW_STEP_DEG).to_radians();
         let samples = samples.max(1);
         for i in 0..=samples {
             let t = i as f32 / samples as f32;
-            let legs = LegConfig {
-                clearance_m: legs0.clearance_m + t * (legs1.clearance_m - legs0.clearance_m),
-                track_m: legs0.track_m + t * (legs1.track_m - legs0.track_m),
-            };
-            let parts = RobotParts::new(
-                &self.geometry,
-                p0 + t * (p1 - p0),
-                from.yaw_rad() + t * yaw_delta_rad,
-                legs,
-            );
+            let parts = self.pose_between(from, to, t);
             // A pose the legs cannot take is not a collision, but the motion is not safe to
             // stop in either: report it as colliding.
             let collides = parts.map_or(true, |parts| {
@@ -383,6 +514,13 @@ impl Env {
         let target = self.state.world_to_robot(self.target);
         out.state = [legs.clearance_m, legs.track_m, target.x, target.y];
     }
+}
+
+/// The turn of a step, the short way (a step turns by at most one yaw step).
+fn yaw_change_rad(from: &RobotState, to: &RobotState) -> f32 {
+    let yaw_delta =
+        (to.yaw_steps - from.yaw_steps + 1).rem_euclid(crate::state::YAW_STEPS_PER_TURN) - 1;
+    (yaw_delta as f32 * YAW_STEP_DEG).to_radians()
 }
 
 /// A bound on how far any robot part reaches horizontally from the body centre, in any pose:

@@ -38,7 +38,6 @@ use std::cmp::Ordering;
 use std::collections::{BinaryHeap, HashMap};
 use std::hash::{BuildHasherDefault, Hasher};
 use wheelleg_runtime::action::{Action, Step, COUNT, MOVE_STEP_M};
-use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::robot::RobotGeometry;
 
 /// Search settings.
@@ -663,41 +662,38 @@ fn shifted(aabb: &Aabb, position: Point2<f32>) -> Aabb {
     Aabb::new(aabb.mins + by, aabb.maxs + by)
 }
 
-/// Key of a half-way pose's shape: yaw in half steps, clearance and track as sums of the two
-/// ends' steps.
-type MidKey = (i32, i32, i32);
+/// Half of the most any point of the robot moves in one step, rounded up
+/// ([`Env::motion_bound_m`]: a diagonal move 0.071 m, a 5 degree turn at 0.45 m reach 0.04 m,
+/// a leg step a few centimetres). The planner looks for obstacles this far around a step's
+/// ends; a larger bound is left to the simulator.
+const SWEEP_GROW_M: f32 = 0.1;
 
-/// The robot's boxes at the half-way pose the simulator checks between two states (position,
-/// yaw and leg configuration interpolated), relative to the half-way position; `None` when the
-/// half-way legs are not robustly reachable (then only the simulator can tell).
-fn mid_boxes(geometry: &RobotGeometry, from: &RobotState, to: &RobotState) -> Option<PartBoxes> {
-    let (a, b) = (from.leg_config(geometry), to.leg_config(geometry));
-    let legs = LegConfig {
-        clearance_m: 0.5 * (a.clearance_m + b.clearance_m),
-        track_m: 0.5 * (a.track_m + b.track_m),
-    };
-    // The simulator interpolates with its own rounding; a half-way pose this close to the
-    // reachable boundary is left to it.
-    const NUDGE_M: f32 = 1.0e-6;
-    let robust = [(-1.0, -1.0), (-1.0, 1.0), (1.0, -1.0), (1.0, 1.0)]
+/// Whether some part, grown by `grow_m` around the span of its boxes at the start (`start`
+/// shifted to `from`) and at the end (`end` shifted to `to`), meets an obstacle box: the
+/// simulator's `ObstacleSet::sweep_may_touch` on the planner's (slightly larger) boxes, so a
+/// step this finds clear the simulator accepts without further tests.
+fn sweep_meets(
+    start: &PartBoxes,
+    from: Point2<f32>,
+    end: &PartBoxes,
+    to: Point2<f32>,
+    grow_m: f32,
+    obstacles: &[ObstacleBox],
+) -> bool {
+    let whole = shifted(&start.whole, from)
+        .merged(&shifted(&end.whole, to))
+        .loosened(grow_m);
+    obstacles
         .iter()
-        .all(|&(dc, dt)| {
-            geometry
-                .leg_ik(LegConfig {
-                    clearance_m: legs.clearance_m + dc * NUDGE_M,
-                    track_m: legs.track_m + dt * NUDGE_M,
-                })
-                .is_ok()
-        });
-    if !robust {
-        return None;
-    }
-    let yaw_delta = (to.yaw_steps - from.yaw_steps + 1).rem_euclid(YAW_STEPS_PER_TURN) - 1;
-    let yaw_rad = from.yaw_rad()
-        + 0.5 * (yaw_delta as f32 * wheelleg_runtime::action::YAW_STEP_DEG).to_radians();
-    RobotParts::new(geometry, Point2::origin(), yaw_rad, legs)
-        .ok()
-        .map(|p| part_boxes(&p))
+        .filter(|o| o.aabb.intersects(&whole))
+        .any(|o| {
+            start.boxes.iter().zip(&end.boxes).any(|(a, b)| {
+                shifted(a, from)
+                    .merged(&shifted(b, to))
+                    .loosened(grow_m)
+                    .intersects(&o.aabb)
+            })
+        })
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -999,8 +995,6 @@ struct Search<'a> {
     /// every obstacle; the same end pose is reached from many parents.
     end_clear: FastMap<(PoseKey, u16), bool>,
     in_arena: FastMap<PoseKey, bool>,
-    /// Half-way pose boxes, see [`mid_boxes`].
-    mid_boxes: FastMap<MidKey, Option<PartBoxes>>,
     /// The obstacles' boxes, as the simulator builds them, loosened by the slack.
     obstacle_boxes: Vec<ObstacleBox>,
     give_up_m: f32,
@@ -1028,7 +1022,6 @@ impl<'a> Search<'a> {
             boxes: (0..YAW_STEPS_PER_TURN).map(|_| None).collect(),
             end_clear: FastMap::default(),
             in_arena: FastMap::default(),
-            mid_boxes: FastMap::default(),
             obstacle_boxes: env
                 .obstacles()
                 .boxes()
@@ -1216,12 +1209,13 @@ impl<'a> Search<'a> {
     /// Mirrors the simulator's `check_transition` with cheap sufficient tests first, and asks
     /// the simulator itself whenever they do not settle a case, so it never accepts a
     /// transition the simulator would refuse (the replay of every plan checks this):
-    /// - the simulator accepts a reachable leg pose in the arena without any collision test
-    ///   when the robot's box at the end pose meets no obstacle's box: first tested for the box
-    ///   over all leg configurations at this yaw, then per candidate;
-    /// - otherwise it tests the end pose and the half-way pose exactly, and those exact tests
-    ///   only look at part/obstacle pairs whose boxes meet: when no part box meets an obstacle
-    ///   box, the pose is clear.
+    /// - the end pose: the simulator's exact test only looks at part/obstacle pairs whose
+    ///   boxes meet, so an end pose whose boxes meet no obstacle's box is clear (first tested
+    ///   for the box over all leg configurations at this yaw, then per candidate), and one
+    ///   that the separating-axis tests of [`classify`] settle needs no exact test;
+    /// - the way there: the simulator accepts it without a proof when no part's span of start
+    ///   and end boxes, grown by half the step's motion bound, meets an obstacle box
+    ///   ([`sweep_meets`]); otherwise the simulator decides.
     fn valid_subset(
         &mut self,
         pose: &Pose,
@@ -1247,21 +1241,40 @@ impl<'a> Search<'a> {
             .filter(|o| o.aabb.intersects(&all))
             .copied()
             .collect();
-        if near.is_empty() {
+        let from_yaw = pose.yaw_steps as usize;
+        if self.boxes[from_yaw].is_none() {
+            self.boxes[from_yaw] = Some(YawBoxes::new(geometry, &self.lattice, pose.yaw_steps));
+        }
+        // Obstacles the way there could meet: near either end's boxes over every leg pose,
+        // grown by the most any point moves in half a step.
+        let span = shifted(
+            &self.boxes[from_yaw].as_ref().expect("just filled").all,
+            pose.position,
+        )
+        .merged(&all)
+        .loosened(SWEEP_GROW_M);
+        let near_way: Vec<ObstacleBox> = self
+            .obstacle_boxes
+            .iter()
+            .filter(|o| o.aabb.intersects(&span))
+            .copied()
+            .collect();
+        if near.is_empty() && near_way.is_empty() {
             return *candidates;
         }
-        let mid_position = pose.position + 0.5 * (next.position - pose.position);
         let mut valid = LegSet::default();
         for (row, col) in candidates.iter() {
             let cell = row * LEG_COLS + col;
             let end_boxes = self.boxes[yaw].as_ref().expect("just filled").get(row, col);
             let end_whole = shifted(&end_boxes.whole, next.position);
-            if !near.iter().any(|o| o.aabb.intersects(&end_whole)) {
+            let end_near = near.iter().any(|o| o.aabb.intersects(&end_whole));
+            if !end_near && near_way.is_empty() {
                 valid.insert(row, col);
                 continue;
             }
             let to = self.lattice.state(next, row, col);
             let end_clear = match classify(end_boxes, next.position, &near) {
+                _ if !end_near => true,
                 Contact::Clear => true,
                 Contact::Collides => false,
                 Contact::Unknown => {
@@ -1285,23 +1298,27 @@ impl<'a> Search<'a> {
                     continue;
                 }
                 let from = self.lattice.state(pose, r as usize, c as usize);
-                let mid_key: MidKey = (
-                    2 * pose.yaw_steps
-                        + (next.yaw_steps - pose.yaw_steps + 1).rem_euclid(YAW_STEPS_PER_TURN)
-                        - 1,
-                    from.clearance_steps + to.clearance_steps,
-                    from.track_steps + to.track_steps,
-                );
-                let mid = *self
-                    .mid_boxes
-                    .entry(mid_key)
-                    .or_insert_with(|| mid_boxes(geometry, &from, &to));
-                // A half-way body overlapping an obstacle fails whatever the legs (a collision,
-                // or an unreachable half-way pose); else ask the simulator unless surely clear.
-                let ok = match mid.map(|b| classify(&b, mid_position, &self.obstacle_boxes)) {
-                    Some(Contact::Clear) => true,
-                    Some(Contact::Collides) => false,
-                    _ => env.check_transition(&from, &to).is_ok(),
+                // Every point of a part stays within half the motion bound of where it is at
+                // one end: when no part's span of start and end, grown by that, meets an
+                // obstacle box, the simulator's own first sweep test accepts the step.
+                let ok = match env.motion_bound_m(&from, &to) {
+                    Ok(bound_m) => {
+                        let start_boxes = self.boxes[from_yaw]
+                            .as_ref()
+                            .expect("filled above")
+                            .get(r as usize, c as usize);
+                        let sweep_clear = 0.5 * bound_m <= SWEEP_GROW_M
+                            && !sweep_meets(
+                                start_boxes,
+                                pose.position,
+                                end_boxes,
+                                next.position,
+                                0.5 * bound_m,
+                                &near_way,
+                            );
+                        sweep_clear || env.check_transition(&from, &to).is_ok()
+                    }
+                    Err(_) => false,
                 };
                 if ok {
                     valid.insert(row, col);

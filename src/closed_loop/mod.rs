@@ -33,7 +33,7 @@
 //!
 //! # Collisions and other refused actions
 //!
-//! The simulator judges every executed step at the snapped pose (and its half-way pose), with
+//! The simulator judges every executed step at the snapped pose and the whole way there, with
 //! the same rules as training. When it refuses the step (collision, leaving the arena), its rule
 //! is that the action is undone; the robot mirrors that physically by backing out along the
 //! exact inverse motion ([`StepKind::Undone`]), also checked against tolerance. An action
