@@ -198,13 +198,120 @@ pub fn generate_with_start(
 ) -> Scenario {
     loop {
         let scenario = match kind {
-            SceneKind::Behaviour(b) => behaviour_scene(b, rng, name.clone(), start_yaw),
+            SceneKind::Behaviour(b) => behaviour_scene(b, rng, name.clone(), start_yaw).0,
             SceneKind::Complex => complex_scene(rng, name.clone(), start_yaw),
         };
         if scenario.validate(&WHEELLEG).is_ok() && target_is_free(&scenario) {
             return scenario;
         }
     }
+}
+
+/// [`generate_with_start`] with the start part-way along the start-stage curriculum (a reverse
+/// curriculum over start states): `stage` 1 (or more) is the task as specified, the very same
+/// scene [`generate_with_start`] draws from the same `rng`; below 1 the obstacles and target stay
+/// as drawn and only the start moves towards the passage:
+///
+/// - `stage` 0: lined up with the passage (facing along x, towards or away from the target, as
+///   the drawn yaw was nearer), on its centre line, inside its first row, legs already in the
+///   pose that passes ([`passing_legs`]: spread wide and low, narrow, lifted; beside the
+///   around block in the default pose);
+/// - from 0 to 0.5 the start moves back along x, still lined up and in the passing pose, to
+///   the drawn start's x;
+/// - from 0.5 to 1 the legs go back to the default pose, the start slides sideways to the
+///   drawn y, and the yaw turns from lined up to the drawn yaw (so the yaw freedom grows back
+///   to `start_yaw`'s), each by the same fraction, rounded to the lattices.
+///
+/// A start that would collide (or stand within 0.2 m of the target) is moved back along x a
+/// step at a time; if that does not help within 20 steps the drawn start is kept. Every scene
+/// validates. Straight and complex scenes have no passage and are returned as drawn.
+pub fn generate_staged(
+    kind: SceneKind,
+    start_yaw: StartYaw,
+    stage: f32,
+    rng: &mut impl Rng,
+    name: String,
+) -> Scenario {
+    let behaviour = match kind {
+        SceneKind::Behaviour(b) if b != Behaviour::Straight && stage < 1.0 => b,
+        _ => return generate_with_start(kind, start_yaw, rng, name),
+    };
+    // The same draws, in the same order, as `generate_with_start`.
+    loop {
+        let (scenario, passage) = behaviour_scene(behaviour, rng, name.clone(), start_yaw);
+        if scenario.validate(&WHEELLEG).is_ok() && target_is_free(&scenario) {
+            return staged_scene(&scenario, behaviour, passage, stage).unwrap_or(scenario);
+        }
+    }
+}
+
+/// The leg pose (clearance steps, track steps from the default) in which the robot, lined up
+/// with the fence and centred on its opening, drives straight through the passage without a
+/// collision (`sim/tests/start_stage.rs` checks every stage-0 start does): spread 0.56 m wide
+/// at 0.08 m clearance, squeeze 0.20 m narrow, lift 0.18 m clearance; around keeps the
+/// default pose.
+pub const fn passing_legs(behaviour: Behaviour) -> (i32, i32) {
+    match behaviour {
+        Behaviour::SpreadOver => (-2, 10),
+        Behaviour::Squeeze => (0, -8),
+        Behaviour::LiftOver => (3, 0),
+        Behaviour::Straight | Behaviour::Around => (0, 0),
+    }
+}
+
+/// `scenario` (as drawn, valid) with its start moved to `stage`; `None` when no valid start
+/// was found near the staged one.
+fn staged_scene(
+    scenario: &Scenario,
+    behaviour: Behaviour,
+    passage: Passage,
+    stage: f32,
+) -> Option<Scenario> {
+    let stage = if stage.is_finite() {
+        stage.clamp(0.0, 1.0)
+    } else {
+        1.0
+    };
+    let drawn = scenario.start;
+    let back = (2.0 * stage).min(1.0);
+    let relax = (2.0 * stage - 1.0).max(0.0);
+    let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
+    // Signed yaw of the drawn start from the nearer of the two headings along x, in steps.
+    let half = YAW_STEPS_PER_TURN / 2;
+    let wrapped = (drawn.yaw_steps + half).rem_euclid(YAW_STEPS_PER_TURN) - half;
+    let base = if wrapped.abs() <= half / 2 { 0 } else { half };
+    let deviation = (drawn.yaw_steps - base + half).rem_euclid(YAW_STEPS_PER_TURN) - half;
+    let (clearance_steps, track_steps) = passing_legs(behaviour);
+    let mut start = RobotState {
+        position: Point2::new(
+            on_robot_lattice(robot_lattice_index(lerp(
+                passage.entry_x_m,
+                drawn.position.x,
+                back,
+            ))),
+            on_robot_lattice(robot_lattice_index(lerp(
+                passage.line_y_m,
+                drawn.position.y,
+                relax,
+            ))),
+        ),
+        yaw_steps: (base + (deviation as f32 * relax).round() as i32)
+            .rem_euclid(YAW_STEPS_PER_TURN),
+        clearance_steps: (clearance_steps as f32 * (1.0 - relax)).round() as i32,
+        track_steps: (track_steps as f32 * (1.0 - relax)).round() as i32,
+    };
+    for _ in 0..20 {
+        let candidate = Scenario {
+            start,
+            ..scenario.clone()
+        };
+        if candidate.validate(&WHEELLEG).is_ok() && (candidate.target - start.position).norm() > 0.2
+        {
+            return Some(candidate);
+        }
+        start.position.x = on_robot_lattice(robot_lattice_index(start.position.x) - 1);
+    }
+    None
 }
 
 /// Generates `count` scenes named `{kind}-{i}`.
@@ -256,12 +363,22 @@ fn fence_cells(behaviour: Behaviour) -> Vec<(i32, ObstacleKind)> {
     }
 }
 
+/// Where a behaviour scene's passage is: the line a robot in the passing pose drives along.
+#[derive(Clone, Copy, Debug)]
+struct Passage {
+    /// x of the fence's first row (the around block's centre), on the robot lattice.
+    entry_x_m: f32,
+    /// y of the line through the passage (the opening's centre; beside the around block), on the
+    /// robot lattice.
+    line_y_m: f32,
+}
+
 fn behaviour_scene(
     behaviour: Behaviour,
     rng: &mut impl Rng,
     name: String,
     start_yaw: StartYaw,
-) -> Scenario {
+) -> (Scenario, Passage) {
     // The fence (or block) stands in the first cell at least 0.45 m ahead of the start, so the
     // robot starts clear of it at any yaw; the target is at least `beyond` past its centre.
     let beyond_m = match behaviour {
@@ -280,9 +397,19 @@ fn behaviour_scene(
         target.x = on_robot_lattice(robot_lattice_index(fence_x + beyond_m + 0.5 * MOVE_STEP_M));
     }
     let path_cell = cell_index(lay.start.position.y);
+    let mut line_y_m = lay.start.position.y;
     let obstacles = match behaviour {
         Behaviour::Straight => Vec::new(),
         Behaviour::Around => {
+            // Beside the block, on the side away from the second block (or, for one block, on
+            // the start's side): 0.40 m from the block's centre leaves the default pose (0.40 m
+            // wide) 0.10 m clear of the block's face, and lies on the robot lattice.
+            let centre_m = cell_centre_m(path_cell);
+            let mut free_side = if lay.start.position.y >= centre_m {
+                1.0
+            } else {
+                -1.0
+            };
             let mut blocks = vec![Obstacle::new(
                 ObstacleKind::Block,
                 fence_x,
@@ -291,6 +418,7 @@ fn behaviour_scene(
             )];
             if rng.random_bool(0.5) {
                 let side = if rng.random_bool(0.5) { 1 } else { -1 };
+                free_side = -side as f32;
                 blocks.push(Obstacle::new(
                     ObstacleKind::Block,
                     fence_x,
@@ -298,10 +426,12 @@ fn behaviour_scene(
                     ObstacleYaw::Deg0,
                 ));
             }
+            line_y_m = on_robot_lattice(robot_lattice_index(centre_m + free_side * 0.40));
             blocks
         }
         Behaviour::LiftOver | Behaviour::SpreadOver | Behaviour::Squeeze => {
             let opening = path_cell + rng.random_range(-1..=1);
+            line_y_m = cell_centre_m(opening);
             let rows = match behaviour {
                 Behaviour::SpreadOver => 3,
                 Behaviour::Squeeze => 2,
@@ -317,12 +447,18 @@ fn behaviour_scene(
                 .collect()
         }
     };
-    Scenario {
-        name,
-        start: lay.start,
-        target,
-        obstacles,
-    }
+    (
+        Scenario {
+            name,
+            start: lay.start,
+            target,
+            obstacles,
+        },
+        Passage {
+            entry_x_m: fence_x,
+            line_y_m,
+        },
+    )
 }
 
 fn complex_scene(rng: &mut impl Rng, name: String, start_yaw: StartYaw) -> Scenario {

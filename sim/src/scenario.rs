@@ -12,7 +12,8 @@ use wheelleg_runtime::robot::RobotGeometry;
 pub struct Scenario {
     /// A name to report it by.
     pub name: String,
-    /// The robot's start (default leg pose).
+    /// The robot's start, leg pose included (generated scenes start in the default pose, except
+    /// the start-stage curriculum's, `generate::generate_staged`).
     pub start: RobotState,
     /// The point to reach.
     pub target: Point2<f32>,
@@ -80,10 +81,37 @@ impl Scenario {
             }
         }
         let legs = self.start.leg_config(geometry);
+        // Name the leg field(s) the file set, so an unreachable pose points at what to change.
+        let legs_field = match (self.start.clearance_steps != 0, self.start.track_steps != 0) {
+            (true, false) => "robot.clearance_m",
+            (false, true) => "robot.track_m",
+            (true, true) => "robot.clearance_m/robot.track_m",
+            (false, false) => "robot",
+        };
         let parts = RobotParts::new(geometry, self.start.position, self.start.yaw_rad(), legs)
-            .map_err(|e| fail("robot", &format!("start leg pose unreachable: {e:?}")))?;
+            .map_err(|e| {
+                fail(
+                    legs_field,
+                    &format!(
+                        "start leg pose (clearance {:.2} m, track {:.2} m) unreachable by the \
+                         leg IK: {e:?}",
+                        legs.clearance_m, legs.track_m
+                    ),
+                )
+            })?;
         if ObstacleSet::new(&self.obstacles).collides(&parts) {
-            return Err(fail("robot", "the robot starts inside an obstacle"));
+            let pose = if legs_field == "robot" {
+                String::new()
+            } else {
+                format!(
+                    " (in its start leg pose: clearance {:.2} m, track {:.2} m)",
+                    legs.clearance_m, legs.track_m
+                )
+            };
+            return Err(fail(
+                "robot",
+                &format!("the robot starts inside an obstacle{pose}"),
+            ));
         }
         Ok(())
     }

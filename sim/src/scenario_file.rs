@@ -7,6 +7,11 @@
 //! ```
 //! Lengths in metres, angles in degrees. The robot's yaw must lie on the 5 degree action
 //! lattice; obstacle yaw is 0 or 90 (180 and 270 are the same boxes and are accepted).
+//!
+//! The robot may also give its start leg pose, `"clearance_m"` and `"track_m"`, each on the
+//! 0.02 m action lattice from the default pose (0.12 m, 0.36 m). Absent means the default, and
+//! they are written only when not default, so files of default starts read and write exactly as
+//! before the fields existed.
 
 use crate::obstacle::{Obstacle, ObstacleKind, ObstacleYaw};
 use crate::scenario::{Scenario, ScenarioError};
@@ -14,8 +19,8 @@ use crate::state::RobotState;
 use nalgebra::Point2;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
-use wheelleg_runtime::action::YAW_STEP_DEG;
-use wheelleg_runtime::robot::RobotGeometry;
+use wheelleg_runtime::action::{CLEARANCE_STEP_M, TRACK_STEP_M, YAW_STEP_DEG};
+use wheelleg_runtime::robot::{RobotGeometry, WHEELLEG};
 
 #[derive(Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -39,6 +44,10 @@ struct RobotRecord {
     x: f64,
     y: f64,
     yaw_deg: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    clearance_m: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    track_m: Option<f64>,
 }
 
 #[derive(Serialize, Deserialize)]
@@ -102,7 +111,7 @@ pub fn parse(json: &str, geometry: &RobotGeometry) -> Result<Vec<Scenario>, Scen
         .into_iter()
         .enumerate()
         .map(|(i, record)| {
-            let scenario = from_record(i, record)?;
+            let scenario = from_record(i, record, geometry)?;
             scenario.validate(geometry)?;
             Ok(scenario)
         })
@@ -139,7 +148,11 @@ pub fn save(path: &Path, scenarios: &[Scenario]) -> Result<(), ScenarioFileError
     })
 }
 
-fn from_record(index: usize, r: ScenarioRecord) -> Result<Scenario, ScenarioError> {
+fn from_record(
+    index: usize,
+    r: ScenarioRecord,
+    geometry: &RobotGeometry,
+) -> Result<Scenario, ScenarioError> {
     let label = if r.name.is_empty() {
         format!("#{index}")
     } else {
@@ -168,10 +181,41 @@ fn from_record(index: usize, r: ScenarioRecord) -> Result<Scenario, ScenarioErro
             "must be a multiple of 5 degrees (the action's yaw lattice)",
         ));
     }
-    let start = RobotState::new(
+    let mut start = RobotState::new(
         Point2::new(number(r.robot.x, "robot.x")?, number(r.robot.y, "robot.y")?),
         yaw_steps as i32,
     );
+    // A leg pose off the action lattice could never be reached again by any action, and the
+    // state stores whole steps: refuse rather than round.
+    let lattice_steps = |value: Option<f64>, field: &str, default_m: f32, step_m: f32| {
+        let Some(value) = value else {
+            return Ok(0);
+        };
+        let value_m = number(value, field)?;
+        let steps = ((value_m - default_m) / step_m).round();
+        if (default_m + steps * step_m - value_m).abs() > 1.0e-4 || steps.abs() > 100.0 {
+            return Err(fail(
+                field.to_string(),
+                &format!(
+                    "must be {default_m} m plus a whole number of {step_m} m steps (the \
+                     action's leg lattice)"
+                ),
+            ));
+        }
+        Ok(steps as i32)
+    };
+    start.clearance_steps = lattice_steps(
+        r.robot.clearance_m,
+        "robot.clearance_m",
+        geometry.default_clearance_m,
+        CLEARANCE_STEP_M,
+    )?;
+    start.track_steps = lattice_steps(
+        r.robot.track_m,
+        "robot.track_m",
+        geometry.default_track_m,
+        TRACK_STEP_M,
+    )?;
     let target = Point2::new(
         number(r.target.x, "target.x")?,
         number(r.target.y, "target.y")?,
@@ -217,12 +261,16 @@ fn to_record(s: &Scenario) -> ScenarioRecord {
     // Values are printed at 0.1 mm: scenario coordinates live on mm-scale lattices, and this
     // keeps files readable (no 0.30000001) while reading back to the same f32.
     let round = |v: f32| (v as f64 * 1.0e4).round() / 1.0e4;
+    // Files describe the project's robot (the one `Env::new` simulates).
+    let legs = s.start.leg_config(&WHEELLEG);
     ScenarioRecord {
         name: s.name.clone(),
         robot: RobotRecord {
             x: round(s.start.position.x),
             y: round(s.start.position.y),
             yaw_deg: s.start.yaw_deg() as f64,
+            clearance_m: (s.start.clearance_steps != 0).then(|| round(legs.clearance_m)),
+            track_m: (s.start.track_steps != 0).then(|| round(legs.track_m)),
         },
         target: PointRecord {
             x: round(s.target.x),

@@ -2,8 +2,14 @@
 //! and validated on load.
 //!
 //! File layout: `WLCKPT01` magic (8 bytes), payload length (u64 LE), FNV-1a 64 checksum of the
-//! payload (u64 LE), then the postcard-encoded [`Checkpoint`]. A truncated, corrupt or
-//! foreign file is refused with a message saying which check failed.
+//! payload (u64 LE), then the postcard-encoded [`Checkpoint`], optionally followed (inside the
+//! same payload and checksum) by a postcard-encoded [`CheckpointExtras`]. A truncated, corrupt
+//! or foreign file is refused with a message saying which check failed.
+//!
+//! The extras are state that only some runs have (the start-stage curriculum's). They are
+//! written only when not empty, so every other checkpoint is byte for byte what it was before
+//! they existed, and checkpoints written before still load (no extras: nothing to restore);
+//! a reader that knows no extras ([`Checkpoint::from_bytes`]) ignores them.
 
 use crate::network_f32::{Architecture, Conv2dF32, ConvSpec, DenseF32, NetworkF32};
 use crate::ppo::Adam;
@@ -230,6 +236,25 @@ pub struct Checkpoint {
     pub elapsed_s: f64,
 }
 
+/// Run state stored after the [`Checkpoint`] record (see the module documentation).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct CheckpointExtras {
+    /// The start-stage curriculum's state, when the run uses it.
+    pub start_stage: Option<StartStageState>,
+}
+
+/// Where a run's start-stage curriculum stands (`run.start_stage`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StartStageState {
+    /// Stage of the scenes drawn from now on.
+    pub stage: f32,
+    /// (successes, episodes) at that stage of each iteration since it was reached, oldest
+    /// first, at most `run.start_stage_window` of them.
+    pub window: Vec<(u32, u32)>,
+    /// Stage each environment's current scene was drawn at, in environment order.
+    pub env_stages: Vec<f32>,
+}
+
 fn fnv1a(bytes: &[u8]) -> u64 {
     bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| {
         (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
@@ -239,8 +264,19 @@ fn fnv1a(bytes: &[u8]) -> u64 {
 impl Checkpoint {
     /// Encodes the file bytes.
     pub fn to_bytes(&self) -> Result<Vec<u8>, String> {
-        let payload =
+        self.to_bytes_with(&CheckpointExtras::default())
+    }
+
+    /// Encodes the file bytes with `extras` after the record (nothing when they are empty).
+    pub fn to_bytes_with(&self, extras: &CheckpointExtras) -> Result<Vec<u8>, String> {
+        let mut payload =
             postcard::to_allocvec(self).map_err(|e| format!("cannot encode checkpoint: {e}"))?;
+        if *extras != CheckpointExtras::default() {
+            payload.extend(
+                postcard::to_allocvec(extras)
+                    .map_err(|e| format!("cannot encode checkpoint extras: {e}"))?,
+            );
+        }
         let mut out = Vec::with_capacity(HEADER_LEN + payload.len());
         out.extend_from_slice(MAGIC);
         out.extend_from_slice(&(payload.len() as u64).to_le_bytes());
@@ -249,8 +285,14 @@ impl Checkpoint {
         Ok(out)
     }
 
-    /// Decodes and validates file bytes.
+    /// Decodes and validates file bytes (ignoring any extras).
     pub fn from_bytes(bytes: &[u8]) -> Result<Checkpoint, String> {
+        Checkpoint::from_bytes_with_extras(bytes).map(|(c, _)| c)
+    }
+
+    /// Decodes and validates file bytes and the extras after the record (empty when there are
+    /// none).
+    pub fn from_bytes_with_extras(bytes: &[u8]) -> Result<(Checkpoint, CheckpointExtras), String> {
         if bytes.len() < HEADER_LEN || &bytes[..8] != MAGIC {
             return Err("not a wheelleg checkpoint (bad magic)".into());
         }
@@ -266,27 +308,50 @@ impl Checkpoint {
         if fnv1a(payload) != sum {
             return Err("checkpoint corrupt: checksum mismatch".into());
         }
-        let c: Checkpoint =
-            postcard::from_bytes(payload).map_err(|e| format!("checkpoint corrupt: {e}"))?;
+        let (c, rest): (Checkpoint, &[u8]) =
+            postcard::take_from_bytes(payload).map_err(|e| format!("checkpoint corrupt: {e}"))?;
+        let extras = if rest.is_empty() {
+            CheckpointExtras::default()
+        } else {
+            let (extras, tail): (CheckpointExtras, &[u8]) = postcard::take_from_bytes(rest)
+                .map_err(|e| format!("checkpoint corrupt: extras: {e}"))?;
+            if !tail.is_empty() {
+                return Err(format!(
+                    "checkpoint corrupt: {} bytes after the extras",
+                    tail.len()
+                ));
+            }
+            extras
+        };
         let net = c.network.to_network()?;
         if !c.adam.fits(&net) {
             return Err("checkpoint optimizer state does not match its network".into());
         }
-        Ok(c)
+        Ok((c, extras))
     }
 
     /// Writes the checkpoint atomically (temporary file + rename).
     pub fn save(&self, path: &Path) -> Result<(), String> {
-        let bytes = self.to_bytes()?;
+        self.save_with(path, &CheckpointExtras::default())
+    }
+
+    /// [`Checkpoint::save`] with `extras`.
+    pub fn save_with(&self, path: &Path, extras: &CheckpointExtras) -> Result<(), String> {
+        let bytes = self.to_bytes_with(extras)?;
         crate::export::write_atomic(path, &bytes)
             .map_err(|e| format!("cannot write checkpoint {}: {e}", path.display()))
     }
 
     /// Reads and validates a checkpoint file.
     pub fn load(path: &Path) -> Result<Checkpoint, String> {
+        Checkpoint::load_with_extras(path).map(|(c, _)| c)
+    }
+
+    /// Reads and validates a checkpoint file and its extras.
+    pub fn load_with_extras(path: &Path) -> Result<(Checkpoint, CheckpointExtras), String> {
         let bytes = std::fs::read(path)
             .map_err(|e| format!("cannot read checkpoint {}: {e}", path.display()))?;
-        Checkpoint::from_bytes(&bytes).map_err(|e| format!("{}: {e}", path.display()))
+        Checkpoint::from_bytes_with_extras(&bytes).map_err(|e| format!("{}: {e}", path.display()))
     }
 }
 
@@ -342,6 +407,41 @@ mod tests {
         assert!(Checkpoint::from_bytes(b"hello world, this is not it")
             .unwrap_err()
             .contains("magic"));
+    }
+
+    #[test]
+    fn extras_round_trip_and_empty_ones_leave_the_file_as_it_was() {
+        let c = sample();
+        let plain = c.to_bytes().unwrap();
+        assert_eq!(
+            c.to_bytes_with(&CheckpointExtras::default()).unwrap(),
+            plain
+        );
+        let (back, extras) = Checkpoint::from_bytes_with_extras(&plain).unwrap();
+        assert_eq!((back, extras), (c.clone(), CheckpointExtras::default()));
+        let extras = CheckpointExtras {
+            start_stage: Some(StartStageState {
+                stage: 0.3,
+                window: vec![(4, 10), (7, 9)],
+                env_stages: vec![0.2, 0.3],
+            }),
+        };
+        let bytes = c.to_bytes_with(&extras).unwrap();
+        assert!(bytes.len() > plain.len());
+        assert_eq!(
+            Checkpoint::from_bytes_with_extras(&bytes).unwrap(),
+            (c.clone(), extras)
+        );
+        assert_eq!(Checkpoint::from_bytes(&bytes).unwrap(), c);
+        // Junk after the extras is refused, not ignored.
+        let mut payload = bytes[HEADER_LEN..].to_vec();
+        payload.push(0);
+        let mut file = MAGIC.to_vec();
+        file.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+        file.extend_from_slice(&fnv1a(&payload).to_le_bytes());
+        file.extend_from_slice(&payload);
+        let e = Checkpoint::from_bytes_with_extras(&file).unwrap_err();
+        assert!(e.contains("after the extras"), "{e}");
     }
 
     /// Regression (fuzz target `checkpoint_payload`): a stored architecture whose feature count

@@ -103,6 +103,19 @@ pub struct RunConfig {
     /// Start yaw of the training scenes: within this many degrees of the world x axis
     /// (facing the target or away from it); 90 or more: any yaw, the task as specified.
     pub start_yaw_within_deg: f32,
+    /// Start-stage curriculum (a reverse curriculum over start states,
+    /// `wheelleg_sim::generate::generate_staged`): the stage the run's scenes start at, from 0
+    /// (inside the passage, in the behaviour's leg pose) to 1 (the task as specified). 1, the
+    /// default, turns it off.
+    pub start_stage: f32,
+    /// How much the stage grows each time the training success rate passes
+    /// `start_stage_success_rate` (capped at 1).
+    pub start_stage_step: f32,
+    /// Success rate of the episodes started at the current stage, over the last
+    /// `start_stage_window` iterations, that advances the stage.
+    pub start_stage_success_rate: f32,
+    /// Iterations the success rate is measured over (the window restarts after each advance).
+    pub start_stage_window: usize,
 }
 
 impl Default for RunConfig {
@@ -117,6 +130,10 @@ impl Default for RunConfig {
             threads: 2,
             backend: "flex".into(),
             start_yaw_within_deg: 180.0,
+            start_stage: 1.0,
+            start_stage_step: 0.1,
+            start_stage_success_rate: 0.5,
+            start_stage_window: 3,
         }
     }
 }
@@ -154,6 +171,18 @@ pub struct CurriculumConfig {
     /// `run.start_yaw_within_deg` of the secondary policies that start from the straight-line
     /// one (see `wheelleg_sim::generate::StartYaw::AlongX` for why): 180 keeps any yaw.
     pub secondary_start_yaw_within_deg: f32,
+    /// Behaviours whose secondary policy trains with the start-stage curriculum (see
+    /// `run.start_stage`): spread and squeeze need a leg pose far from the default before the
+    /// first reward, which sampling from the straight-line policy never found. Default none.
+    pub start_stage_behaviours: Vec<String>,
+    /// `run.start_stage` of those secondaries: where their curriculum starts.
+    pub start_stage_initial: f32,
+    /// `run.start_stage_step` of those secondaries.
+    pub start_stage_step: f32,
+    /// `run.start_stage_success_rate` of those secondaries.
+    pub start_stage_success_rate: f32,
+    /// `run.start_stage_window` of those secondaries.
+    pub start_stage_window: usize,
 }
 
 impl Default for CurriculumConfig {
@@ -171,6 +200,11 @@ impl Default for CurriculumConfig {
             secondary_init_temperature: 1.0,
             secondary_entropy_coef: 0.003,
             secondary_start_yaw_within_deg: 180.0,
+            start_stage_behaviours: Vec::new(),
+            start_stage_initial: 0.0,
+            start_stage_step: 0.1,
+            start_stage_success_rate: 0.5,
+            start_stage_window: 3,
         }
     }
 }
@@ -256,6 +290,22 @@ impl TrainConfig {
             r.start_yaw_within_deg.is_finite() && r.start_yaw_within_deg >= 0.0,
             "run.start_yaw_within_deg must be a non-negative number of degrees",
         )?;
+        check(
+            r.start_stage.is_finite() && (0.0..=1.0).contains(&r.start_stage),
+            "run.start_stage must be in [0, 1] (1: off)",
+        )?;
+        check(
+            r.start_stage_step.is_finite() && r.start_stage_step > 0.0,
+            "run.start_stage_step must be a positive number",
+        )?;
+        check(
+            (0.0..=1.0).contains(&r.start_stage_success_rate),
+            "run.start_stage_success_rate must be in [0, 1]",
+        )?;
+        check(
+            r.start_stage_window >= 1,
+            "run.start_stage_window must be at least 1",
+        )?;
         crate::network::BackendKind::from_name(&r.backend).map(|_| ())?;
         check(p.learning_rate > 0.0, "ppo.learning_rate must be positive")?;
         check(
@@ -312,6 +362,29 @@ impl TrainConfig {
         check(
             c.secondary_start_yaw_within_deg.is_finite() && c.secondary_start_yaw_within_deg >= 0.0,
             "curriculum.secondary_start_yaw_within_deg must be a non-negative number of degrees",
+        )?;
+        check(
+            c.start_stage_behaviours
+                .iter()
+                .all(|b| b != "straight" && c.behaviours.contains(b)),
+            "curriculum.start_stage_behaviours must name behaviours of curriculum.behaviours \
+             other than straight",
+        )?;
+        check(
+            c.start_stage_initial.is_finite() && (0.0..=1.0).contains(&c.start_stage_initial),
+            "curriculum.start_stage_initial must be in [0, 1]",
+        )?;
+        check(
+            c.start_stage_step.is_finite() && c.start_stage_step > 0.0,
+            "curriculum.start_stage_step must be a positive number",
+        )?;
+        check(
+            (0.0..=1.0).contains(&c.start_stage_success_rate),
+            "curriculum.start_stage_success_rate must be in [0, 1]",
+        )?;
+        check(
+            c.start_stage_window >= 1,
+            "curriculum.start_stage_window must be at least 1",
         )?;
         Ok(())
     }
@@ -376,6 +449,11 @@ mod tests {
         let e =
             TrainConfig::from_toml("[curriculum]\nsecondary_init_temperature = 0.0\n").unwrap_err();
         assert!(e.contains("curriculum.secondary_init_temperature"), "{e}");
+        let e = TrainConfig::from_toml("[run]\nstart_stage = 1.5\n").unwrap_err();
+        assert!(e.contains("run.start_stage"), "{e}");
+        let e = TrainConfig::from_toml("[curriculum]\nstart_stage_behaviours = [\"straight\"]\n")
+            .unwrap_err();
+        assert!(e.contains("curriculum.start_stage_behaviours"), "{e}");
     }
 
     #[test]
@@ -393,5 +471,16 @@ mod tests {
         let mut other = TrainConfig::default();
         other.run.num_envs += 1;
         assert!(!other.same_as_stored(&stored));
+        // A config stored before the start-stage keys existed means the curriculum off.
+        let old = stored
+            .lines()
+            .filter(|l| !l.starts_with("start_stage"))
+            .collect::<Vec<_>>()
+            .join("\n");
+        assert!(old.len() < stored.len());
+        assert!(TrainConfig::default().same_as_stored(&old));
+        let mut staged = TrainConfig::default();
+        staged.run.start_stage = 0.0;
+        assert!(!staged.same_as_stored(&old));
     }
 }

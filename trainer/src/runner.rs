@@ -5,8 +5,9 @@
 //! Run folder: `config.toml` (the config used), `metrics.jsonl` (one JSON object per
 //! iteration), `checkpoint.ckpt` (latest checkpoint, atomic).
 
-use crate::checkpoint::{Checkpoint, NetworkRecord};
+use crate::checkpoint::{Checkpoint, CheckpointExtras, NetworkRecord, StartStageState};
 use crate::config::TrainConfig;
+use crate::curriculum::StartStageSchedule;
 use crate::network::{init_policy, BackendKind};
 use crate::network_f32::NetworkF32;
 use crate::ppo::{Ppo, UpdateStats};
@@ -58,6 +59,13 @@ pub struct IterationMetrics {
     pub steps_per_s: f32,
     /// Seconds of training so far.
     pub elapsed_s: f64,
+    /// Start stage of the scenes drawn during the iteration (runs with the start-stage
+    /// curriculum only; `run.start_stage`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub start_stage: Option<f32>,
+    /// Success rate of the iteration's episodes that started at that stage.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub start_stage_success_rate: Option<f32>,
 }
 
 /// Episode outcomes summarised.
@@ -156,9 +164,11 @@ pub fn train_stage(
         .seed
         .wrapping_mul(0x9E37_79B9_7F4A_7C15)
         .wrapping_add(3);
-    let mut envs = VecEnv::with_start_yaw(
+    let mut schedule = StartStageSchedule::of_run(run);
+    let mut envs = VecEnv::with_stage(
         kind,
         config.start_yaw(),
+        schedule.as_ref().map_or(1.0, StartStageSchedule::stage),
         n,
         env_seed,
         env_config,
@@ -175,7 +185,7 @@ pub fn train_stage(
     let (mut iteration, mut env_steps, mut elapsed_before) = (0u64, 0u64, 0.0f64);
 
     if opts.resume {
-        let c = Checkpoint::load(&ckpt_path)?;
+        let (c, extras) = Checkpoint::load_with_extras(&ckpt_path)?;
         if !config.same_as_stored(&c.config_toml) {
             return Err(format!(
                 "{} was written with a different config; resume with the run's own {}",
@@ -195,6 +205,17 @@ pub fn train_stage(
         ppo.adam = c.adam;
         sampler.set_word_pos(c.sampler_word_pos);
         envs.restore(env_seed, &c.envs)?;
+        if let Some(schedule) = schedule.as_mut() {
+            let state = extras.start_stage.ok_or_else(|| {
+                format!(
+                    "{} holds no start-stage state but the config has run.start_stage < 1",
+                    ckpt_path.display()
+                )
+            })?;
+            schedule.restore(state.stage, &state.window)?;
+            envs.set_stage(state.stage);
+            envs.set_env_stages(&state.env_stages)?;
+        }
         (iteration, env_steps, elapsed_before) = (c.iteration, c.env_steps, c.elapsed_s);
         if inputs.record.is_some() && trajectories_path.exists() {
             let stored = TrajectoryBatch::load(&trajectories_path).map_err(|e| e.to_string())?;
@@ -240,6 +261,7 @@ pub fn train_stage(
         // 1. Sample trajectories with the current policy.
         storage.clear();
         let mut episodes = Vec::new();
+        let stage_now = envs.stage();
         for _ in 0..steps_per_env {
             let acted = ppo.act(&heights, &states, n, &mut sampler)?;
             let (obs_h, obs_s) = (heights.clone(), states.clone());
@@ -248,8 +270,17 @@ pub fn train_stage(
             let dones: Vec<bool> = results.iter().map(|r| r.done).collect();
             episodes.extend(results.iter().filter_map(|r| r.episode));
             if let Some(behaviour) = inputs.record {
+                // Only full-task episodes: the trajectory batch stands for the task as specified,
+                // and a staged start (legs already spread, inside the passage) is not one.
                 for episode in results.into_iter().filter_map(|r| r.success) {
-                    let SolvedEpisode { scenario, actions } = *episode;
+                    let SolvedEpisode {
+                        scenario,
+                        actions,
+                        stage,
+                    } = *episode;
+                    if stage < 1.0 {
+                        continue;
+                    }
                     solved.push_back(Trajectory::new(scenario, actions, behaviour));
                     if solved.len() > inputs.keep_trajectories {
                         solved.pop_front();
@@ -291,6 +322,17 @@ pub fn train_stage(
         let elapsed_s = elapsed_before + start.elapsed().as_secs_f64();
         let (mean_return, success_rate, collision_free_rate, mean_success_steps) =
             summarise(&episodes);
+        // The stage advances on the episodes that started at it (some that end now were drawn
+        // before the last advance).
+        let stage_success = schedule.as_mut().map(|schedule| {
+            let at_stage: Vec<&EpisodeStats> =
+                episodes.iter().filter(|e| e.stage == stage_now).collect();
+            let successes = at_stage.iter().filter(|e| e.success).count() as u32;
+            if schedule.record(successes, at_stage.len() as u32) {
+                envs.set_stage(schedule.stage());
+            }
+            successes as f32 / at_stage.len().max(1) as f32
+        });
         let m = IterationMetrics {
             iteration,
             env_steps,
@@ -302,15 +344,20 @@ pub fn train_stage(
             update,
             steps_per_s: (n * steps_per_env) as f32 / iter_start.elapsed().as_secs_f32(),
             elapsed_s,
+            start_stage: schedule.as_ref().map(|_| stage_now),
+            start_stage_success_rate: stage_success,
         };
         append_metrics(&metrics_path, &m)?;
         bar.set_position(env_steps.min(run.total_env_steps));
         bar.set_message(format!(
-            "it {iteration} success {:.0}% coll-free {:.0}% return {:.2} {:.0} steps/s",
+            "it {iteration} success {:.0}% coll-free {:.0}% return {:.2} {:.0} steps/s{}",
             100.0 * success_rate,
             100.0 * collision_free_rate,
             mean_return,
-            m.steps_per_s
+            m.steps_per_s,
+            schedule
+                .as_ref()
+                .map_or(String::new(), |s| format!(" stage {:.2}", s.stage()))
         ));
         last = Some(m);
         let finished = env_steps >= run.total_env_steps
@@ -319,6 +366,13 @@ pub fn train_stage(
             if inputs.record.is_some() {
                 save_trajectories(&trajectories_path, solved.make_contiguous(), env_config)?;
             }
+            let extras = CheckpointExtras {
+                start_stage: schedule.as_ref().map(|s| StartStageState {
+                    stage: s.stage(),
+                    window: s.window(),
+                    env_stages: envs.env_stages(),
+                }),
+            };
             Checkpoint {
                 kind: opts.kind.clone(),
                 config_toml: config.to_toml(),
@@ -331,7 +385,7 @@ pub fn train_stage(
                 envs: envs.snapshot(),
                 elapsed_s,
             }
-            .save(&ckpt_path)?;
+            .save_with(&ckpt_path, &extras)?;
         }
     }
     bar.finish();

@@ -10,7 +10,7 @@ use rand_chacha::ChaCha8Rng;
 use wheelleg_runtime::action::{Action, DIMS};
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
 use wheelleg_sim::env::{Env, EnvConfig, Observation, Status};
-use wheelleg_sim::generate::{generate_with_start, SceneKind, StartYaw};
+use wheelleg_sim::generate::{generate_staged, SceneKind, StartYaw};
 use wheelleg_sim::scenario::Scenario;
 
 /// How a finished episode went.
@@ -24,6 +24,8 @@ pub struct EpisodeStats {
     pub success: bool,
     /// Collisions (undone actions that would have hit an obstacle).
     pub collisions: u32,
+    /// Start stage its scene was drawn at (1: the task as specified).
+    pub stage: f32,
 }
 
 /// One environment: its episode, the scene generator and the episode's actions so far (a
@@ -36,6 +38,8 @@ pub struct EnvSlot {
     episode_return: f32,
     actions: Vec<u8>,
     episodes_started: u64,
+    /// Start stage the current scene was drawn at.
+    stage: f32,
 }
 
 /// What one environment's step returned.
@@ -59,6 +63,8 @@ pub struct SolvedEpisode {
     pub scenario: Scenario,
     /// The actions, in order.
     pub actions: Vec<Action>,
+    /// Start stage the scene was drawn at (1: the task as specified).
+    pub stage: f32,
 }
 
 /// Where an environment stands, for checkpoints.
@@ -79,22 +85,28 @@ pub struct VecEnv {
     slots: Vec<EnvSlot>,
     kind: SceneKind,
     start_yaw: StartYaw,
+    /// Start stage of the scenes drawn from now on.
+    stage: f32,
     config: EnvConfig,
     threads: usize,
 }
 
-fn new_scene(
+/// How new scenes are drawn.
+#[derive(Clone, Copy, Debug)]
+struct Scenes {
     kind: SceneKind,
     start_yaw: StartYaw,
-    rng: &mut ChaCha8Rng,
-    env: usize,
-    episode: u64,
-) -> Scenario {
-    generate_with_start(
-        kind,
-        start_yaw,
+    stage: f32,
+}
+
+fn new_scene(scenes: Scenes, rng: &mut ChaCha8Rng, env: usize, episode: u64) -> Scenario {
+    // At stage 1 this is `generate_with_start`, draw for draw.
+    generate_staged(
+        scenes.kind,
+        scenes.start_yaw,
+        scenes.stage,
         rng,
-        format!("{}-e{env}-{episode}", kind.name()),
+        format!("{}-e{env}-{episode}", scenes.kind.name()),
     )
 }
 
@@ -104,6 +116,7 @@ impl EnvSlot {
         config: EnvConfig,
         scene_rng: ChaCha8Rng,
         episodes_started: u64,
+        stage: f32,
     ) -> Result<EnvSlot, String> {
         let env = Env::new(&scenario, config)
             .map_err(|e| format!("scenario {}: {e:?}", scenario.name))?;
@@ -114,13 +127,14 @@ impl EnvSlot {
             episode_return: 0.0,
             actions: Vec::new(),
             episodes_started,
+            stage,
         })
     }
 
     fn step(
         &mut self,
         choices: &[u8],
-        (kind, start_yaw): (SceneKind, StartYaw),
+        scenes: Scenes,
         config: EnvConfig,
         index: usize,
     ) -> StepResult {
@@ -152,6 +166,7 @@ impl EnvSlot {
             steps: self.env.steps(),
             success: outcome.status == Status::Success,
             collisions: self.env.collisions(),
+            stage: self.stage,
         };
         let success = (episode.success && episode.collisions == 0).then(|| {
             Box::new(SolvedEpisode {
@@ -161,9 +176,10 @@ impl EnvSlot {
                     .iter()
                     .filter_map(|&a| Action::from_index(a as usize))
                     .collect(),
+                stage: self.stage,
             })
         });
-        self.reset((kind, start_yaw), config, index);
+        self.reset(scenes, config, index);
         StepResult {
             reward,
             done: true,
@@ -172,19 +188,14 @@ impl EnvSlot {
         }
     }
 
-    fn reset(&mut self, (kind, start_yaw): (SceneKind, StartYaw), config: EnvConfig, index: usize) {
+    fn reset(&mut self, scenes: Scenes, config: EnvConfig, index: usize) {
         // Generated scenes are valid by construction; retry on the (unexpected) invalid one.
         loop {
             self.episodes_started += 1;
-            let scenario = new_scene(
-                kind,
-                start_yaw,
-                &mut self.scene_rng,
-                index,
-                self.episodes_started,
-            );
+            let scenario = new_scene(scenes, &mut self.scene_rng, index, self.episodes_started);
             if let Ok(env) = Env::new(&scenario, config) {
                 self.env = env;
+                self.stage = scenes.stage;
                 self.scenario = scenario;
                 self.episode_return = 0.0;
                 self.actions.clear();
@@ -216,21 +227,71 @@ impl VecEnv {
         config: EnvConfig,
         threads: usize,
     ) -> Result<VecEnv, String> {
+        VecEnv::with_stage(kind, start_yaw, 1.0, num_envs, seed, config, threads)
+    }
+
+    /// [`VecEnv::with_start_yaw`] with the scenes drawn at start stage `stage`
+    /// (`wheelleg_sim::generate::generate_staged`; 1 is the task as specified).
+    pub fn with_stage(
+        kind: SceneKind,
+        start_yaw: StartYaw,
+        stage: f32,
+        num_envs: usize,
+        seed: u64,
+        config: EnvConfig,
+        threads: usize,
+    ) -> Result<VecEnv, String> {
+        let scenes = Scenes {
+            kind,
+            start_yaw,
+            stage,
+        };
         let slots = (0..num_envs)
             .map(|i| {
                 let mut rng = ChaCha8Rng::seed_from_u64(seed);
                 rng.set_stream(i as u64);
-                let scenario = new_scene(kind, start_yaw, &mut rng, i, 0);
-                EnvSlot::start(scenario, config, rng, 0)
+                let scenario = new_scene(scenes, &mut rng, i, 0);
+                EnvSlot::start(scenario, config, rng, 0, stage)
             })
             .collect::<Result<Vec<_>, _>>()?;
         Ok(VecEnv {
             slots,
             kind,
             start_yaw,
+            stage,
             config,
             threads: threads.max(1),
         })
+    }
+
+    /// Start stage of the scenes drawn from now on.
+    pub fn stage(&self) -> f32 {
+        self.stage
+    }
+
+    /// Draws the following scenes at start stage `stage`; running episodes keep theirs.
+    pub fn set_stage(&mut self, stage: f32) {
+        self.stage = stage;
+    }
+
+    /// The start stage each env's current scene was drawn at (for checkpoints).
+    pub fn env_stages(&self) -> Vec<f32> {
+        self.slots.iter().map(|s| s.stage).collect()
+    }
+
+    /// Sets the stage each env's current scene was drawn at (restoring a checkpoint).
+    pub fn set_env_stages(&mut self, stages: &[f32]) -> Result<(), String> {
+        if stages.len() != self.slots.len() {
+            return Err(format!(
+                "checkpoint has start stages of {} environments, config has {}",
+                stages.len(),
+                self.slots.len()
+            ));
+        }
+        for (slot, &stage) in self.slots.iter_mut().zip(stages) {
+            slot.stage = stage;
+        }
+        Ok(())
     }
 
     /// Number of environments.
@@ -267,7 +328,12 @@ impl VecEnv {
         states: &mut [f32],
     ) -> Vec<StepResult> {
         let chunk = self.slots.len().div_ceil(self.threads);
-        let (scenes, config) = ((self.kind, self.start_yaw), self.config);
+        let scenes = Scenes {
+            kind: self.kind,
+            start_yaw: self.start_yaw,
+            stage: self.stage,
+        };
+        let config = self.config;
         let mut results = vec![
             StepResult {
                 reward: 0.0,
@@ -341,7 +407,10 @@ impl VecEnv {
                 .into_iter()
                 .next()
                 .ok_or_else(|| format!("checkpoint env {i}: no scenario"))?;
-            let mut restored = EnvSlot::start(scenario, self.config, rng, snap.episodes_started)?;
+            // The stage of the restored scene is not in the snapshot (older checkpoints have
+            // none); a staged run sets it afterwards with `set_env_stages`.
+            let mut restored =
+                EnvSlot::start(scenario, self.config, rng, snap.episodes_started, 1.0)?;
             for &a in &snap.actions {
                 let action = Action::from_index(a as usize)
                     .ok_or_else(|| format!("checkpoint env {i}: bad action {a}"))?;
