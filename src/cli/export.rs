@@ -1,5 +1,6 @@
-//! `wheelleg export --policy CKPT [--out weights/policy.wlw]`: quantize a trained checkpoint to
-//! the robot's int8 weights file and write its model card beside it.
+//! `wheelleg export --policy CKPT [--out weights/policy.wlw] [--qat-steps N ...]`: quantize a
+//! trained checkpoint to the robot's int8 weights file (optionally after quantization-aware
+//! fine-tuning) and write its model card beside it.
 
 use super::CliResult;
 use std::path::PathBuf;
@@ -7,7 +8,8 @@ use wheelleg_sim::generate::SceneKind;
 use wheelleg_trainer::checkpoint::Checkpoint;
 use wheelleg_trainer::export::{card_path, export_policy, write_atomic, ExportOptions};
 use wheelleg_trainer::network::BackendKind;
-use wheelleg_trainer::quantize::{ActionRange, Agreement, RangeMethod};
+use wheelleg_trainer::quantize::qat::RECOMMENDED_STEPS;
+use wheelleg_trainer::quantize::{ActionRange, Agreement, QatOptions, RangeMethod};
 
 /// Arguments of `export`.
 #[derive(clap::Args)]
@@ -37,6 +39,35 @@ pub struct Args {
     /// Scenes of the rollouts: straight, around, lift, spread, squeeze, complex.
     #[arg(long, default_value = "complex")]
     kind: String,
+    /// Quantization-aware fine-tuning steps before quantizing (0: plain post-training
+    /// quantization of the checkpoint).
+    #[arg(long, default_value_t = RECOMMENDED_STEPS)]
+    qat_steps: usize,
+    /// Fine-tuning learning rate (Adam, at the first step; cosine decay to 0).
+    #[arg(long, default_value_t = QatOptions::default().learning_rate)]
+    qat_lr: f64,
+    /// Observations per fine-tuning step.
+    #[arg(long, default_value_t = QatOptions::default().batch)]
+    qat_batch: usize,
+    /// Observations to fine-tune on (stochastic rollouts of the checkpoint).
+    #[arg(long, default_value_t = QatOptions::default().observations)]
+    qat_observations: usize,
+    /// Seed of the fine-tuning rollouts and minibatches (keep it apart from --seed and
+    /// --seed + 1, so the held-out agreement stays held out).
+    #[arg(long, default_value_t = QatOptions::default().seed)]
+    qat_seed: u64,
+    /// Distillation temperature.
+    #[arg(long, default_value_t = QatOptions::default().temperature)]
+    qat_temperature: f32,
+    /// Extra weight of near-tie decisions: 1 + W * exp(-margin / --qat-near-tie-margin).
+    #[arg(long, default_value_t = QatOptions::default().near_tie_weight)]
+    qat_near_tie_weight: f32,
+    /// Logit margin scale of the near-tie weight.
+    #[arg(long, default_value_t = QatOptions::default().near_tie_margin)]
+    qat_near_tie_margin: f32,
+    /// Fine-tuning steps between recalibrations of the activation ranges.
+    #[arg(long, default_value_t = QatOptions::default().recalibrate_every)]
+    qat_recalibrate_every: usize,
 }
 
 fn parse_range(text: &str) -> Result<RangeMethod, String> {
@@ -80,7 +111,31 @@ pub fn run(args: Args) -> CliResult {
             )
         }
     };
+    if args.qat_steps > 0
+        && (args.qat_seed == args.seed || Some(args.qat_seed) == args.seed.checked_add(1))
+    {
+        return Err(format!(
+            "--qat-seed {} is the calibration or held-out seed: pick another (default {})",
+            args.qat_seed,
+            QatOptions::default().seed
+        )
+        .into());
+    }
+    let qat = QatOptions {
+        steps: args.qat_steps,
+        learning_rate: args.qat_lr,
+        batch: args.qat_batch,
+        temperature: args.qat_temperature,
+        near_tie_weight: args.qat_near_tie_weight,
+        near_tie_margin: args.qat_near_tie_margin,
+        recalibrate_every: args.qat_recalibrate_every,
+        observations: args.qat_observations,
+        seed: args.qat_seed,
+        ..QatOptions::default()
+    };
+    qat.validate()?;
     let options = ExportOptions {
+        qat,
         action_range,
         scene_kind: kind,
         seed: args.seed,
@@ -121,16 +176,36 @@ pub fn run(args: Args) -> CliResult {
         "calibrated on {} observations ({}); agreement with float on {} held-out observations:",
         card.calibration_observations, card.range, card.agreement.observations
     );
-    for (name, share) in Agreement::DIMENSION_NAMES
-        .iter()
-        .zip(card.agreement.per_dimension)
-    {
-        println!("  {name:<8} {:.2}%", 100.0 * share);
+    match &card.qat {
+        None => print_agreement(&card.agreement, None),
+        Some(qat) => {
+            println!(
+                "  after {} QAT steps (loss {:.5} -> {:.5}); plain PTQ of the checkpoint in brackets",
+                qat.report.steps, qat.report.loss_first, qat.report.loss_last
+            );
+            print_agreement(&card.agreement, Some(&qat.ptq_agreement));
+        }
+    }
+    Ok(())
+}
+
+fn print_agreement(agreement: &Agreement, ptq: Option<&Agreement>) {
+    let before = |share: Option<f32>| {
+        share
+            .map(|s| format!("  ({:.2}%)", 100.0 * s))
+            .unwrap_or_default()
+    };
+    for (dim, name) in Agreement::DIMENSION_NAMES.iter().enumerate() {
+        println!(
+            "  {name:<8} {:.2}%{}",
+            100.0 * agreement.per_dimension[dim],
+            before(ptq.map(|p| p.per_dimension[dim]))
+        );
     }
     println!(
-        "  whole action {:.2}%  (mean |logit error| {:.4})",
-        100.0 * card.agreement.whole_action,
-        card.agreement.mean_logit_error
+        "  whole action {:.2}%{}  (mean |logit error| {:.4})",
+        100.0 * agreement.whole_action,
+        before(ptq.map(|p| p.whole_action)),
+        agreement.mean_logit_error
     );
-    Ok(())
 }

@@ -1,12 +1,14 @@
-//! From a trained checkpoint to the robot's weights file: calibration rollouts, post-training
-//! int8 quantization, a check through the runtime itself, the agreement figure on held-out
-//! observations, and an atomic write.
+//! From a trained checkpoint to the robot's weights file: calibration rollouts, optional
+//! quantization-aware fine-tuning ([`crate::quantize::qat`]), post-training int8 quantization,
+//! a check through the runtime itself, the agreement figure on held-out observations, and an
+//! atomic write.
 
 use crate::batch_policy::FloatPolicy;
 use crate::evaluate::{collect_observations, EvalOptions, RecordedObservation};
 use crate::network_f32::NetworkF32;
 use crate::quantize::{
-    agreement, quantize, ActionRange, Agreement, Calibration, EvalPolicy, RangeMethod,
+    agreement, fine_tune, quantize, ActionRange, Agreement, Calibration, EvalPolicy, QatOptions,
+    QatReport, QatSettings, QuantizedNetwork, RangeMethod,
 };
 use burn::tensor::Device;
 use rand::SeedableRng;
@@ -33,6 +35,9 @@ pub struct ExportOptions {
     pub range: RangeMethod,
     /// Which logits set the action head's output range.
     pub action_range: ActionRange,
+    /// Quantization-aware fine-tuning before quantization (`steps: 0`, the default here:
+    /// none; `wheelleg export` takes [`crate::quantize::qat::RECOMMENDED_STEPS`] by default).
+    pub qat: QatOptions,
 }
 
 impl Default for ExportOptions {
@@ -47,6 +52,7 @@ impl Default for ExportOptions {
             // the baseline policy; with int16 logits (format version 2) it makes no measurable
             // difference (docs/results.md, issue 5) and stays the default of `wheelleg export`.
             action_range: ActionRange::Contenders,
+            qat: QatOptions::default(),
         }
     }
 }
@@ -79,8 +85,24 @@ pub struct ModelCard {
     pub range: String,
     /// Which logits set the action head's range (`all-logits` or `contenders`).
     pub action_range: String,
-    /// Greedy agreement of int8 with float on the held-out observations.
+    /// Greedy agreement of int8 with float on the held-out observations (with QAT: of the
+    /// fine-tuned int8 network with the original float network, the teacher).
     pub agreement: Agreement,
+    /// The fine-tuning, if any.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub qat: Option<QatCard>,
+}
+
+/// The quantization-aware fine-tuning behind a weights file.
+#[derive(Clone, Debug, Serialize)]
+pub struct QatCard {
+    /// Its settings.
+    pub options: QatOptions,
+    /// What it did.
+    pub report: QatReport,
+    /// Greedy agreement of the plain post-training quantization of the original network (no
+    /// fine-tuning) with it, on the same held-out observations: what the fine-tuning gained.
+    pub ptq_agreement: Agreement,
 }
 
 /// Observations from stochastic rollouts of `network` in freshly generated scenes, until
@@ -134,6 +156,13 @@ pub fn export_policy(
     source: &str,
     options: &ExportOptions,
 ) -> Result<(Vec<u8>, ModelCard), String> {
+    options.qat.validate()?;
+    let holdout_seed = options
+        .seed
+        .checked_add(1)
+        .ok_or("the calibration seed must be below u64::MAX (held-out scenes use seed + 1)")?;
+    // Every observation set comes from the original network's rollouts, so the held-out set
+    // and the calibration set are the same with and without fine-tuning.
     let float = FloatPolicy::new(network, device)?;
     let calibration_set = rollout_observations(
         &float,
@@ -141,27 +170,69 @@ pub fn export_policy(
         options.seed,
         options.calibration_observations,
     )?;
-    let mut calibration = Calibration::from_observations(
-        network,
-        calibration_set
-            .iter()
-            .map(|(h, s)| (h.as_slice(), s.as_slice())),
-    );
-    calibration.action_range = options.action_range;
-    let quantized =
-        quantize(network, &calibration, options.range).map_err(|e| format!("quantize: {e}"))?;
-    let bytes = quantized
-        .to_bytes()
-        .map_err(|e| format!("encode weights: {e}"))?;
-    let policy = EvalPolicy::from_bytes(&bytes)
-        .map_err(|e| format!("the runtime refuses the exported weights: {e}"))?;
     let holdout = rollout_observations(
         &float,
         options.scene_kind,
-        options.seed + 1,
+        holdout_seed,
         options.holdout_observations,
     )?;
-    let agreement = agreement(network, &policy, &holdout)?;
+    let calibrate_and_quantize =
+        |net: &NetworkF32| -> Result<(Calibration, QuantizedNetwork, Vec<u8>), String> {
+            let mut calibration = Calibration::from_observations(
+                net,
+                calibration_set
+                    .iter()
+                    .map(|(h, s)| (h.as_slice(), s.as_slice())),
+            );
+            calibration.action_range = options.action_range;
+            let quantized =
+                quantize(net, &calibration, options.range).map_err(|e| format!("quantize: {e}"))?;
+            let bytes = quantized
+                .to_bytes()
+                .map_err(|e| format!("encode weights: {e}"))?;
+            Ok((calibration, quantized, bytes))
+        };
+    let measure = |bytes: &[u8]| -> Result<Agreement, String> {
+        let policy = EvalPolicy::from_bytes(bytes)
+            .map_err(|e| format!("the runtime refuses the exported weights: {e}"))?;
+        // Always against the original float network: that is the policy that was trained.
+        agreement(network, &policy, &holdout)
+    };
+    let (calibration, quantized, bytes, qat) = if options.qat.steps == 0 {
+        let (calibration, quantized, bytes) = calibrate_and_quantize(network)?;
+        (calibration, quantized, bytes, None)
+    } else {
+        let (_, ptq, ptq_bytes) = calibrate_and_quantize(network)?;
+        let ptq_agreement = measure(&ptq_bytes)?;
+        let training_set = rollout_observations(
+            &float,
+            options.scene_kind,
+            options.qat.seed,
+            options.qat.observations,
+        )?;
+        let (student, report) = fine_tune(
+            network,
+            device,
+            &calibration_set,
+            &training_set,
+            &QatSettings {
+                range: options.range,
+                action_range: options.action_range,
+                version: ptq.version,
+            },
+            &options.qat,
+        )?;
+        let (calibration, quantized, bytes) = calibrate_and_quantize(&student)?;
+        let card = QatCard {
+            options: options.qat.clone(),
+            report,
+            ptq_agreement,
+        };
+        (calibration, quantized, bytes, Some(card))
+    };
+    let agreement = measure(&bytes)?;
+    let policy = EvalPolicy::from_bytes(&bytes)
+        .map_err(|e| format!("the runtime refuses the exported weights: {e}"))?;
     let (parameters, macs_per_decision) = (policy.model().parameter_count(), policy.model().macs());
     let (state_bits, logit_bits) = (policy.model().state_bits(), policy.model().logit_bits());
     drop(policy);
@@ -182,6 +253,7 @@ pub fn export_policy(
             ActionRange::Contenders => "contenders".into(),
         },
         agreement,
+        qat,
     };
     Ok((bytes, card))
 }

@@ -10,6 +10,8 @@
 //!    ([`QuantizedNetwork::to_bytes`]).
 //!
 //! 4. [`agreement`]: how often the int8 network's greedy action equals the float network's.
+//! 5. [`qat`]: quantization-aware fine-tuning by distillation, for when post-training
+//!    quantization alone flips too many near-tie decisions: the result goes through 1-3 again.
 //!
 //! The int8 network is then run by `wheelleg_runtime::model` itself ([`EvalPolicy`]).
 
@@ -17,6 +19,7 @@ pub mod agreement;
 pub mod build;
 pub mod calibrate;
 pub mod params;
+pub mod qat;
 
 pub use agreement::{agreement, Agreement};
 pub use build::{
@@ -24,6 +27,7 @@ pub use build::{
 };
 pub use calibrate::{ActionRange, Calibration, RangeMethod, RangeObserver};
 pub use params::{quantize_multiplier, ActQuant};
+pub use qat::{dequantize, fine_tune, QatOptions, QatReport, QatSettings};
 
 use wheelleg_runtime::model::Policy;
 
