@@ -6,12 +6,164 @@
 //! Touching counts as colliding.
 
 use crate::obstacle::{GroundBox, Obstacle};
-use nalgebra::{Isometry3, Point2, Point3, Translation3, Vector3};
+use nalgebra::{Isometry3, Point2, Point3, Translation3, UnitQuaternion, Vector3};
 use parry3d::bounding_volume::{Aabb, BoundingVolume};
 use parry3d::query;
-use parry3d::shape::{Capsule, Cuboid, Cylinder, Shape};
+use parry3d::shape::{Capsule, Cuboid, Cylinder, Shape, SupportMap};
 use wheelleg_runtime::leg::{IkError, LegConfig};
 use wheelleg_runtime::robot::{LegId, RobotGeometry};
+
+/// What [`ObstacleSet::clearance_lower_bound_m`] allows for parry's rounding: its bounds stay
+/// below parry's distances by this much, so a proof from the bounds is one parry's values give
+/// too. 10 um: a tenth of the graze tolerance of the swept check, a hundred times parry's
+/// rounding at these sizes.
+pub const CLEARANCE_SLACK_M: f32 = 1.0e-5;
+
+/// The distance between two boxes (0 when they overlap).
+fn box_gap_m(a: &Aabb, b: &Aabb) -> f32 {
+    let gap = |lo_a: f32, hi_a: f32, lo_b: f32, hi_b: f32| (lo_b - hi_a).max(lo_a - hi_b).max(0.0);
+    let dx = gap(a.mins.x, a.maxs.x, b.mins.x, b.maxs.x);
+    let dy = gap(a.mins.y, a.maxs.y, b.mins.y, b.maxs.y);
+    let dz = gap(a.mins.z, a.maxs.z, b.mins.z, b.maxs.z);
+    (dx * dx + dy * dy + dz * dz).sqrt()
+}
+
+/// The distance from the segment `a`-`b` to the box `aabb`, up to rounding.
+///
+/// The squared distance from a point moving along the segment to the box is convex and, between
+/// the places where the point crosses one of the box's six planes, a quadratic: its minimum is
+/// at a crossing, an end, or where one of those quadratics is stationary. All of them are tried.
+fn segment_box_distance_m(a: &Point3<f32>, b: &Point3<f32>, aabb: &Aabb) -> f32 {
+    let d = b - a;
+    let squared_at = |t: f32| {
+        let p = a + d * t;
+        let mut sum = 0.0;
+        for i in 0..3 {
+            let out = (aabb.mins[i] - p[i]).max(p[i] - aabb.maxs[i]).max(0.0);
+            sum += out * out;
+        }
+        sum
+    };
+    let mut cuts = [0.0f32; 8];
+    cuts[1] = 1.0;
+    let mut count = 2;
+    for i in 0..3 {
+        if d[i] != 0.0 {
+            for plane in [aabb.mins[i], aabb.maxs[i]] {
+                let t = (plane - a[i]) / d[i];
+                if t > 0.0 && t < 1.0 {
+                    cuts[count] = t;
+                    count += 1;
+                }
+            }
+        }
+    }
+    let cuts = &mut cuts[..count];
+    cuts.sort_unstable_by(f32::total_cmp);
+    let mut best = cuts
+        .iter()
+        .map(|&t| squared_at(t))
+        .fold(f32::INFINITY, f32::min);
+    for pair in cuts.windows(2) {
+        let (t0, t1) = (pair[0], pair[1]);
+        let middle = a + d * (0.5 * (t0 + t1));
+        // On this piece each axis is below, inside or above the box throughout: the squared
+        // distance is the sum of (p_i(t) - plane_i)^2 over the axes outside.
+        let (mut slope, mut offset) = (0.0f32, 0.0f32);
+        for i in 0..3 {
+            let plane = if middle[i] < aabb.mins[i] {
+                aabb.mins[i]
+            } else if middle[i] > aabb.maxs[i] {
+                aabb.maxs[i]
+            } else {
+                continue;
+            };
+            slope += d[i] * d[i];
+            offset += d[i] * (a[i] - plane);
+        }
+        if slope > 0.0 {
+            let t = (-offset / slope).clamp(t0, t1);
+            best = best.min(squared_at(t));
+        }
+    }
+    best.sqrt()
+}
+
+/// The distance from a box turned about the vertical only (centre and heading from `pose`,
+/// half extents `half`) to the axis-aligned box `aabb`, up to rounding: both are upright
+/// prisms, so it is the distance of their footprints combined with the vertical gap.
+fn upright_box_distance_m(pose: &Isometry3<f32>, half: &Vector3<f32>, aabb: &Aabb) -> f32 {
+    let centre = pose.translation.vector;
+    let vertical_m = (aabb.mins.z - (centre.z + half.z))
+        .max((centre.z - half.z) - aabb.maxs.z)
+        .max(0.0);
+    let axis_x = pose.rotation * Vector3::x();
+    let (u, v) = ([axis_x.x, axis_x.y], [-axis_x.y, axis_x.x]);
+    let corner = |su: f32, sv: f32| {
+        [
+            centre.x + su * half.x * u[0] + sv * half.y * v[0],
+            centre.y + su * half.x * u[1] + sv * half.y * v[1],
+        ]
+    };
+    let turned = [
+        corner(-1.0, -1.0),
+        corner(1.0, -1.0),
+        corner(1.0, 1.0),
+        corner(-1.0, 1.0),
+    ];
+    let upright = [
+        [aabb.mins.x, aabb.mins.y],
+        [aabb.maxs.x, aabb.mins.y],
+        [aabb.maxs.x, aabb.maxs.y],
+        [aabb.mins.x, aabb.maxs.y],
+    ];
+    // Footprints apart along one of the four edge directions (separating axis theorem for two
+    // rectangles) are as far apart as the nearest corner of one to the other; otherwise they
+    // overlap.
+    let apart_along = |axis: [f32; 2]| {
+        let project = |p: &[f32; 2]| p[0] * axis[0] + p[1] * axis[1];
+        let (mut lo_a, mut hi_a, mut lo_b, mut hi_b) = (
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+        );
+        for p in &turned {
+            lo_a = lo_a.min(project(p));
+            hi_a = hi_a.max(project(p));
+        }
+        for p in &upright {
+            lo_b = lo_b.min(project(p));
+            hi_b = hi_b.max(project(p));
+        }
+        lo_b > hi_a || lo_a > hi_b
+    };
+    let apart = [[1.0, 0.0], [0.0, 1.0], u, v].into_iter().any(apart_along);
+    let horizontal_m = if apart {
+        let to_upright = |p: &[f32; 2]| {
+            let dx = (aabb.mins.x - p[0]).max(p[0] - aabb.maxs.x).max(0.0);
+            let dy = (aabb.mins.y - p[1]).max(p[1] - aabb.maxs.y).max(0.0);
+            dx * dx + dy * dy
+        };
+        let to_turned = |p: &[f32; 2]| {
+            let (px, py) = (p[0] - centre.x, p[1] - centre.y);
+            let along_u = px * u[0] + py * u[1];
+            let along_v = px * v[0] + py * v[1];
+            let du = (along_u.abs() - half.x).max(0.0);
+            let dv = (along_v.abs() - half.y).max(0.0);
+            du * du + dv * dv
+        };
+        let squared = turned
+            .iter()
+            .map(to_upright)
+            .chain(upright.iter().map(to_turned))
+            .fold(f32::INFINITY, f32::min);
+        squared.sqrt()
+    } else {
+        0.0
+    };
+    horizontal_m.hypot(vertical_m)
+}
 
 /// Number of robot parts checked for collision.
 pub const PART_COUNT: usize = 1 + 3 * 4;
@@ -42,8 +194,41 @@ impl Part {
     pub fn aabb(&self) -> Aabb {
         match self {
             Part::Body { pose, shape } => shape.compute_aabb(pose),
-            Part::Link(capsule) => capsule.compute_aabb(&Isometry3::identity()),
-            Part::Wheel { pose, shape } => shape.compute_aabb(pose),
+            // The segment is in world coordinates already (parry's `compute_aabb` would move it
+            // by the identity first, to the same box).
+            Part::Link(capsule) => capsule.local_aabb(),
+            Part::Wheel { pose, shape } => {
+                WheelReach::new(&pose.rotation, shape).aabb(&pose.translation.vector)
+            }
+        }
+    }
+
+    /// A lower bound on the distance from the part to the axis-aligned box `obstacle` (at most
+    /// 0 when they may touch), up to rounding (see [`CLEARANCE_SLACK_M`]):
+    /// - a link: the distance from its segment to the box, less the radius (exact);
+    /// - the body: a box turned about the vertical only, so both are upright prisms, whose
+    ///   distance is the horizontal distance of their footprints and the vertical gap combined
+    ///   (exact);
+    /// - a wheel: the better of its upright bounding box's distance (as for the body) and its
+    ///   axle's distance less its radius (the cylinder lies in the capsule around its axle).
+    fn distance_lower_bound_m(&self, obstacle: &Aabb) -> f32 {
+        match self {
+            Part::Link(capsule) => {
+                segment_box_distance_m(&capsule.segment.a, &capsule.segment.b, obstacle)
+                    - capsule.radius
+            }
+            Part::Body { pose, shape } => {
+                upright_box_distance_m(pose, &shape.half_extents, obstacle)
+            }
+            Part::Wheel { pose, shape } => {
+                let half = Vector3::new(shape.radius, shape.half_height, shape.radius);
+                let axle = pose.rotation * Vector3::new(0.0, shape.half_height, 0.0);
+                let centre = Point3::from(pose.translation.vector);
+                let around_axle_m =
+                    segment_box_distance_m(&(centre - axle), &(centre + axle), obstacle)
+                        - shape.radius;
+                upright_box_distance_m(pose, &half, obstacle).max(around_axle_m)
+            }
         }
     }
 
@@ -97,13 +282,18 @@ impl RobotParts {
         };
         let wheel_shape = Cylinder::new(0.5 * geometry.wheel_width_m, geometry.wheel_radius_m);
         let mut parts = [body; PART_COUNT];
+        // The four legs share one solution in the leg plane: its forward kinematics once, then
+        // each leg's mirror of it, as `RobotGeometry::leg_points` places it (same arithmetic).
+        let plane = geometry.leg_fk(joints);
         for (slot, leg) in parts[1..].chunks_exact_mut(3).zip(LegId::ALL) {
-            let points = geometry.leg_points(leg, joints);
-            let to_world = |p: Point3<f32>| body_pose * p;
+            let hip = geometry.hip_in_body(leg);
+            let to_world = |outward_m: f32, down_m: f32| {
+                body_pose * Point3::new(hip.x, hip.y + leg.side_sign() * outward_m, hip.z - down_m)
+            };
             let (hip, knee, wheel) = (
-                to_world(points.hip),
-                to_world(points.knee),
-                to_world(points.wheel),
+                body_pose * Point3::from(hip),
+                to_world(plane.knee.outward_m, plane.knee.down_m),
+                to_world(plane.wheel.outward_m, plane.wheel.down_m),
             );
             slot[0] = Part::Link(Capsule::new(hip, knee, geometry.link_radius_m));
             slot[1] = Part::Link(Capsule::new(knee, wheel, geometry.link_radius_m));
@@ -112,7 +302,13 @@ impl RobotParts {
                 shape: wheel_shape,
             };
         }
-        let aabbs = parts.map(|p| p.aabb());
+        // The wheels all turn with the body: their boxes' offsets from their centres are the
+        // same for all four, worked out once.
+        let wheel_reach = WheelReach::new(&body_pose.rotation, &wheel_shape);
+        let aabbs = parts.map(|p| match p {
+            Part::Wheel { pose, .. } => wheel_reach.aabb(&pose.translation.vector),
+            _ => p.aabb(),
+        });
         let aabb = aabbs[1..].iter().fold(aabbs[0], |acc, b| acc.merged(b));
         Ok(RobotParts { parts, aabbs, aabb })
     }
@@ -125,6 +321,40 @@ impl RobotParts {
     /// Bounding box of the whole robot.
     pub fn aabb(&self) -> Aabb {
         self.aabb
+    }
+}
+
+/// How far a wheel reaches from its centre along each world axis, for its bounding box:
+/// parry's box of a cylinder (`Cylinder::compute_aabb`, the support point towards each of the
+/// six axis directions) computed with half the work, bit for bit the same. The support point
+/// towards `-e` is the mirror of the one towards `e` (a cylinder is symmetric, and the rotation
+/// is linear: negating its input negates every rounded product and sum exactly), so three
+/// support points give all six faces; the test `wheel_boxes_are_parrys` holds the equality.
+struct WheelReach {
+    /// Offset from the centre of the support point towards `+e_d`, for each axis `d`.
+    towards: [Vector3<f32>; 3],
+}
+
+impl WheelReach {
+    fn new(rotation: &UnitQuaternion<f32>, shape: &Cylinder) -> Self {
+        let towards = [0, 1, 2].map(|d| {
+            let mut basis = Vector3::zeros();
+            basis[d] = 1.0;
+            let local = rotation.inverse_transform_vector(&basis);
+            (rotation * shape.local_support_point(&local)).coords
+        });
+        WheelReach { towards }
+    }
+
+    /// The box of the wheel centred at `centre`.
+    fn aabb(&self, centre: &Vector3<f32>) -> Aabb {
+        let mut mins = Point3::origin();
+        let mut maxs = Point3::origin();
+        for d in 0..3 {
+            maxs[d] = self.towards[d][d] + centre[d];
+            mins[d] = -self.towards[d][d] + centre[d];
+        }
+        Aabb::new(mins, maxs)
     }
 }
 
@@ -278,6 +508,31 @@ impl ObstacleSet {
         Some(nearest_m)
     }
 
+    /// A lower bound on [`ObstacleSet::clearance_m`]`(robot, up_to_m)`, cheap: from the gaps
+    /// between the parts' and the obstacles' boxes (a part is inside its box, so it is at least
+    /// as far from an obstacle as its box is), less [`CLEARANCE_SLACK_M`] for the rounding of
+    /// parry's query. At most 0 when some part may touch an obstacle; `up_to_m` less the slack
+    /// when nothing is within `up_to_m`.
+    pub fn clearance_lower_bound_m(&self, robot: &RobotParts, up_to_m: f32) -> f32 {
+        let mut nearest_m = up_to_m.max(0.0);
+        let robot_aabb = robot.aabb.loosened(nearest_m);
+        for obstacle_aabb in &self.aabbs {
+            if !obstacle_aabb.intersects(&robot_aabb) {
+                continue;
+            }
+            for (part, part_aabb) in robot.parts.iter().zip(&robot.aabbs) {
+                let gap_m = box_gap_m(part_aabb, obstacle_aabb);
+                // The box gap is all a pair far enough away needs; closer, the part's own
+                // shape gives a better bound.
+                if gap_m >= nearest_m {
+                    continue;
+                }
+                nearest_m = nearest_m.min(gap_m.max(part.distance_lower_bound_m(obstacle_aabb)));
+            }
+        }
+        nearest_m - CLEARANCE_SLACK_M
+    }
+
     /// Whether some part, anywhere within `grow_m` of the box spanning its places in `start`
     /// and `end`, could meet an obstacle's box. When not, a motion from `start` to `end` that
     /// moves no point of the robot farther than `2 * grow_m` touches nothing on the way: every
@@ -323,6 +578,29 @@ mod tests {
             track_m: WHEELLEG.default_track_m,
         };
         RobotParts::new(&WHEELLEG, Point2::new(x_m, 0.0), 0.0, legs).unwrap()
+    }
+
+    #[test]
+    fn wheel_boxes_are_parrys() {
+        let shape = Cylinder::new(0.02, 0.05);
+        let mut checked = 0;
+        for yaw_step in -80..=80 {
+            for (x_m, y_m, z_m) in [(0.0, 0.0, 0.05), (-1.37, 0.61, 0.113), (2.9, -3.3, 0.0)] {
+                let yaw_rad = (yaw_step as f32 * 5.0).to_radians() + 1.0e-3 * x_m;
+                let pose = Isometry3::from_parts(
+                    Translation3::new(x_m, y_m, z_m),
+                    UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw_rad),
+                );
+                let ours = WheelReach::new(&pose.rotation, &shape).aabb(&pose.translation.vector);
+                let parrys = shape.compute_aabb(&pose);
+                for d in 0..3 {
+                    assert_eq!(ours.mins[d].to_bits(), parrys.mins[d].to_bits(), "{pose:?}");
+                    assert_eq!(ours.maxs[d].to_bits(), parrys.maxs[d].to_bits(), "{pose:?}");
+                }
+                checked += 1;
+            }
+        }
+        assert_eq!(checked, 161 * 3);
     }
 
     #[test]

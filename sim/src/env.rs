@@ -144,6 +144,9 @@ pub struct Env {
     collisions: u32,
     /// No part of the robot is ever farther than this from its centre, horizontally.
     reach_m: f32,
+    /// The robot's parts at `state`, when a step's check placed them there: the start of the
+    /// next step's check ([`Env::pose_between`] at 0 gives the same values).
+    parts_here: Option<RobotParts>,
 }
 
 /// Stepping an episode that is over.
@@ -191,6 +194,7 @@ impl Env {
             },
             collisions: 0,
             reach_m: horizontal_reach_m(&geometry),
+            parts_here: None,
         })
     }
 
@@ -255,6 +259,19 @@ impl Env {
         from: &RobotState,
         to: &RobotState,
     ) -> Result<(), InvalidAction> {
+        self.check_placing(from, to, &mut None)
+    }
+
+    /// [`Env::check_transition`], also handing back in `placed` the robot's parts at `to` when
+    /// it placed them and accepted the step (the next step starts there: [`Env::step`] keeps
+    /// them). An out-parameter, not a returned value: the parts are a kilobyte, and most steps
+    /// (far from obstacles) should not move one around.
+    fn check_placing(
+        &self,
+        from: &RobotState,
+        to: &RobotState,
+        placed: &mut Option<RobotParts>,
+    ) -> Result<(), InvalidAction> {
         let p = to.position;
         if p.x < self.arena_min.x
             || p.y < self.arena_min.y
@@ -281,23 +298,51 @@ impl Env {
         if self.obstacles.may_touch(&end.aabb()) && self.obstacles.collides(&end) {
             return Err(InvalidAction::Collision);
         }
-        if from == to {
-            return Ok(());
+        if from != to {
+            self.check_way(from, to, &end)?;
         }
+        *placed = Some(end);
+        Ok(())
+    }
+
+    /// The way from `from` to `to`, the end pose `end` already found clear (see
+    /// [`Env::check_transition`]).
+    fn check_way(
+        &self,
+        from: &RobotState,
+        to: &RobotState,
+        end: &RobotParts,
+    ) -> Result<(), InvalidAction> {
         let bound_m = self
             .motion_bound_m(from, to)
             .map_err(InvalidAction::Impossible)?;
-        let start = self
-            .pose_between(from, to, 0.0)
-            .map_err(InvalidAction::Impossible)?;
-        if !self.obstacles.sweep_may_touch(&start, &end, 0.5 * bound_m) {
+        // The start is where the last accepted step ended, most of the time: its parts are
+        // kept (the same values `pose_between(from, to, 0.0)` computes).
+        let placed;
+        let start = match &self.parts_here {
+            Some(parts) if *from == self.state => parts,
+            _ => {
+                placed = self
+                    .pose_between(from, to, 0.0)
+                    .map_err(InvalidAction::Impossible)?;
+                &placed
+            }
+        };
+        if !self.obstacles.sweep_may_touch(start, end, 0.5 * bound_m) {
             return Ok(());
         }
-        self.prove_way_clear(from, to, bound_m, &start, &end)
+        self.prove_way_clear(from, to, bound_m, start, end)
     }
 
     /// Bisects the step until the clearance at the poses covers every stretch between them
     /// (see [`Env::check_transition`]).
+    ///
+    /// The clearance of a pose is parry's exact query ([`ObstacleSet::clearance_m`]), but a
+    /// stretch is first tried with a cheap lower bound on it
+    /// ([`ObstacleSet::clearance_lower_bound_m`], from box gaps): a stretch the bounds prove is
+    /// one the exact values prove too, and only a stretch they do not prove asks for the exact
+    /// values at its ends. The verdict is the one the exact values alone give, found with
+    /// fewer of parry's queries.
     fn prove_way_clear(
         &self,
         from: &RobotState,
@@ -306,49 +351,93 @@ impl Env {
         start: &RobotParts,
         end: &RobotParts,
     ) -> Result<(), InvalidAction> {
-        // A start that touches (only possible within parry's rounding of a pose the contact
-        // rule accepted) counts as clearance 0: the motion must then prove itself from the
-        // other end.
         // Clearance is only looked for as far as it can help: a stretch of travel `T` needs
         // its two ends' clearances to sum to more than `T`, so each pose's search stops a
         // little past half the travel of the stretch it ends (fewer part/obstacle pairs get
         // parry's exact query). Capped values are lower bounds, so the proof stays sound; a
         // capped pair may just split once more.
         let enough = |travel_m: f32| 0.5 * travel_m * (1.0 + 1.0e-3) + GRAZE_TOLERANCE_M;
-        let start_m = self
-            .obstacles
-            .clearance_m(start, enough(bound_m))
-            .unwrap_or(0.0);
-        let end_m = self
-            .obstacles
-            .clearance_m(end, enough(bound_m))
-            .ok_or(InvalidAction::Collision)?;
-        // Stretches still to prove: (from, clearance there, to, clearance there), as fractions
-        // of the step. The depth is bounded: each split halves a stretch, and a stretch
-        // shorter than the graze tolerance ends the search.
-        let mut open: heapless::Vec<(f32, f32, f32, f32), PROOF_STACK> = heapless::Vec::new();
+        let start_pose = ProofPose::new(&self.obstacles, 0.0, start, enough(bound_m));
+        let mut end_pose = ProofPose::new(&self.obstacles, 1.0, end, enough(bound_m));
+        // A pose whose bound cannot rule out touching gets its exact clearance at once: a pose
+        // that touches ends the proof there (a start that touches, only possible within
+        // parry's rounding of a pose the contact rule accepted, counts as clearance 0 instead:
+        // the motion must then prove itself from the other end; that is settled when needed).
+        if end_pose.cheap_m <= 0.0 {
+            end_pose.exact_m = Some(
+                self.obstacles
+                    .clearance_m(end, end_pose.cap_m)
+                    .ok_or(InvalidAction::Collision)?,
+            );
+        }
+        // Stretches still to prove, between two poses, as fractions of the step. The depth is
+        // bounded: each split halves a stretch, and a stretch shorter than the graze tolerance
+        // ends the search.
+        let mut open: heapless::Vec<(ProofPose, ProofPose), PROOF_STACK> = heapless::Vec::new();
         // Room for a split at every level down to the tolerance; a full stack (only with a
         // robot that moves kilometres per step) is a step not proven clear.
         let full = |_| InvalidAction::Collision;
-        open.push((0.0, start_m, 1.0, end_m)).map_err(full)?;
-        while let Some((a, a_m, b, b_m)) = open.pop() {
-            let travel_m = bound_m * (b - a);
-            if a_m + b_m > travel_m {
+        open.push((start_pose, end_pose)).map_err(full)?;
+        // The latest in-between pose placed: the stretch from the pose before it is tried
+        // next, and may need its exact clearance.
+        let mut latest: Option<(f32, RobotParts)> = None;
+        while let Some((mut a, mut b)) = open.pop() {
+            let travel_m = bound_m * (b.t - a.t);
+            if a.best_m() + b.best_m() > travel_m {
+                continue;
+            }
+            for pose in [&mut a, &mut b] {
+                if pose.exact_m.is_some() {
+                    continue;
+                }
+                let placed;
+                let parts = match &latest {
+                    _ if pose.t == 0.0 => start,
+                    _ if pose.t == 1.0 => end,
+                    Some((t, parts)) if *t == pose.t => parts,
+                    _ => {
+                        placed = self
+                            .pose_between(from, to, pose.t)
+                            .map_err(InvalidAction::Impossible)?;
+                        &placed
+                    }
+                };
+                let exact_m = match self.obstacles.clearance_m(parts, pose.cap_m) {
+                    Some(exact_m) => exact_m,
+                    None if pose.t == 0.0 => 0.0,
+                    None => return Err(InvalidAction::Collision),
+                };
+                pose.exact_m = Some(exact_m);
+                // The other stretch that ends at this pose is waiting in the stack.
+                for (c, d) in open.iter_mut() {
+                    for other in [c, d] {
+                        if other.t == pose.t {
+                            other.exact_m = Some(exact_m);
+                        }
+                    }
+                }
+            }
+            if a.best_m() + b.best_m() > travel_m {
                 continue;
             }
             if travel_m < GRAZE_TOLERANCE_M {
                 return Err(InvalidAction::Collision);
             }
-            let mid = 0.5 * (a + b);
+            let t = 0.5 * (a.t + b.t);
             let parts = self
-                .pose_between(from, to, mid)
+                .pose_between(from, to, t)
                 .map_err(InvalidAction::Impossible)?;
-            let mid_m = self
-                .obstacles
-                .clearance_m(&parts, enough(travel_m))
-                .ok_or(InvalidAction::Collision)?;
-            open.push((mid, mid_m, b, b_m)).map_err(full)?;
-            open.push((a, a_m, mid, mid_m)).map_err(full)?;
+            let mut mid = ProofPose::new(&self.obstacles, t, &parts, enough(travel_m));
+            if mid.cheap_m <= 0.0 {
+                mid.exact_m = Some(
+                    self.obstacles
+                        .clearance_m(&parts, mid.cap_m)
+                        .ok_or(InvalidAction::Collision)?,
+                );
+            }
+            latest = Some((t, parts));
+            open.push((mid, b)).map_err(full)?;
+            open.push((a, mid)).map_err(full)?;
         }
         Ok(())
     }
@@ -396,35 +485,15 @@ impl Env {
     pub fn motion_bound_m(&self, from: &RobotState, to: &RobotState) -> Result<f32, IkError> {
         let travel_m = (to.position - from.position).norm();
         let turn_m = self.reach_m * yaw_change_rad(from, to).abs();
-        let (legs0, legs1) = (
-            from.leg_config(&self.geometry),
-            to.leg_config(&self.geometry),
-        );
-        let leg_m = if legs0 == legs1 {
-            0.0
-        } else {
-            // One leg stands for all four: they mirror each other.
-            let leg = wheelleg_runtime::robot::LegId::FrontLeft;
-            let mut previous: Option<[nalgebra::Point3<f32>; 3]> = None;
-            let mut longest_piece_m = 0.0f32;
-            for piece in 0..=LEG_PATH_PIECES {
-                let t = piece as f32 / LEG_PATH_PIECES as f32;
-                let legs = LegConfig {
-                    clearance_m: legs0.clearance_m + t * (legs1.clearance_m - legs0.clearance_m),
-                    track_m: legs0.track_m + t * (legs1.track_m - legs0.track_m),
-                };
-                let points = self.geometry.leg_points(leg, self.geometry.leg_ik(legs)?);
-                let lift =
-                    nalgebra::Vector3::z() * self.geometry.body_centre_height_m(legs.clearance_m);
-                let now = [points.hip + lift, points.knee + lift, points.wheel + lift];
-                if let Some(before) = previous {
-                    for (a, b) in before.iter().zip(&now) {
-                        longest_piece_m = longest_piece_m.max((b - a).norm());
-                    }
-                }
-                previous = Some(now);
-            }
-            LEG_PATH_SAFETY * LEG_PATH_PIECES as f32 * longest_piece_m
+        let leg_m = match LegMotionTable::for_geometry(&self.geometry)
+            .and_then(|table| table.get(from, to))
+        {
+            Some(leg_m) => leg_m,
+            None => leg_motion_m(
+                &self.geometry,
+                from.leg_config(&self.geometry),
+                to.leg_config(&self.geometry),
+            )?,
         };
         Ok(travel_m + turn_m + leg_m)
     }
@@ -478,9 +547,19 @@ impl Env {
         }
         let before_m = self.distance_to_target_m();
         let next = self.state.after(action);
-        let invalid = self.check_transition(&self.state, &next).err();
+        let mut placed = None;
+        let invalid = self.check_placing(&self.state, &next, &mut placed).err();
         match invalid {
-            None => self.state = next,
+            None => {
+                // The parts at the new state, when the check placed them, start the next
+                // step's check; parts of another state must not.
+                if placed.is_some() {
+                    self.parts_here = placed;
+                } else if next != self.state {
+                    self.parts_here = None;
+                }
+                self.state = next;
+            }
             Some(InvalidAction::Collision) => self.collisions += 1,
             Some(_) => {}
         }
@@ -513,6 +592,173 @@ impl Env {
         let legs = self.state.leg_config(&self.geometry);
         let target = self.state.world_to_robot(self.target);
         out.state = [legs.clearance_m, legs.track_m, target.x, target.y];
+    }
+}
+
+/// A pose of the clearance proof ([`Env::prove_way_clear`]): where along the step it is, and
+/// what is known of its clearance.
+#[derive(Clone, Copy, Debug)]
+struct ProofPose {
+    /// Fraction of the step.
+    t: f32,
+    /// A lower bound on `exact_m`, from box gaps: at most 0 when the pose may touch.
+    cheap_m: f32,
+    /// [`ObstacleSet::clearance_m`] up to `cap_m`, once asked for.
+    exact_m: Option<f32>,
+    /// How far the clearance is looked for (see `enough` in [`Env::prove_way_clear`]).
+    cap_m: f32,
+}
+
+impl ProofPose {
+    fn new(obstacles: &ObstacleSet, t: f32, parts: &RobotParts, cap_m: f32) -> Self {
+        ProofPose {
+            t,
+            cheap_m: obstacles.clearance_lower_bound_m(parts, cap_m),
+            exact_m: None,
+            cap_m,
+        }
+    }
+
+    /// The best lower bound on the pose's clearance known so far.
+    fn best_m(&self) -> f32 {
+        self.exact_m.unwrap_or(self.cheap_m.max(0.0))
+    }
+}
+
+/// The legs' term of [`Env::motion_bound_m`]: how far any point of a leg (or the body, as it
+/// rises or sinks) moves in the body frame as (clearance, track) goes from `legs0` to `legs1`
+/// on the straight line, measured in [`LEG_PATH_PIECES`] pieces and padded by
+/// [`LEG_PATH_SAFETY`].
+fn leg_motion_m(
+    geometry: &RobotGeometry,
+    legs0: LegConfig,
+    legs1: LegConfig,
+) -> Result<f32, IkError> {
+    if legs0 == legs1 {
+        return Ok(0.0);
+    }
+    // One leg stands for all four: they mirror each other.
+    let leg = wheelleg_runtime::robot::LegId::FrontLeft;
+    let mut previous: Option<[nalgebra::Point3<f32>; 3]> = None;
+    let mut longest_piece_m = 0.0f32;
+    for piece in 0..=LEG_PATH_PIECES {
+        let t = piece as f32 / LEG_PATH_PIECES as f32;
+        let legs = LegConfig {
+            clearance_m: legs0.clearance_m + t * (legs1.clearance_m - legs0.clearance_m),
+            track_m: legs0.track_m + t * (legs1.track_m - legs0.track_m),
+        };
+        let points = geometry.leg_points(leg, geometry.leg_ik(legs)?);
+        let lift = nalgebra::Vector3::z() * geometry.body_centre_height_m(legs.clearance_m);
+        let now = [points.hip + lift, points.knee + lift, points.wheel + lift];
+        if let Some(before) = previous {
+            for (a, b) in before.iter().zip(&now) {
+                longest_piece_m = longest_piece_m.max((b - a).norm());
+            }
+        }
+        previous = Some(now);
+    }
+    Ok(LEG_PATH_SAFETY * LEG_PATH_PIECES as f32 * longest_piece_m)
+}
+
+/// [`leg_motion_m`] for every lattice leg pose of the project's robot and every leg step from
+/// it (clearance and track each by -1, 0 or +1 steps), worked out once: the bound needs the
+/// legs' IK at 17 poses, which cost as much as the rest of a step's check near obstacles. The
+/// entries are the very values [`leg_motion_m`] returns (same inputs, same arithmetic), so a
+/// step's bound is the same bit for bit with or without the table.
+struct LegMotionTable {
+    /// Lowest clearance and track steps held.
+    clearance_min: i32,
+    track_min: i32,
+    /// Clearance and track steps held: `clearance_min..clearance_min + clearance_count`.
+    clearance_count: i32,
+    track_count: i32,
+    /// Per (clearance, track, leg step): the legs' motion, or `None` where the IK fails on the
+    /// way (the exact function then says why).
+    leg_m: Vec<Option<f32>>,
+}
+
+impl LegMotionTable {
+    /// The table for `geometry` when it is the project's robot (other geometries are worked
+    /// out exactly every time: they are for tests).
+    fn for_geometry(geometry: &RobotGeometry) -> Option<&'static LegMotionTable> {
+        static TABLE: std::sync::OnceLock<LegMotionTable> = std::sync::OnceLock::new();
+        (*geometry == WHEELLEG).then(|| TABLE.get_or_init(|| LegMotionTable::new(&WHEELLEG)))
+    }
+
+    fn new(geometry: &RobotGeometry) -> Self {
+        // Every step count whose (clearance, track) lies within the legs' ranges, one more
+        // each side for rounding.
+        let steps = |range: [f32; 2], default_m: f32, step_m: f32| {
+            let low = ((range[0] - default_m) / step_m).floor() as i32 - 1;
+            let high = ((range[1] - default_m) / step_m).ceil() as i32 + 1;
+            (low, high - low + 1)
+        };
+        let (clearance_min, clearance_count) = steps(
+            geometry.clearance_range_m,
+            geometry.default_clearance_m,
+            wheelleg_runtime::action::CLEARANCE_STEP_M,
+        );
+        let (track_min, track_count) = steps(
+            geometry.track_range_m,
+            geometry.default_track_m,
+            wheelleg_runtime::action::TRACK_STEP_M,
+        );
+        let mut leg_m = Vec::with_capacity((clearance_count * track_count * 9) as usize);
+        for clearance_steps in clearance_min..clearance_min + clearance_count {
+            for track_steps in track_min..track_min + track_count {
+                let from = RobotState {
+                    position: Point2::origin(),
+                    yaw_steps: 0,
+                    clearance_steps,
+                    track_steps,
+                };
+                for d_clearance in -1..=1 {
+                    for d_track in -1..=1 {
+                        let to = RobotState {
+                            clearance_steps: clearance_steps + d_clearance,
+                            track_steps: track_steps + d_track,
+                            ..from
+                        };
+                        leg_m.push(
+                            leg_motion_m(
+                                geometry,
+                                from.leg_config(geometry),
+                                to.leg_config(geometry),
+                            )
+                            .ok(),
+                        );
+                    }
+                }
+            }
+        }
+        LegMotionTable {
+            clearance_min,
+            track_min,
+            clearance_count,
+            track_count,
+            leg_m,
+        }
+    }
+
+    /// The legs' motion from `from` to `to`, when the table holds it.
+    fn get(&self, from: &RobotState, to: &RobotState) -> Option<f32> {
+        let (c, t) = (
+            from.clearance_steps - self.clearance_min,
+            from.track_steps - self.track_min,
+        );
+        let (dc, dt) = (
+            to.clearance_steps - from.clearance_steps,
+            to.track_steps - from.track_steps,
+        );
+        if !(0..self.clearance_count).contains(&c)
+            || !(0..self.track_count).contains(&t)
+            || dc.abs() > 1
+            || dt.abs() > 1
+        {
+            return None;
+        }
+        let index = ((c * self.track_count + t) * 9 + (dc + 1) * 3 + (dt + 1)) as usize;
+        self.leg_m[index]
     }
 }
 

@@ -42,21 +42,70 @@ fn row_line(position: Point2<f32>, (cos, sin): (f32, f32), row: usize) -> (f32, 
     (bx, by, -HEIGHT_MAP_CELL_M * sin, HEIGHT_MAP_CELL_M * cos)
 }
 
-/// Columns `c` (as reals) for which `lo <= base - c * step <= hi`, or `None` if none.
+/// The smallest step along a row, per column, whose column span [`column_span`] computes
+/// (see [`render`]).
+const MIN_STEP_M: f32 = 1.0e-5;
+
+/// Columns `c` (as reals) for which `lo <= base - c * step <= hi` (an empty span when none);
+/// `inverse_step` is `1 / step`, or `None` when the step is too small for a good guess (then
+/// every column). The span is only a guess within rounding (the caller widens it by a column
+/// each side and confirms every cell exactly), so multiplying by the inverse, cheaper than
+/// dividing, is as good.
 #[inline]
-fn column_span(base: f32, step: f32, lo: f32, hi: f32) -> Option<(f32, f32)> {
-    if step.abs() < 1e-9 {
-        return (base >= lo && base <= hi).then_some((f32::NEG_INFINITY, f32::INFINITY));
+fn column_span(base: f32, step: f32, inverse_step: Option<f32>, lo: f32, hi: f32) -> (f32, f32) {
+    let Some(inverse_step) = inverse_step else {
+        return (f32::NEG_INFINITY, f32::INFINITY);
+    };
+    debug_assert!(step.abs() >= MIN_STEP_M);
+    let a = (base - hi) * inverse_step;
+    let b = (base - lo) * inverse_step;
+    if a <= b {
+        (a, b)
+    } else {
+        (b, a)
     }
-    let a = (base - hi) / step;
-    let b = (base - lo) / step;
-    Some(if a <= b { (a, b) } else { (b, a) })
+}
+
+/// `x.ceil()` as an index clamped to `0..=last`: without SSE4.1 (the default x86-64 target)
+/// `f32::ceil` is a library call, and the renderer takes a few per row of every obstacle.
+#[inline]
+fn ceil_index(x: f32, last: usize) -> Option<usize> {
+    if x.is_nan() || x > last as f32 {
+        return None;
+    }
+    if x <= 0.0 {
+        return Some(0);
+    }
+    // 0 < x <= last: truncation is the floor, one more unless x is whole.
+    let whole = x as usize;
+    Some(if (whole as f32) < x { whole + 1 } else { whole })
+}
+
+/// `x.floor()` as an index clamped to `0..=last`, `None` below 0 (see [`ceil_index`]).
+#[inline]
+fn floor_index(x: f32, last: usize) -> Option<usize> {
+    if x.is_nan() || x < 0.0 {
+        return None;
+    }
+    if x >= last as f32 {
+        return Some(last);
+    }
+    Some(x as usize)
 }
 
 /// Renders the height map of `boxes` seen from `position` with heading `yaw_rad` into `out`.
 pub fn render(boxes: &[GroundBox], position: Point2<f32>, yaw_rad: f32, out: &mut HeightMap) {
     out.fill(0.0);
     let (sin, cos) = yaw_rad.sin_cos();
+    // Every row steps along the same line direction: its inverses once per map.
+    let (_, _, sx, sy) = row_line(position, (cos, sin), 0);
+    // A step this small (the heading within 0.01 degrees of an axis) makes the span a poor
+    // guess: the rounding of the cell centres (about 1e-7 m) moves a boundary crossing by that
+    // over the step, beyond the renderer's one column of slack (at 270 degrees, 0.05 m times
+    // the rounded cosine, 2e-9 m, put it 45 columns off and lost boundary cells). The whole
+    // row is then tried, still cell by cell exactly, narrowed by the other axis's span.
+    let inverse = |step: f32| (step.abs() >= MIN_STEP_M).then(|| 1.0 / step);
+    let (inverse_sx, inverse_sy) = (inverse(sx), inverse(sy));
     for b in boxes {
         if b.min_x_m > position.x + REACH_M
             || b.max_x_m < position.x - REACH_M
@@ -79,29 +128,26 @@ pub fn render(boxes: &[GroundBox], position: Point2<f32>, yaw_rad: f32, out: &mu
             ahead_min = ahead_min.min(ahead);
             ahead_max = ahead_max.max(ahead);
         }
-        let row_first = (HALF_CELLS - ahead_max / HEIGHT_MAP_CELL_M - 1.0)
-            .ceil()
-            .max(0.0);
-        let row_last = (HALF_CELLS - ahead_min / HEIGHT_MAP_CELL_M + 1.0)
-            .floor()
-            .min(HEIGHT_MAP_SIDE as f32 - 1.0);
-        if row_first > row_last {
+        const LAST: usize = HEIGHT_MAP_SIDE - 1;
+        let (Some(row_first), Some(row_last)) = (
+            ceil_index(HALF_CELLS - ahead_max / HEIGHT_MAP_CELL_M - 1.0, LAST),
+            floor_index(HALF_CELLS - ahead_min / HEIGHT_MAP_CELL_M + 1.0, LAST),
+        ) else {
             continue;
-        }
-        for row in row_first as usize..=row_last as usize {
+        };
+        for row in row_first..=row_last {
             let (bx, by, sx, sy) = row_line(position, (cos, sin), row);
-            let Some((xa, xb)) = column_span(bx, sx, b.min_x_m, b.max_x_m) else {
+            let (xa, xb) = column_span(bx, sx, inverse_sx, b.min_x_m, b.max_x_m);
+            let (ya, yb) = column_span(by, sy, inverse_sy, b.min_y_m, b.max_y_m);
+            let (Some(first), Some(last)) = (
+                ceil_index(xa.max(ya) - 1.0, LAST),
+                floor_index(xb.min(yb) + 1.0, LAST),
+            ) else {
                 continue;
             };
-            let Some((ya, yb)) = column_span(by, sy, b.min_y_m, b.max_y_m) else {
-                continue;
-            };
-            let first = (xa.max(ya) - 1.0).ceil().max(0.0);
-            let last = (xb.min(yb) + 1.0).floor().min(HEIGHT_MAP_SIDE as f32 - 1.0);
             if first > last {
                 continue;
             }
-            let (first, last) = (first as usize, last as usize);
             let cells = &mut out[row * HEIGHT_MAP_SIDE + first..=row * HEIGHT_MAP_SIDE + last];
             for (col, cell) in (first..=last).zip(cells) {
                 let x = bx - col as f32 * sx;
@@ -126,6 +172,73 @@ pub fn render_naive(boxes: &[GroundBox], position: Point2<f32>, yaw_rad: f32, ou
                 .filter(|b| b.contains(p.x, p.y))
                 .map(|b| b.height_m)
                 .fold(0.0, f32::max);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    #[test]
+    fn the_scanline_renderer_is_the_naive_one_on_many_scenes() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let (mut fast, mut naive) = ([0.0; HEIGHT_MAP_CELLS], [0.0; HEIGHT_MAP_CELLS]);
+        for case in 0..20_000 {
+            let boxes: Vec<GroundBox> = (0..rng.random_range(1..14))
+                .map(|_| {
+                    // Grid-centred footprints of the obstacles' sizes, and now and then an odd
+                    // one (thin, or off the grid).
+                    let cell = |rng: &mut rand_chacha::ChaCha8Rng| {
+                        (rng.random_range(-6..6) as f32 + 0.5) * 0.25
+                    };
+                    let (x, y) = (cell(&mut rng), cell(&mut rng));
+                    let (hx, hy) = match rng.random_range(0..4) {
+                        0 => (0.125, 0.04),
+                        1 => (0.125, 0.225),
+                        2 => (0.1, 0.1),
+                        _ => (rng.random_range(0.001..0.3), rng.random_range(0.001..0.3)),
+                    };
+                    let (hx, hy) = if rng.random_bool(0.5) {
+                        (hx, hy)
+                    } else {
+                        (hy, hx)
+                    };
+                    GroundBox {
+                        min_x_m: x - hx,
+                        max_x_m: x + hx,
+                        min_y_m: y - hy,
+                        max_y_m: y + hy,
+                        height_m: rng.random_range(0.01..0.5),
+                    }
+                })
+                .collect();
+            // On and off the 5 cm lattice, yaws on and off the 5 degree lattice.
+            let position = if case % 2 == 0 {
+                Point2::new(
+                    0.025 + 0.05 * rng.random_range(-20..20) as f32,
+                    0.025 + 0.05 * rng.random_range(-20..20) as f32,
+                )
+            } else {
+                Point2::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0))
+            };
+            let yaw_rad = if rng.random_bool(0.5) {
+                (rng.random_range(0..72) as f32 * 5.0).to_radians()
+            } else {
+                rng.random_range(-4.0..4.0)
+            };
+            render(&boxes, position, yaw_rad, &mut fast);
+            render_naive(&boxes, position, yaw_rad, &mut naive);
+            let differ: Vec<(usize, f32, f32)> = (0..HEIGHT_MAP_CELLS)
+                .filter(|&i| fast[i] != naive[i])
+                .map(|i| (i, fast[i], naive[i]))
+                .collect();
+            assert!(
+                differ.is_empty(),
+                "case {case}: cells (index, fast, naive) {differ:?} differ; {boxes:?} at \
+                 {position:?} yaw {yaw_rad}"
+            );
         }
     }
 }
