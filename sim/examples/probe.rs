@@ -1,9 +1,10 @@
 //! Probe: planner effort on generated scenes.
 //!
-//! `cargo run --release -p wheelleg-sim --example probe -- [BUDGET] [WEIGHT] [PER_KIND] [SEED]`
-//! plans `PER_KIND` generated scenes of every kind (exact search with `WEIGHT`, then, if the
-//! budget runs out, the weighted fallback) and prints per scene the outcome, expansions and time,
-//! then a summary per kind.
+//! `cargo run --release -p wheelleg-sim --example probe -- [BUDGET] [WEIGHT] [PER_KIND] [SEED] [KIND]`
+//! plans `PER_KIND` generated scenes of every kind, or only of `KIND` (e.g. `spread`; the scenes
+//! are the same as in a run over every kind), with exact search with `WEIGHT`, then, if the
+//! budget runs out, the weighted fallback, and prints per scene the outcome, expansions and
+//! time, then a summary per kind.
 use rand::SeedableRng;
 use wheelleg_sim::env::{Env, EnvConfig};
 use wheelleg_sim::generate::{generate_many, SceneKind};
@@ -29,6 +30,7 @@ fn main() {
     let weight: f32 = arg(2).and_then(|s| s.parse().ok()).unwrap_or(1.0);
     let per_kind: usize = arg(3).and_then(|s| s.parse().ok()).unwrap_or(4);
     let seed: u64 = arg(4).and_then(|s| s.parse().ok()).unwrap_or(1);
+    let only = arg(5);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     let config = PlannerConfig {
         max_expansions: budget,
@@ -40,7 +42,12 @@ fn main() {
         let (mut exact, mut fallback, mut unsolved, mut seconds, mut max_seconds) =
             (0, 0, 0, 0.0, 0.0f32);
         let mut expansions = Vec::new();
-        for s in generate_many(kind, &mut rng, per_kind) {
+        // Every kind draws from the one generator, so a skipped kind still draws its scenes.
+        let scenes = generate_many(kind, &mut rng, per_kind);
+        if only.as_deref().is_some_and(|name| name != kind.name()) {
+            continue;
+        }
+        for s in scenes {
             let env = Env::new(&s, EnvConfig::default()).expect("generated scenes validate");
             let t = std::time::Instant::now();
             let p = plan_with_fallback(&env, &config);

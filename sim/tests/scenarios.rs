@@ -1,12 +1,16 @@
-//! Scenario files, generator determinism, and that each behaviour scene needs its behaviour.
+//! Scenario files, generator determinism, that each behaviour scene needs its behaviour, and
+//! that the planner proves generated spread scenes solvable.
 
 use nalgebra::Point2;
 use rand::SeedableRng;
+use wheelleg_runtime::action::Step;
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::collision::{ObstacleSet, RobotParts};
+use wheelleg_sim::env::{Env, EnvConfig};
 use wheelleg_sim::generate::{generate_many, Behaviour, SceneKind};
 use wheelleg_sim::obstacle::ObstacleKind;
+use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig, FALLBACK_WEIGHT};
 use wheelleg_sim::scenario::Scenario;
 use wheelleg_sim::scenario_file::{self, ScenarioFileError};
 
@@ -221,7 +225,7 @@ fn around_scenes_block_the_straight_line() {
 }
 
 #[test]
-fn lined_up_starts_stay_within_their_band_and_any_yaw_keeps_the_old_scenes() {
+fn lined_up_starts_stay_within_their_band_and_the_draws_are_pinned() {
     use wheelleg_sim::generate::{generate, generate_with_start, StartYaw};
     let kind = SceneKind::Behaviour(Behaviour::SpreadOver);
     let mut seen_backwards = false;
@@ -234,13 +238,83 @@ fn lined_up_starts_stay_within_their_band_and_any_yaw_keeps_the_old_scenes() {
         seen_backwards |= (yaw - 180.0).abs() <= 15.0;
     }
     assert!(seen_backwards, "facing away from the target is drawn too");
-    // `Any` is the generator as it was: same draws, same scenes.
-    let (mut a, mut b) = (rng(5), rng(5));
-    for i in 0..20 {
-        let name = format!("c{i}");
-        assert_eq!(
-            generate(SceneKind::Complex, &mut a, name.clone()),
-            generate_with_start(SceneKind::Complex, StartYaw::within_deg(90.0), &mut b, name)
-        );
+    // The draws are pinned: one scene per kind family from a fixed seed, as the file format
+    // writes it. A change to what the generator draws, or in what order, shows up here (and
+    // breaks every seeded figure in docs/results.md, so it must be deliberate).
+    let complex = generate(SceneKind::Complex, &mut rng(5), "c0".to_string());
+    let lift = generate(
+        SceneKind::Behaviour(Behaviour::LiftOver),
+        &mut rng(5),
+        "l0".to_string(),
+    );
+    for (scene, golden) in [(complex, GOLDEN_COMPLEX), (lift, GOLDEN_LIFT)] {
+        assert_eq!(compact(&scenario_file::to_json(&[scene])), golden);
+    }
+    // `within_deg(90)` is `Any`: the same draws give the same scene.
+    let wide = generate_with_start(
+        SceneKind::Complex,
+        StartYaw::within_deg(90.0),
+        &mut rng(5),
+        "c0".to_string(),
+    );
+    assert_eq!(compact(&scenario_file::to_json(&[wide])), GOLDEN_COMPLEX);
+}
+
+/// A scenario file without its layout whitespace (names here have no spaces).
+fn compact(json: &str) -> String {
+    json.split_whitespace().collect()
+}
+
+/// `generate(SceneKind::Complex, seed 5, "c0")` as a scenario file.
+const GOLDEN_COMPLEX: &str = r#"{"scenarios":[{"name":"c0","robot":{"x":-0.025,"y":-0.025,"yaw_deg":95.0},"target":{"x":0.825,"y":-0.025},"obstacles":[{"kind":"block","x":1.125,"y":-0.375,"yaw_deg":90.0},{"kind":"bar","x":1.375,"y":0.625,"yaw_deg":0.0},{"kind":"block","x":0.125,"y":0.375,"yaw_deg":90.0},{"kind":"block","x":0.125,"y":-0.375,"yaw_deg":0.0}]}]}"#;
+
+/// `generate(lift, seed 5, "l0")` as a scenario file.
+const GOLDEN_LIFT: &str = concat!(
+    r#"{"scenarios":[{"name":"l0","robot":{"x":-0.025,"y":-0.025,"yaw_deg":95.0},"targe"#,
+    r#"t":{"x":0.925,"y":-0.025},"obstacles":["#,
+    r#"{"kind":"bar","x":0.625,"y":-1.625,"yaw_deg":0.0},"#,
+    r#"{"kind":"bar","x":0.625,"y":-1.375,"yaw_deg":0.0},"#,
+    r#"{"kind":"bar","x":0.625,"y":-1.125,"yaw_deg":0.0},"#,
+    r#"{"kind":"bar","x":0.625,"y":-0.875,"yaw_deg":0.0},"#,
+    r#"{"kind":"bar","x":0.625,"y":-0.625,"yaw_deg":0.0},"#,
+    r#"{"kind":"bar","x":0.625,"y":-0.375,"yaw_deg":0.0},"#,
+    r#"{"kind":"bar","x":0.625,"y":-0.125,"yaw_deg":0.0},"#,
+    r#"{"kind":"bar","x":0.625,"y":0.125,"yaw_deg":0.0},"#,
+    r#"{"kind":"bar","x":0.625,"y":0.375,"yaw_deg":0.0},"#,
+    r#"{"kind":"bar","x":0.625,"y":0.625,"yaw_deg":0.0},"#,
+    r#"{"kind":"bar","x":0.625,"y":0.875,"yaw_deg":0.0},"#,
+    r#"{"kind":"bar","x":0.625,"y":1.125,"yaw_deg":0.0},"#,
+    r#"{"kind":"bar","x":0.625,"y":1.375,"yaw_deg":0.0}]}]}"#,
+);
+
+#[test]
+fn generated_spread_scenes_are_solvable() {
+    // The planner proves it: a plan it returns has been replayed to success in the simulator.
+    // Exact search does not finish on spread scenes (docs/planner.md), so this is the weighted
+    // search the fallback runs, which finds them in a few hundred expansions at most.
+    let config = PlannerConfig {
+        max_expansions: 3_000,
+        heuristic_weight: FALLBACK_WEIGHT,
+        ..PlannerConfig::default()
+    };
+    for scene in generate_many(SceneKind::Behaviour(Behaviour::SpreadOver), &mut rng(21), 6) {
+        let env = Env::new(&scene, EnvConfig::default()).unwrap();
+        let found = plan(&env, &config);
+        match found.outcome {
+            PlanOutcome::Solved { actions, shortest } => {
+                assert!(
+                    !shortest,
+                    "{}: a weighted plan is not proven shortest",
+                    scene.name
+                );
+                // The fence needs the legs spread: the plan must widen them.
+                let widened = actions.iter().filter(|a| a.track == Step::Plus).count();
+                assert!(widened >= 5, "{}: only {widened} track steps", scene.name);
+            }
+            other => panic!(
+                "{}: {other:?} after {} expansions",
+                scene.name, found.expansions
+            ),
+        }
     }
 }
