@@ -297,7 +297,11 @@ fn generated_spread_scenes_are_solvable() {
         heuristic_weight: FALLBACK_WEIGHT,
         ..PlannerConfig::default()
     };
-    for scene in generate_many(SceneKind::Behaviour(Behaviour::SpreadOver), &mut rng(21), 6) {
+    for scene in generate_many(
+        SceneKind::Behaviour(Behaviour::SpreadOver),
+        &mut rng(21),
+        20,
+    ) {
         let env = Env::new(&scene, EnvConfig::default()).unwrap();
         let found = plan(&env, &config);
         match found.outcome {
