@@ -4,6 +4,7 @@
 //! function; this file only dispatches. Every failure is reported as one line naming what is
 //! wrong, with a non-zero exit status.
 
+#[macro_use]
 mod cli;
 
 use clap::{Parser, Subcommand};

@@ -190,3 +190,38 @@ fn inspect_shows_the_architecture_and_refuses_damaged_files() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn a_reader_that_goes_away_ends_the_output_quietly() {
+    use std::io::Read;
+    use std::process::Stdio;
+    let dir = scratch("pipe");
+    let policy = random_policy_file(&dir);
+    // 500 scenario results, about 110 KB of JSON: more than a pipe holds, so the writer is
+    // still writing when the reader closes its end.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_wheelleg"))
+        .args([
+            "eval",
+            "--policy",
+            policy.to_str().unwrap(),
+            "--generated",
+            "500",
+            "--kind",
+            "straight",
+            "--planner-expansions",
+            "0",
+            "--json",
+        ])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut first = [0u8; 16];
+    child.stdout.take().unwrap().read_exact(&mut first).unwrap();
+    assert_eq!(first[0], b'{', "JSON output starts");
+    // The read end is dropped here, like `| head -c 16`.
+    let out = child.wait_with_output().unwrap();
+    let stderr = text(&out.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert_eq!(out.status.code(), Some(141), "{stderr}");
+}

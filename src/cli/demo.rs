@@ -229,23 +229,23 @@ pub fn run(args: Args) -> CliResult {
             })?,
         ),
     };
-    println!(
+    outln!(
         "scene:     {} ({origin}); target {:.2} m away",
         scenario.name,
         closed_loop.env().distance_to_target_m()
     );
     match &weights {
-        Some(_) => println!("driver:    {}", driver.describe()),
-        None => println!(
+        Some(_) => outln!("driver:    {}", driver.describe()),
+        None => outln!(
             "driver:    {} (no weights: {DEFAULT_WEIGHTS} does not exist; pass --weights)",
             driver.describe()
         ),
     }
     match &args.can {
         None => {
-            println!("bus:       in-process, 16 simulated ODrive axes, 1 Mbit/s, control 100 Hz")
+            outln!("bus:       in-process, 16 simulated ODrive axes, 1 Mbit/s, control 100 Hz")
         }
-        Some(iface) => println!("bus:       SocketCAN {iface}, motors on the bus, real time"),
+        Some(iface) => outln!("bus:       SocketCAN {iface}, motors on the bus, real time"),
     }
 
     std::fs::create_dir_all(&args.out)
@@ -295,7 +295,7 @@ pub fn run(args: Args) -> CliResult {
         .map_err(|e| format!("cannot write {}: {e}", png.display()))?;
 
     print_report(&report, wall_clock.elapsed().as_secs_f64());
-    println!(
+    outln!(
         "wrote:     {} and {} ({} frames)",
         png.display(),
         args.out.join("bus.log").display(),
@@ -314,7 +314,7 @@ fn inject_silence(closed_loop: &mut ClosedLoop, node: u8) {
     let step = closed_loop.env().steps() + 1;
     if let Some(axis) = Axis::ALL.into_iter().find(|a| a.node_id().get() == node) {
         if let Some(sim) = closed_loop.rig_mut().firmware_mut().axis_mut(axis) {
-            println!("inject:    node {node} ({axis:?}) goes silent before step {step}");
+            outln!("inject:    node {node} ({axis:?}) goes silent before step {step}");
             sim.set_silent(true);
         }
     }
@@ -329,14 +329,18 @@ fn print_report(report: &EpisodeReport, wall_s: f64) {
         (Status::StepLimit, None) => "failed: step limit".to_owned(),
         (Status::Running, None) => "incomplete".to_owned(),
     };
-    println!("result:    {result}");
+    outln!("result:    {result}");
     let t = &report.tracking;
-    println!(
+    outln!(
         "steps:     {} decisions ({} moved, {} undone by the world, {} refused by the legs), \
          {} collisions",
-        report.steps, t.moved, t.undone, t.refused, report.collisions
+        report.steps,
+        t.moved,
+        t.undone,
+        t.refused,
+        report.collisions
     );
-    println!(
+    outln!(
         "tracking:  worst step vs ideal {:.4} mm, {:.4}°, legs {:.4} mm (tolerance 2 mm, 0.2°, \
          0.5 mm); odometry drift {:.3} mm, {:.4}° over the episode",
         1e3 * t.max_error.position_m,
@@ -346,7 +350,7 @@ fn print_report(report: &EpisodeReport, wall_s: f64) {
         report.odometry_drift_rad.to_degrees()
     );
     if let Some(load) = report.bus_load {
-        println!(
+        outln!(
             "bus load:  {:.1} % nominal, {:.1} % worst-case stuffing at {:.0} Mbit/s \
              ({:.0} frames/s; {} feedback frames used, {} malformed)",
             100.0 * load.nominal,
@@ -357,11 +361,12 @@ fn print_report(report: &EpisodeReport, wall_s: f64) {
             report.feedback.malformed
         );
     }
-    println!(
+    outln!(
         "time:      {:.1} s robot time in {:.1} s wall clock",
-        report.elapsed_s, wall_s
+        report.elapsed_s,
+        wall_s
     );
     if let Some(fault) = report.fault {
-        println!("fault:     {fault}");
+        outln!("fault:     {fault}");
     }
 }

@@ -1,5 +1,5 @@
 //! `wheelleg eval --policy CKPT|WEIGHTS (--scenarios FILE | --generated N --kind K) --seed S [--json]
-//! [--stochastic] [--planner-expansions N | --planner-results PLAN.json]`.
+//! [--stochastic | --argmax] [--planner-expansions N | --planner-results PLAN.json]`.
 
 use super::CliResult;
 use rand::SeedableRng;
@@ -9,7 +9,7 @@ use wheelleg_runtime::model::format::MAGIC;
 use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::generate::{generate_many, SceneKind};
 use wheelleg_trainer::batch_policy::FloatPolicy;
-use wheelleg_trainer::evaluate::{evaluate, EvalOptions};
+use wheelleg_trainer::evaluate::{evaluate, DecisionRule, EvalOptions};
 use wheelleg_trainer::network::BackendKind;
 use wheelleg_trainer::quantize::EvalPolicy;
 
@@ -36,8 +36,12 @@ pub struct Args {
     #[arg(long)]
     json: bool,
     /// Sample actions instead of taking the most probable.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "argmax")]
     stochastic: bool,
+    /// Take each head's most probable choice even when that action was just refused (by
+    /// default a refused action is not repeated in the same state; see docs/results.md).
+    #[arg(long)]
+    argmax: bool,
     /// Planner budget per scenario (expanded states) for the shortest-path ratio; 0 skips it.
     #[arg(long, default_value_t = 20_000)]
     planner_expansions: usize,
@@ -76,7 +80,13 @@ pub fn run(args: Args) -> CliResult {
         None => None,
     };
     let options = EvalOptions {
-        stochastic: args.stochastic,
+        decision: if args.stochastic {
+            DecisionRule::Sample
+        } else if args.argmax {
+            DecisionRule::Argmax
+        } else {
+            DecisionRule::Untried
+        },
         planner_expansions: args.planner_expansions,
         known_shortest,
         ..EvalOptions::default()
@@ -97,15 +107,20 @@ pub fn run(args: Args) -> CliResult {
         evaluate(&policy, &scenarios, &options, &mut rng)?
     };
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        outln!("{}", serde_json::to_string_pretty(&report)?);
         return Ok(());
     }
-    println!(
+    outln!(
         "{:<28} {:>8} {:>9} {:>6} {:>10} {:>8}",
-        "scenario", "success", "coll-free", "steps", "collisions", "planner"
+        "scenario",
+        "success",
+        "coll-free",
+        "steps",
+        "collisions",
+        "planner"
     );
     for r in &report.scenarios {
-        println!(
+        outln!(
             "{:<28} {:>8} {:>9} {:>6} {:>10} {:>8}",
             r.name,
             if r.success { "yes" } else { "no" },
@@ -117,15 +132,15 @@ pub fn run(args: Args) -> CliResult {
     }
     let opt =
         |v: Option<f32>, digits: usize| v.map_or("-".to_string(), |v| format!("{v:.digits$}"));
-    println!();
-    println!("scenarios            {}", report.scenarios.len());
-    println!("success rate         {:.1}%", 100.0 * report.success_rate);
-    println!(
+    outln!();
+    outln!("scenarios            {}", report.scenarios.len());
+    outln!("success rate         {:.1}%", 100.0 * report.success_rate);
+    outln!(
         "collision-free rate  {:.1}%",
         100.0 * report.collision_free_rate
     );
-    println!("mean steps (success) {}", opt(report.mean_steps, 1));
-    println!(
+    outln!("mean steps (success) {}", opt(report.mean_steps, 1));
+    outln!(
         "steps vs shortest    {} ({} successes without a planner result, excluded)",
         opt(report.steps_vs_shortest, 3),
         report.planner_budget_exceeded

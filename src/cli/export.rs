@@ -164,7 +164,7 @@ pub fn run(args: Args) -> CliResult {
     let card_file = card_path(&args.out);
     write_atomic(&card_file, serde_json::to_string_pretty(&card)?.as_bytes())
         .map_err(|e| format!("cannot write {}: {e}", card_file.display()))?;
-    println!(
+    outln!(
         "wrote {} ({} bytes, {} parameters, {} MACs per decision) and {}",
         args.out.display(),
         card.file_bytes,
@@ -172,14 +172,16 @@ pub fn run(args: Args) -> CliResult {
         card.macs_per_decision,
         card_file.display()
     );
-    println!(
+    outln!(
         "calibrated on {} observations ({}); agreement with float on {} held-out observations:",
-        card.calibration_observations, card.range, card.agreement.observations
+        card.calibration_observations,
+        card.range,
+        card.agreement.observations
     );
     match &card.qat {
         None => print_agreement(&card.agreement, None),
         Some(qat) => {
-            println!(
+            outln!(
                 "  after {} QAT steps (loss {:.5} -> {:.5}); plain PTQ of the checkpoint in brackets",
                 qat.report.steps, qat.report.loss_first, qat.report.loss_last
             );
@@ -196,13 +198,13 @@ fn print_agreement(agreement: &Agreement, ptq: Option<&Agreement>) {
             .unwrap_or_default()
     };
     for (dim, name) in Agreement::DIMENSION_NAMES.iter().enumerate() {
-        println!(
+        outln!(
             "  {name:<8} {:.2}%{}",
             100.0 * agreement.per_dimension[dim],
             before(ptq.map(|p| p.per_dimension[dim]))
         );
     }
-    println!(
+    outln!(
         "  whole action {:.2}%{}  (mean |logit error| {:.4})",
         100.0 * agreement.whole_action,
         before(ptq.map(|p| p.whole_action)),

@@ -28,7 +28,7 @@ pub fn run(args: Args) -> CliResult {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(args.seed);
     let scenarios = generate_many(kind, &mut rng, args.count);
     wheelleg_sim::scenario_file::save(&args.out, &scenarios)?;
-    println!(
+    outln!(
         "wrote {} {} scenes to {}",
         scenarios.len(),
         kind.name(),

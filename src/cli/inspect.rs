@@ -16,14 +16,14 @@ pub struct Args {
 pub fn run(args: Args) -> CliResult {
     let bytes = std::fs::read(&args.file).map_err(|e| format!("{}: {e}", args.file.display()))?;
     let model = Model::parse(&bytes).map_err(|e| format!("{}: {e}", args.file.display()))?;
-    println!(
+    outln!(
         "{}: {} bytes, format version {}, checksum and structure valid",
         args.file.display(),
         bytes.len(),
         model.version
     );
     let input = &model.input;
-    println!(
+    outln!(
         "input     height map {} x {}, {:.3} mm per step, zero point {}",
         input.rows,
         input.cols,
@@ -33,7 +33,7 @@ pub fn run(args: Args) -> CliResult {
     // A version 2 state feature is int16 with zero point 256 x the stored one (docs/model.md).
     let state_zero_scale = if model.state_bits() == 16 { 256 } else { 1 };
     for (i, s) in model.state.iter().enumerate() {
-        println!(
+        outln!(
             "state[{i}]  int{} {:.4} mm per step, zero point {}",
             model.state_bits(),
             s.scale_m * 1000.0,
@@ -42,7 +42,7 @@ pub fn run(args: Args) -> CliResult {
     }
     for (i, conv) in model.convs.iter().enumerate() {
         let r = &conv.record;
-        println!(
+        outln!(
             "conv{i}     {}x{}x{} -> {}x{}x{}  kernel {} stride {} padding {}{}  out scale {:.5} zp {}",
             conv.in_rows,
             conv.in_cols,
@@ -58,7 +58,7 @@ pub fn run(args: Args) -> CliResult {
             r.output.zero_point
         );
     }
-    println!(
+    outln!(
         "flatten   {} x {} x {} features (CHW) + {} state",
         model.feature_channels,
         model.feature_rows,
@@ -66,7 +66,7 @@ pub fn run(args: Args) -> CliResult {
         model.state.len()
     );
     let dense = |name: String, linear: &wheelleg_runtime::model::load::Linear<'_>| {
-        println!(
+        outln!(
             "{name:<9} {} -> {}{}",
             linear.row_len,
             linear.rows,
@@ -77,7 +77,7 @@ pub fn run(args: Args) -> CliResult {
         dense(format!("dense{i}"), &d.linear);
     }
     dense("actions".into(), &model.action_head.linear);
-    println!(
+    outln!(
         "          logits int{}, {} per step{}",
         model.logit_bits(),
         model.action_head.record.output.scale,
@@ -92,17 +92,18 @@ pub fn run(args: Args) -> CliResult {
     );
     match &model.value_head {
         Some(v) => dense("value".into(), &v.linear),
-        None => println!("value     (not stored)"),
+        None => outln!("value     (not stored)"),
     }
-    println!(
+    outln!(
         "totals    {} parameters, {} multiply-accumulates per decision, {} bytes of tensors",
         model.parameter_count(),
         model.macs(),
         model.tensor_bytes()
     );
-    println!(
+    outln!(
         "buffers   activations {} x int8, widened row {} x i16",
-        model.requirements.activation_elements, model.requirements.row_elements
+        model.requirements.activation_elements,
+        model.requirements.row_elements
     );
     Ok(())
 }

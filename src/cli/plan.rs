@@ -32,9 +32,13 @@ pub fn run(args: Args) -> CliResult {
     };
     let mut results = Vec::with_capacity(scenarios.len());
     if !args.json {
-        println!(
+        outln!(
             "{:<24} {:>9} {:>6} {:>9} {:>10}",
-            "scenario", "solvable", "steps", "shortest", "expanded"
+            "scenario",
+            "solvable",
+            "steps",
+            "shortest",
+            "expanded"
         );
     }
     for scenario in &scenarios {
@@ -62,7 +66,7 @@ pub fn run(args: Args) -> CliResult {
                 Some(false) => "no".to_string(),
                 None => "budget".to_string(),
             };
-            println!(
+            outln!(
                 "{:<24} {:>9} {:>6} {:>9} {:>10}",
                 scenario.name,
                 solvable,
@@ -73,7 +77,7 @@ pub fn run(args: Args) -> CliResult {
         }
     }
     if args.json {
-        println!(
+        outln!(
             "{}",
             serde_json::to_string_pretty(&json!({ "results": results }))?
         );

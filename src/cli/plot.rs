@@ -36,6 +36,6 @@ pub fn run(args: Args) -> CliResult {
         (1400, 1000),
         args.smooth,
     )?;
-    println!("wrote {}", args.out.display());
+    outln!("wrote {}", args.out.display());
     Ok(())
 }

@@ -53,7 +53,7 @@ pub fn run(args: Args) -> CliResult {
         env.observe(&mut observation);
         let map = args.out.join(format!("{file_stem}-heightmap.png"));
         height_map_image(&observation.height_map).save_png(&map)?;
-        println!("{}: {} and {}", scenario.name, top.display(), map.display());
+        outln!("{}: {} and {}", scenario.name, top.display(), map.display());
     }
     Ok(())
 }

@@ -64,7 +64,7 @@ pub fn run(args: Args) -> CliResult {
         Stage::Primary => run_primary(&config, &curriculum)?,
         Stage::All => run_all(&config, &curriculum)?,
     };
-    println!(
+    outln!(
         "primary policy: {} iterations, {} env steps; checkpoint {}",
         summary.iterations,
         summary.env_steps,
@@ -83,14 +83,14 @@ fn baseline(config: &TrainConfig, args: &Args) -> CliResult {
         kind: "baseline".into(),
     };
     let summary = train(config, &opts)?;
-    println!(
+    outln!(
         "trained {} iterations, {} env steps; checkpoint {}",
         summary.iterations,
         summary.env_steps,
         summary.checkpoint.display()
     );
     if let Some(m) = summary.last {
-        println!(
+        outln!(
             "last iteration: success {:.1}%, collision-free {:.1}%, return {:.2}",
             100.0 * m.success_rate,
             100.0 * m.collision_free_rate,

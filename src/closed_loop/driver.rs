@@ -7,10 +7,12 @@
 use std::collections::VecDeque;
 use std::fmt;
 use wheelleg_runtime::action::Action;
+use wheelleg_runtime::decision::Decider;
 use wheelleg_runtime::model::DefaultPolicy;
 use wheelleg_runtime::observation::{HEIGHT_MAP_SIDE, STATE_LEN};
 use wheelleg_sim::env::{Env, Observation};
 use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig};
+use wheelleg_sim::state::RobotState;
 
 /// A decision maker of the closed loop.
 pub trait Driver {
@@ -96,6 +98,10 @@ pub struct PolicyDriver<'a> {
     policy: DefaultPolicy<'a>,
     label: String,
     observation: Observation,
+    /// Never repeats an action refused in the current state (see `wheelleg_runtime::decision`).
+    decider: Decider,
+    /// The state and action of the previous decision: an unchanged state means it was refused.
+    last: Option<(RobotState, Action)>,
 }
 
 impl<'a> PolicyDriver<'a> {
@@ -107,6 +113,8 @@ impl<'a> PolicyDriver<'a> {
             policy,
             label: label.to_owned(),
             observation: Observation::default(),
+            decider: Decider::new(),
+            last: None,
         })
     }
 }
@@ -123,9 +131,17 @@ impl Driver for PolicyDriver<'_> {
     fn decide(&mut self, env: &Env) -> Result<Action, DriverError> {
         env.observe(&mut self.observation);
         let (height_mm, state_mm) = observation_mm(&self.observation);
-        self.policy
-            .act(&height_mm, &state_mm)
-            .map_err(|e| DriverError(format!("{}: inference failed: {e}", self.label)))
+        if let Some((before, action)) = self.last {
+            self.decider
+                .record(action, *env.state() != before && action != Action::IDLE);
+        }
+        let outputs = self
+            .policy
+            .evaluate(height_mm.as_flattened(), &state_mm)
+            .map_err(|e| DriverError(format!("{}: inference failed: {e}", self.label)))?;
+        let action = self.decider.choose(&outputs.action_logits);
+        self.last = Some((*env.state(), action));
+        Ok(action)
     }
 }
 

@@ -38,6 +38,7 @@ fn random_batch(n: usize, rng: &mut ChaCha8Rng) -> Batch {
         old_log_probs: vec![-5.5; n],
         advantages: (0..n).map(|_| rng.random_range(-1.0..1.0)).collect(),
         returns: (0..n).map(|_| rng.random_range(-1.0..1.0)).collect(),
+        imitation: vec![0.0; n],
     }
 }
 

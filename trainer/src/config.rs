@@ -4,6 +4,7 @@
 //! baseline, the reward of the simulator) and common PPO practice elsewhere. Unknown keys are
 //! refused so a typo never silently falls back to a default.
 
+use crate::replay::ReplayBalance;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -156,6 +157,12 @@ pub struct CurriculumConfig {
     pub randomizations: usize,
     /// Replayed steps added to each primary iteration's on-policy batch (the paper: 2,000).
     pub replay_steps_per_iteration: usize,
+    /// Weight of a behaviour-cloning term on the replayed samples (0: the paper's
+    /// Algorithm 2). See `crate::replay` for why the surrogate alone lets rare behaviours fade.
+    pub replay_imitation_coef: f32,
+    /// How replayed trajectories are drawn: `trajectory` (uniformly, the paper) or
+    /// `behaviour` (each behaviour an equal share).
+    pub replay_balance: ReplayBalance,
     /// Where the primary policy starts: `scratch` or a behaviour's secondary policy.
     pub primary_init: String,
     /// Softmax temperature applied to the straight-line policy's action head when another
@@ -196,6 +203,8 @@ impl Default for CurriculumConfig {
             keep_trajectories: 1_000,
             randomizations: 1_000,
             replay_steps_per_iteration: 2_000,
+            replay_imitation_coef: 0.0,
+            replay_balance: ReplayBalance::Trajectory,
             primary_init: "scratch".into(),
             secondary_init_temperature: 1.0,
             secondary_entropy_coef: 0.003,
@@ -354,6 +363,10 @@ impl TrainConfig {
         check(
             c.secondary_init_temperature.is_finite() && c.secondary_init_temperature > 0.0,
             "curriculum.secondary_init_temperature must be a positive number",
+        )?;
+        check(
+            c.replay_imitation_coef.is_finite() && c.replay_imitation_coef >= 0.0,
+            "curriculum.replay_imitation_coef must be a non-negative number",
         )?;
         check(
             c.secondary_entropy_coef.is_finite() && c.secondary_entropy_coef >= 0.0,

@@ -17,6 +17,7 @@
 use crate::checkpoint::Checkpoint;
 use crate::config::TrainConfig;
 use crate::network_f32::NetworkF32;
+use crate::replay::ReplayOptions;
 use crate::runner::{train_stage, RunOptions, RunSummary, StageInputs, TRAJECTORIES_FILE};
 use crate::trajectory::batch_file::TrajectoryBatch;
 use crate::trajectory::randomize::{randomize_batch_with, RandomizeConfig, Stats};
@@ -314,7 +315,11 @@ pub fn run_primary(config: &TrainConfig, opts: &CurriculumOptions) -> Result<Run
         StageInputs {
             init: init.as_ref(),
             replay: Some(&batch),
-            replay_steps: config.curriculum.replay_steps_per_iteration,
+            replay_options: ReplayOptions {
+                steps: config.curriculum.replay_steps_per_iteration,
+                imitation_coef: config.curriculum.replay_imitation_coef,
+                balance: config.curriculum.replay_balance,
+            },
             ..StageInputs::default()
         },
     )?;
@@ -322,7 +327,7 @@ pub fn run_primary(config: &TrainConfig, opts: &CurriculumOptions) -> Result<Run
     Ok(summary)
 }
 
-/// The primary stage's batches depend on two curriculum keys that the stage's own config
+/// The primary stage's batches depend on four curriculum keys that the stage's own config
 /// check leaves out (see [`TrainConfig::same_as_stored`]): a resume must keep them.
 fn refuse_changed_replay(config: &TrainConfig, dir: &Path) -> Result<(), String> {
     let path = dir.join(crate::runner::CHECKPOINT_FILE);
@@ -335,13 +340,18 @@ fn refuse_changed_replay(config: &TrainConfig, dir: &Path) -> Result<(), String>
     let (a, b) = (&stored.curriculum, &config.curriculum);
     if a.replay_steps_per_iteration != b.replay_steps_per_iteration
         || a.primary_init != b.primary_init
+        || a.replay_imitation_coef != b.replay_imitation_coef
+        || a.replay_balance != b.replay_balance
     {
         return Err(format!(
-            "{} was written with curriculum.replay_steps_per_iteration = {} and \
-             curriculum.primary_init = {:?}; resume with the same values",
+            "{} was written with curriculum.replay_steps_per_iteration = {}, \
+             curriculum.primary_init = {:?}, curriculum.replay_imitation_coef = {} and \
+             curriculum.replay_balance = {:?}; resume with the same values",
             path.display(),
             a.replay_steps_per_iteration,
-            a.primary_init
+            a.primary_init,
+            a.replay_imitation_coef,
+            a.replay_balance,
         ));
     }
     Ok(())

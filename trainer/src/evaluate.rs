@@ -2,15 +2,18 @@
 //! collision-free success rate, mean path length and its ratio to the planner's shortest path.
 //!
 //! All scenarios run in lock-step so the policy is evaluated once per step on the whole batch.
-//! Greedy (most probable choice per head) by default; stochastic draws come from the caller's
-//! seeded RNG.
+//! Deterministic by default: the most probable joint action not yet refused in the current state
+//! (`wheelleg_runtime::decision::Decider`, the rule the robot runs). Plain per-head argmax, which
+//! repeats a refused action until the step limit, is kept for comparison; stochastic draws come
+//! from the caller's seeded RNG.
 
 use crate::batch_policy::BatchPolicy;
 use crate::network_f32::NetworkF32;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
-use wheelleg_runtime::action::Action;
+use wheelleg_runtime::action::{Action, CHOICES, DIMS};
+use wheelleg_runtime::decision::Decider;
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
 use wheelleg_sim::env::{Env, EnvConfig, Observation, Status};
 use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig};
@@ -52,11 +55,24 @@ pub struct EvalReport {
     pub scenarios: Vec<ScenarioResult>,
 }
 
+/// How the policy's five heads become one action.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum DecisionRule {
+    /// The most probable joint action not yet refused in the current state (deterministic;
+    /// what the robot runs).
+    #[default]
+    Untried,
+    /// Each head's most probable choice, even if that action was just refused.
+    Argmax,
+    /// A draw from each head's distribution (the training rule).
+    Sample,
+}
+
 /// Options of an evaluation.
 #[derive(Clone, Debug)]
 pub struct EvalOptions {
-    /// Sample actions instead of taking the most probable.
-    pub stochastic: bool,
+    /// How actions are chosen.
+    pub decision: DecisionRule,
     /// Planner budget (expanded states) per scenario; 0 skips the planner.
     pub planner_expansions: usize,
     /// Episode rules.
@@ -98,7 +114,7 @@ pub fn read_plan_results(json: &str) -> Result<HashMap<String, Option<usize>>, S
 impl Default for EvalOptions {
     fn default() -> Self {
         EvalOptions {
-            stochastic: false,
+            decision: DecisionRule::Untried,
             planner_expansions: 20_000,
             env_config: EnvConfig::default(),
             known_shortest: None,
@@ -120,6 +136,7 @@ pub fn run_episodes(
         .map(|s| Env::new(s, options.env_config).map_err(|e| format!("scenario {}: {e:?}", s.name)))
         .collect::<Result<Vec<_>, _>>()?;
     let mut obs = Observation::default();
+    let mut deciders = vec![Decider::new(); envs.len()];
     loop {
         let running: Vec<usize> = (0..envs.len())
             .filter(|&i| !envs[i].status().is_done())
@@ -137,19 +154,29 @@ pub fn run_episodes(
         }
         let out = policy.log_probs(&heights, &states, running.len())?;
         for (k, &i) in running.iter().enumerate() {
-            let choices = if options.stochastic {
-                out.sample(k, rng)
-            } else {
-                out.greedy(k)
+            let action = match options.decision {
+                DecisionRule::Sample => from_choices(out.sample(k, rng)),
+                DecisionRule::Argmax => from_choices(out.greedy(k)),
+                DecisionRule::Untried => {
+                    let mut logits = [0.0f32; DIMS * CHOICES];
+                    logits.copy_from_slice(
+                        &out.log_probs[k * DIMS * CHOICES..(k + 1) * DIMS * CHOICES],
+                    );
+                    deciders[i].choose(&logits)
+                }
             };
-            let action = Action::from_head_indices(std::array::from_fn(|h| choices[h] as usize))
-                .unwrap_or_default();
-            envs[i]
+            let outcome = envs[i]
                 .step(action)
                 .map_err(|_| "stepped a finished episode".to_string())?;
+            // Idle changes nothing either: repeating it would loop just the same.
+            deciders[i].record(action, outcome.invalid.is_none() && action != Action::IDLE);
         }
     }
     Ok(envs)
+}
+
+fn from_choices(choices: [u8; DIMS]) -> Action {
+    Action::from_head_indices(choices.map(usize::from)).unwrap_or_default()
 }
 
 /// One observation as plain vectors: height map (metres, row-major) and state.

@@ -119,7 +119,7 @@ pub fn rollout_observations(
     let mut actions_rng = ChaCha8Rng::seed_from_u64(seed);
     actions_rng.set_stream(1);
     let options = EvalOptions {
-        stochastic: true,
+        decision: crate::evaluate::DecisionRule::Sample,
         planner_expansions: 0,
         ..EvalOptions::default()
     };

@@ -299,6 +299,7 @@ impl Ppo {
         let mut old_lp = Vec::with_capacity(b);
         let mut adv = Vec::with_capacity(b);
         let mut ret = Vec::with_capacity(b);
+        let mut imitation = Vec::with_capacity(b);
         for (k, &i) in idx.iter().enumerate() {
             heights.extend_from_slice(
                 &batch.heights_m[i * HEIGHT_MAP_CELLS..(i + 1) * HEIGHT_MAP_CELLS],
@@ -310,7 +311,9 @@ impl Ppo {
             old_lp.push(batch.old_log_probs[i]);
             adv.push(batch.advantages[i]);
             ret.push(batch.returns[i]);
+            imitation.push(batch.imitation.get(i).copied().unwrap_or(0.0));
         }
+        let imitates = imitation.iter().any(|&w| w != 0.0);
         if c.normalize_advantages {
             let mean = adv.iter().sum::<f32>() / b as f32;
             let var = adv.iter().map(|a| (a - mean) * (a - mean)).sum::<f32>() / (b as f32 - 1.0);
@@ -329,7 +332,7 @@ impl Ppo {
             .sum_dim(2)
             .sum_dim(1)
             .reshape([b]);
-        let log_ratio = new_lp - old_lp;
+        let log_ratio = new_lp.clone() - old_lp;
         let ratio = log_ratio.clone().exp();
         // Eq. 1: min(Z(psi) A, psi A); negated because Adam minimises.
         let unclipped = ratio.clone() * adv.clone();
@@ -346,9 +349,14 @@ impl Ppo {
             .sum_dim(1)
             .mean()
             .neg();
-        let loss = policy_loss.clone().mul_scalar(c.policy_coef)
+        let mut loss = policy_loss.clone().mul_scalar(c.policy_coef)
             + value_loss.clone().mul_scalar(c.value_coef)
             - entropy.clone().mul_scalar(c.entropy_coef);
+        if imitates {
+            // Behaviour cloning of replayed successes (`crate::replay`): unlike the clipped
+            // surrogate, it does not fade once the critic has learnt their returns.
+            loss = loss - (new_lp * data1(imitation)).mean();
+        }
         let grads = loss.backward();
         let mut g = net.gradients(&grads);
 
@@ -434,8 +442,10 @@ mod tests {
         assert!((twos as f32 / draws as f32 - 0.7).abs() < 0.03);
     }
 
-    #[test]
-    fn an_update_raises_the_probability_of_advantaged_actions() {
+    /// Runs one update on 32 random observations that all took the action "every head
+    /// chooses 2", with the given advantages and imitation weights; returns how many of them
+    /// made that action more probable, and the update's gradient steps.
+    fn samples_gaining(advantage: impl Fn(usize) -> f32, imitation: f32) -> (usize, usize) {
         let arch = Architecture::default_policy();
         let net = init_policy(&arch, &mut ChaCha8Rng::seed_from_u64(2));
         let config = PpoConfig {
@@ -456,26 +466,42 @@ mod tests {
             .map(|_| rng.random_range(-1.0..1.0))
             .collect();
         let before = ppo.evaluate(&heights, &states, n).unwrap();
-        // Action "all heads choose 2" is good for every sample.
         let actions = vec![2u8; n * DIMS];
         let old: Vec<f32> = (0..n)
             .map(|i| before.action_log_prob(i, &actions[i * DIMS..]))
             .collect();
-        let adv: Vec<f32> = (0..n).map(|i| if i % 2 == 0 { 1.0 } else { 0.5 }).collect();
         let batch = Batch {
             heights_m: heights.clone(),
             states: states.clone(),
             actions: actions.clone(),
             old_log_probs: old.clone(),
-            advantages: adv,
+            advantages: (0..n).map(advantage).collect(),
             returns: vec![1.0; n],
+            imitation: vec![imitation; n],
         };
         let stats = ppo.update(&batch, &mut rng).unwrap();
-        assert_eq!(stats.gradient_steps, 16);
         let after = ppo.evaluate(&heights, &states, n).unwrap();
         let gained = (0..n)
             .filter(|&i| after.action_log_prob(i, &actions[i * DIMS..]) > old[i])
             .count();
-        assert!(gained > n * 3 / 4, "only {gained} of {n} gained");
+        (gained, stats.gradient_steps)
+    }
+
+    #[test]
+    fn an_update_raises_the_probability_of_advantaged_actions() {
+        let (gained, gradient_steps) = samples_gaining(|i| if i % 2 == 0 { 1.0 } else { 0.5 }, 0.0);
+        assert_eq!(gradient_steps, 16);
+        assert!(gained > 32 * 3 / 4, "only {gained} of 32 gained");
+    }
+
+    #[test]
+    fn the_imitation_term_raises_imitated_actions_without_any_advantage() {
+        let (without, _) = samples_gaining(|_| 0.0, 0.0);
+        let (with, _) = samples_gaining(|_| 0.0, 1.0);
+        assert!(with > 32 * 3 / 4, "only {with} of 32 gained");
+        assert!(
+            with > without,
+            "imitation: {with} gained, without: {without}"
+        );
     }
 }

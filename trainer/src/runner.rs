@@ -11,7 +11,7 @@ use crate::curriculum::StartStageSchedule;
 use crate::network::{init_policy, BackendKind};
 use crate::network_f32::NetworkF32;
 use crate::ppo::{Ppo, UpdateStats};
-use crate::replay::replay_samples;
+use crate::replay::{replay_samples, ReplayOptions};
 use crate::storage::RolloutStorage;
 use crate::trajectory::batch_file::{partial_path, TrajectoryBatch};
 use crate::trajectory::randomize::{randomize_batch_with, RandomizeConfig};
@@ -119,8 +119,8 @@ pub struct StageInputs<'a> {
     pub init: Option<&'a NetworkF32>,
     /// Algorithm 2: every update also learns from `replay_steps` samples of this batch.
     pub replay: Option<&'a TrajectoryBatch>,
-    /// Replayed samples per iteration.
-    pub replay_steps: usize,
+    /// How many replayed samples per iteration, drawn and weighed how.
+    pub replay_options: ReplayOptions,
     /// Algorithm 1: keep the latest `keep_trajectories` successful, collision-free episodes,
     /// labelled with this behaviour, in the run folder's [`TRAJECTORIES_FILE`].
     pub record: Option<Behaviour>,
@@ -308,7 +308,7 @@ pub fn train_stage(
                 mixed.extend(&replay_samples(
                     &ppo,
                     batch,
-                    inputs.replay_steps,
+                    &inputs.replay_options,
                     &mut sampler,
                 )?);
                 ppo.update(&mixed, &mut sampler)?

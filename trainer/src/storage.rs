@@ -21,6 +21,9 @@ pub struct Batch {
     pub advantages: Vec<f32>,
     /// `len` return targets of the value function.
     pub returns: Vec<f32>,
+    /// `len` weights of the imitation term (`-weight * log pi(a|s)`): zero for on-policy
+    /// samples, `curriculum.replay_imitation_coef` for replayed ones (see `crate::replay`).
+    pub imitation: Vec<f32>,
 }
 
 impl Batch {
@@ -42,6 +45,7 @@ impl Batch {
         self.old_log_probs.extend_from_slice(&other.old_log_probs);
         self.advantages.extend_from_slice(&other.advantages);
         self.returns.extend_from_slice(&other.returns);
+        self.imitation.extend_from_slice(&other.imitation);
     }
 }
 
@@ -79,6 +83,7 @@ impl RolloutStorage {
                 old_log_probs: Vec::with_capacity(n),
                 advantages: Vec::with_capacity(n),
                 returns: Vec::with_capacity(n),
+                imitation: Vec::with_capacity(n),
             },
             rewards: Vec::with_capacity(n),
             dones: Vec::with_capacity(n),
@@ -96,6 +101,7 @@ impl RolloutStorage {
             &mut s.old_log_probs,
             &mut s.advantages,
             &mut s.returns,
+            &mut s.imitation,
         ] {
             v.clear();
         }
@@ -128,6 +134,8 @@ impl RolloutStorage {
         s.states.extend_from_slice(states);
         s.actions.extend_from_slice(actions);
         s.old_log_probs.extend_from_slice(log_probs);
+        s.imitation
+            .extend(std::iter::repeat_n(0.0, log_probs.len()));
         self.values.extend_from_slice(values);
         self.rewards.extend_from_slice(rewards);
         self.dones.extend_from_slice(dones);
