@@ -1,6 +1,6 @@
 //! `wheelleg relevance --policy CKPT --scenario FILE [--index I] --out relevance.png [--json]`:
-//! the paper's relevance figure. Rolls the greedy float policy in one scene, then once with each
-//! obstacle removed, measures how far the trajectory moves (symmetric mean closest-point
+//! the paper's relevance figure. Rolls the float policy (by the robot's decision rule) in one
+//! scene, then once with each obstacle removed, measures how far the trajectory moves (symmetric mean closest-point
 //! distance between the paths, trainer::trajectory::relevance), prints the figures and draws
 //! the obstacles white to red by relevance beside the trajectories.
 
@@ -10,7 +10,7 @@ use std::io::Write as _;
 use std::path::PathBuf;
 use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::env::EnvConfig;
-use wheelleg_trainer::trajectory::relevance::{greedy_action, relevance, render};
+use wheelleg_trainer::trajectory::relevance::{relevance, render, DecidingPolicy};
 
 /// Arguments of `relevance`.
 #[derive(clap::Args)]
@@ -47,7 +47,8 @@ pub fn run(args: Args) -> CliResult {
     wheelleg_trainer::network::check_policy_shape(&network)
         .map_err(|e| format!("{}: {e}", args.policy.display()))?;
     let config = EnvConfig::default();
-    let report = relevance(scenario, config, &mut |obs| greedy_action(&network, obs))?;
+    let mut policy = DecidingPolicy::new(&network);
+    let report = relevance(scenario, config, &mut |obs| policy.act(obs))?;
     render(scenario, &report, &WHEELLEG, &config)
         .save_png(&args.out)
         .map_err(|e| format!("cannot write {}: {e}", args.out.display()))?;

@@ -274,3 +274,76 @@ pub fn evaluate(
 pub fn load_policy(path: &std::path::Path) -> Result<NetworkF32, String> {
     crate::checkpoint::load_policy(path)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ppo::PolicyOutput;
+    use nalgebra::Point2;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use wheelleg_sim::obstacle::{Obstacle, ObstacleKind, ObstacleYaw};
+    use wheelleg_sim::state::RobotState;
+
+    /// Wants to drive forward above all, then sideways to the left; keeps everything else.
+    struct Fixated;
+
+    impl BatchPolicy for Fixated {
+        fn log_probs(&self, _: &[f32], _: &[f32], n: usize) -> Result<PolicyOutput, String> {
+            let mut one = Vec::new();
+            one.extend([-9.0, -6.0, -0.01f32]); // move x: forward
+            one.extend([-9.0, -0.1, -3.0]); // move y: keep, else left
+            for _ in 2..DIMS {
+                one.extend([-9.0, -0.01, -9.0]); // keep
+            }
+            Ok(PolicyOutput {
+                log_probs: one.repeat(n),
+                values: vec![],
+            })
+        }
+
+        fn kind(&self) -> &'static str {
+            "fixed"
+        }
+    }
+
+    #[test]
+    fn the_default_rule_does_not_repeat_a_refused_action_and_argmax_does() {
+        // A block straight ahead: "forward" is refused once the robot reaches it.
+        let scenario = Scenario {
+            name: "block-ahead".into(),
+            start: RobotState::new(Point2::new(0.0, 0.125), 0),
+            target: Point2::new(0.9, 0.125),
+            obstacles: vec![Obstacle::new(
+                ObstacleKind::Block,
+                0.625,
+                0.125,
+                ObstacleYaw::Deg0,
+            )],
+        };
+        let run = |decision| {
+            let options = EvalOptions {
+                decision,
+                planner_expansions: 0,
+                ..EvalOptions::default()
+            };
+            let mut rng = ChaCha8Rng::seed_from_u64(0);
+            evaluate(&Fixated, std::slice::from_ref(&scenario), &options, &mut rng)
+                .unwrap()
+                .scenarios
+                .remove(0)
+        };
+        let argmax = run(DecisionRule::Argmax);
+        assert_eq!(argmax.status, "StepLimit");
+        assert!(argmax.collisions > 80, "argmax pushes on: {argmax:?}");
+        let untried = run(DecisionRule::Untried);
+        // After each refusal it takes the next most probable action (forward and left, then
+        // left), which slides it along the block's face until forward is free again; argmax
+        // pushes into the block every step.
+        assert!(untried.collisions > 0, "it did meet the block: {untried:?}");
+        assert!(
+            untried.collisions * 4 < argmax.collisions,
+            "untried {untried:?}, argmax {argmax:?}"
+        );
+    }
+}

@@ -11,6 +11,7 @@
 use crate::network_f32::NetworkF32;
 use nalgebra::{Point2, Vector2};
 use wheelleg_runtime::action::{Action, CHOICES, DIMS};
+use wheelleg_runtime::decision::Decider;
 use wheelleg_runtime::robot::RobotGeometry;
 use wheelleg_sim::env::{Env, EnvConfig, Observation, Status};
 use wheelleg_sim::obstacle::GRID_CELL_M;
@@ -56,21 +57,42 @@ pub struct RelevanceReport {
     pub obstacles: Vec<ObstacleRelevance>,
 }
 
-/// The greedy action of a float policy: the most probable choice of each head (the first on
-/// ties, as the trainer's greedy evaluation).
-pub fn greedy_action(network: &NetworkF32, observation: &Observation) -> Action {
-    let (logits, _) = network.forward(&observation.height_map, &observation.state);
-    let choices: [usize; DIMS] = std::array::from_fn(|h| {
-        let row = logits.get(h * CHOICES..(h + 1) * CHOICES).unwrap_or(&[]);
-        let mut best = 0;
-        for c in 1..row.len() {
-            if row[c] > row[best] {
-                best = c;
-            }
+/// A float policy acting by the robot's rule (`wheelleg_runtime::decision::Decider`): the most
+/// probable joint action not yet refused in the current state. An observation equal to the
+/// previous one means the previous action was refused (the state did not change).
+pub struct DecidingPolicy<'a> {
+    network: &'a NetworkF32,
+    decider: Decider,
+    last: Option<(Observation, Action)>,
+}
+
+impl<'a> DecidingPolicy<'a> {
+    /// `network` with nothing refused yet.
+    pub fn new(network: &'a NetworkF32) -> DecidingPolicy<'a> {
+        DecidingPolicy {
+            network,
+            decider: Decider::new(),
+            last: None,
         }
-        best
-    });
-    Action::from_head_indices(choices).unwrap_or_default()
+    }
+
+    /// The action for `observation`.
+    pub fn act(&mut self, observation: &Observation) -> Action {
+        if let Some((previous, action)) = &self.last {
+            let changed = previous != observation && *action != Action::IDLE;
+            self.decider.record(*action, changed);
+        }
+        let (logits, _) = self
+            .network
+            .forward(&observation.height_map, &observation.state);
+        let mut head_logits = [0.0f32; DIMS * CHOICES];
+        for (out, &l) in head_logits.iter_mut().zip(&logits) {
+            *out = l;
+        }
+        let action = self.decider.choose(&head_logits);
+        self.last = Some((observation.clone(), action));
+        action
+    }
 }
 
 /// Runs `policy` in `scenario` until the episode ends.
