@@ -328,10 +328,15 @@ mod tests {
                 ..EvalOptions::default()
             };
             let mut rng = ChaCha8Rng::seed_from_u64(0);
-            evaluate(&Fixated, std::slice::from_ref(&scenario), &options, &mut rng)
-                .unwrap()
-                .scenarios
-                .remove(0)
+            evaluate(
+                &Fixated,
+                std::slice::from_ref(&scenario),
+                &options,
+                &mut rng,
+            )
+            .unwrap()
+            .scenarios
+            .remove(0)
         };
         let argmax = run(DecisionRule::Argmax);
         assert_eq!(argmax.status, "StepLimit");
