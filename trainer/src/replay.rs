@@ -157,3 +157,28 @@ fn draw_balanced(groups: &[Vec<(usize, usize)>], rng: &mut impl Rng) -> usize {
     // Unreachable: k < total.
     ranges[0].0
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+
+    #[test]
+    fn balanced_draws_give_each_behaviour_an_equal_share() {
+        // Behaviour A: 900 scenes in two sources; behaviour B: 100 scenes.
+        let groups = vec![vec![(0, 500), (600, 400)], vec![(500, 100)]];
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        let draws = 20_000;
+        let mut from_b = 0;
+        for _ in 0..draws {
+            let index = draw_balanced(&groups, &mut rng);
+            assert!(index < 1000, "drew scene {index} past the batch");
+            if (500..600).contains(&index) {
+                from_b += 1;
+            }
+        }
+        let share = from_b as f32 / draws as f32;
+        assert!((share - 0.5).abs() < 0.02, "behaviour B drew {share}");
+    }
+}
