@@ -134,6 +134,14 @@ pub fn run(args: Args) -> CliResult {
         |v: Option<f32>, digits: usize| v.map_or("-".to_string(), |v| format!("{v:.digits$}"));
     outln!();
     outln!("scenarios            {}", report.scenarios.len());
+    outln!(
+        "decision rule        {}",
+        match report.decision {
+            DecisionRule::Untried => "untried (most probable action not yet refused here)",
+            DecisionRule::Argmax => "argmax (each head's most probable choice)",
+            DecisionRule::Sample => "sampled",
+        }
+    );
     outln!("success rate         {:.1}%", 100.0 * report.success_rate);
     outln!(
         "collision-free rate  {:.1}%",

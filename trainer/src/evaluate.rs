@@ -41,6 +41,8 @@ pub struct ScenarioResult {
 /// The whole evaluation.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct EvalReport {
+    /// How actions were chosen.
+    pub decision: DecisionRule,
     /// Fraction of scenarios reached.
     pub success_rate: f32,
     /// Fraction reached without collision.
@@ -56,7 +58,8 @@ pub struct EvalReport {
 }
 
 /// How the policy's five heads become one action.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
 pub enum DecisionRule {
     /// The most probable joint action not yet refused in the current state (deterministic;
     /// what the robot runs).
@@ -255,6 +258,7 @@ pub fn evaluate(
                 .sum::<f32>()
     });
     Ok(EvalReport {
+        decision: options.decision,
         success_rate: successes.len() as f32 / n,
         collision_free_rate: results.iter().filter(|r| r.collision_free).count() as f32 / n,
         mean_steps,
