@@ -232,6 +232,36 @@ impl Part {
         }
     }
 
+    /// A lower bound on [`Part::distance_lower_bound_m`], cheaper still: the distance from a
+    /// ball around the part (around the shapes that bound measures) to the box.
+    fn ball_gap_m(&self, obstacle: &Aabb) -> f32 {
+        let (centre, radius) = match self {
+            Part::Link(capsule) => (
+                capsule.segment.a + 0.5 * (capsule.segment.b - capsule.segment.a),
+                0.5 * (capsule.segment.b - capsule.segment.a).norm() + capsule.radius,
+            ),
+            Part::Body { pose, shape } => (
+                Point3::from(pose.translation.vector),
+                shape.half_extents.norm(),
+            ),
+            // The upright box (half extents r, h, r) and the capsule around the axle (h + r).
+            Part::Wheel { pose, shape } => (
+                Point3::from(pose.translation.vector),
+                (2.0 * shape.radius * shape.radius + shape.half_height * shape.half_height)
+                    .sqrt()
+                    .max(shape.half_height + shape.radius),
+            ),
+        };
+        let mut sum = 0.0;
+        for i in 0..3 {
+            let out = (obstacle.mins[i] - centre[i])
+                .max(centre[i] - obstacle.maxs[i])
+                .max(0.0);
+            sum += out * out;
+        }
+        sum.sqrt() - radius
+    }
+
     /// The part as parry's queries take it: a pose and a shape.
     fn placed(&self) -> (Isometry3<f32>, &dyn Shape) {
         match self {
@@ -266,42 +296,14 @@ impl RobotParts {
         yaw_rad: f32,
         legs: LegConfig,
     ) -> Result<Self, IkError> {
-        let joints = geometry.leg_ik(legs)?;
-        let body_pose = crate::state::body_pose_at(
-            position,
-            yaw_rad,
-            geometry.body_centre_height_m(legs.clearance_m),
-        );
-        let body = Part::Body {
-            pose: body_pose,
-            shape: Cuboid::new(Vector3::new(
-                0.5 * geometry.body_length_m,
-                0.5 * geometry.body_width_m,
-                0.5 * geometry.body_thickness_m,
-            )),
+        let parts = place_parts(geometry, position, yaw_rad, legs)?;
+        let Part::Body {
+            pose: body_pose, ..
+        } = parts[0]
+        else {
+            unreachable!("the body comes first")
         };
         let wheel_shape = Cylinder::new(0.5 * geometry.wheel_width_m, geometry.wheel_radius_m);
-        let mut parts = [body; PART_COUNT];
-        // The four legs share one solution in the leg plane: its forward kinematics once, then
-        // each leg's mirror of it, as `RobotGeometry::leg_points` places it (same arithmetic).
-        let plane = geometry.leg_fk(joints);
-        for (slot, leg) in parts[1..].chunks_exact_mut(3).zip(LegId::ALL) {
-            let hip = geometry.hip_in_body(leg);
-            let to_world = |outward_m: f32, down_m: f32| {
-                body_pose * Point3::new(hip.x, hip.y + leg.side_sign() * outward_m, hip.z - down_m)
-            };
-            let (hip, knee, wheel) = (
-                body_pose * Point3::from(hip),
-                to_world(plane.knee.outward_m, plane.knee.down_m),
-                to_world(plane.wheel.outward_m, plane.wheel.down_m),
-            );
-            slot[0] = Part::Link(Capsule::new(hip, knee, geometry.link_radius_m));
-            slot[1] = Part::Link(Capsule::new(knee, wheel, geometry.link_radius_m));
-            slot[2] = Part::Wheel {
-                pose: Isometry3::from_parts(Translation3::from(wheel.coords), body_pose.rotation),
-                shape: wheel_shape,
-            };
-        }
         // The wheels all turn with the body: their boxes' offsets from their centres are the
         // same for all four, worked out once.
         let wheel_reach = WheelReach::new(&body_pose.rotation, &wheel_shape);
@@ -322,6 +324,54 @@ impl RobotParts {
     pub fn aabb(&self) -> Aabb {
         self.aabb
     }
+}
+
+/// The robot's parts for a body pose and leg configuration, as [`RobotParts::new`] places them
+/// (the same values), without their bounding boxes; fails if the legs cannot reach the
+/// configuration.
+pub(crate) fn place_parts(
+    geometry: &RobotGeometry,
+    position: Point2<f32>,
+    yaw_rad: f32,
+    legs: LegConfig,
+) -> Result<[Part; PART_COUNT], IkError> {
+    let joints = geometry.leg_ik(legs)?;
+    let body_pose = crate::state::body_pose_at(
+        position,
+        yaw_rad,
+        geometry.body_centre_height_m(legs.clearance_m),
+    );
+    let body = Part::Body {
+        pose: body_pose,
+        shape: Cuboid::new(Vector3::new(
+            0.5 * geometry.body_length_m,
+            0.5 * geometry.body_width_m,
+            0.5 * geometry.body_thickness_m,
+        )),
+    };
+    let wheel_shape = Cylinder::new(0.5 * geometry.wheel_width_m, geometry.wheel_radius_m);
+    let mut parts = [body; PART_COUNT];
+    // The four legs share one solution in the leg plane: its forward kinematics once, then
+    // each leg's mirror of it, as `RobotGeometry::leg_points` places it (same arithmetic).
+    let plane = geometry.leg_fk(joints);
+    for (slot, leg) in parts[1..].chunks_exact_mut(3).zip(LegId::ALL) {
+        let hip = geometry.hip_in_body(leg);
+        let to_world = |outward_m: f32, down_m: f32| {
+            body_pose * Point3::new(hip.x, hip.y + leg.side_sign() * outward_m, hip.z - down_m)
+        };
+        let (hip, knee, wheel) = (
+            body_pose * Point3::from(hip),
+            to_world(plane.knee.outward_m, plane.knee.down_m),
+            to_world(plane.wheel.outward_m, plane.wheel.down_m),
+        );
+        slot[0] = Part::Link(Capsule::new(hip, knee, geometry.link_radius_m));
+        slot[1] = Part::Link(Capsule::new(knee, wheel, geometry.link_radius_m));
+        slot[2] = Part::Wheel {
+            pose: Isometry3::from_parts(Translation3::from(wheel.coords), body_pose.rotation),
+            shape: wheel_shape,
+        };
+    }
+    Ok(parts)
 }
 
 /// How far a wheel reaches from its centre along each world axis, for its bounding box:
@@ -528,6 +578,47 @@ impl ObstacleSet {
                     continue;
                 }
                 nearest_m = nearest_m.min(gap_m.max(part.distance_lower_bound_m(obstacle_aabb)));
+            }
+        }
+        nearest_m - CLEARANCE_SLACK_M
+    }
+
+    /// A lower bound on [`ObstacleSet::clearance_lower_bound_m`] for the parts `parts` (placed
+    /// by [`place_parts`], so without their boxes), for poses placed only to be bounded:
+    /// each part/obstacle pair counts with the part's own distance bound (which that function
+    /// takes the better of with the box gap), or, when a ball around the part is already
+    /// farther than the nearest found, not at all (the ball's distance is below the part's
+    /// bound). Equal to it up to rounding, or lower.
+    ///
+    /// `reach_m` bounds how far any part reaches horizontally from the body centre (every
+    /// shape the part bounds measure included): an obstacle whose footprint is farther than
+    /// that plus the nearest found is skipped whole.
+    pub(crate) fn parts_clearance_lower_bound_m(
+        &self,
+        parts: &[Part; PART_COUNT],
+        reach_m: f32,
+        up_to_m: f32,
+    ) -> f32 {
+        let mut nearest_m = up_to_m.max(0.0);
+        let Part::Body { pose, .. } = &parts[0] else {
+            unreachable!("the body comes first")
+        };
+        let (x, y) = (pose.translation.x, pose.translation.y);
+        for obstacle_aabb in &self.aabbs {
+            let dx = (obstacle_aabb.mins.x - x)
+                .max(x - obstacle_aabb.maxs.x)
+                .max(0.0);
+            let dy = (obstacle_aabb.mins.y - y)
+                .max(y - obstacle_aabb.maxs.y)
+                .max(0.0);
+            if (dx * dx + dy * dy).sqrt() - reach_m >= nearest_m {
+                continue;
+            }
+            for part in parts {
+                if part.ball_gap_m(obstacle_aabb) >= nearest_m {
+                    continue;
+                }
+                nearest_m = nearest_m.min(part.distance_lower_bound_m(obstacle_aabb));
             }
         }
         nearest_m - CLEARANCE_SLACK_M

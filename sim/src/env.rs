@@ -6,7 +6,7 @@
 //! whole way there (proven clear from distances, not sampled), so that no part passes through
 //! an obstacle within a step.
 
-use crate::collision::{ObstacleSet, RobotParts};
+use crate::collision::{place_parts, ObstacleSet, Part, RobotParts, PART_COUNT};
 use crate::height_map::{self, HeightMap};
 use crate::reward::RewardTerms;
 use crate::scenario::{Scenario, ScenarioError};
@@ -233,6 +233,11 @@ impl Env {
         &self.geometry
     }
 
+    /// How far any part of the robot reaches horizontally from its centre, in any pose.
+    pub(crate) fn reach_m(&self) -> f32 {
+        self.reach_m
+    }
+
     /// The obstacles.
     pub fn obstacles(&self) -> &ObstacleSet {
         &self.obstacles
@@ -356,7 +361,7 @@ impl Env {
         // little past half the travel of the stretch it ends (fewer part/obstacle pairs get
         // parry's exact query). Capped values are lower bounds, so the proof stays sound; a
         // capped pair may just split once more.
-        let enough = |travel_m: f32| 0.5 * travel_m * (1.0 + 1.0e-3) + GRAZE_TOLERANCE_M;
+        let enough = proof_cap_m;
         let start_pose = ProofPose::new(&self.obstacles, 0.0, start, enough(bound_m));
         let mut end_pose = ProofPose::new(&self.obstacles, 1.0, end, enough(bound_m));
         // A pose whose bound cannot rule out touching gets its exact clearance at once: a pose
@@ -453,6 +458,25 @@ impl Env {
         to: &RobotState,
         t: f32,
     ) -> Result<RobotParts, IkError> {
+        let (position, yaw_rad, legs) = self.between(from, to, t);
+        RobotParts::new(&self.geometry, position, yaw_rad, legs)
+    }
+
+    /// [`Env::pose_between`] without the parts' bounding boxes (the same parts), for the
+    /// planner's bounds on clearance.
+    pub(crate) fn parts_between(
+        &self,
+        from: &RobotState,
+        to: &RobotState,
+        t: f32,
+    ) -> Result<[Part; PART_COUNT], IkError> {
+        let (position, yaw_rad, legs) = self.between(from, to, t);
+        place_parts(&self.geometry, position, yaw_rad, legs)
+    }
+
+    /// The body position, heading and legs at fraction `t` of the step (see
+    /// [`Env::pose_between`]).
+    fn between(&self, from: &RobotState, to: &RobotState, t: f32) -> (Point2<f32>, f32, LegConfig) {
         let (legs0, legs1) = (
             from.leg_config(&self.geometry),
             to.leg_config(&self.geometry),
@@ -461,8 +485,7 @@ impl Env {
             clearance_m: legs0.clearance_m + t * (legs1.clearance_m - legs0.clearance_m),
             track_m: legs0.track_m + t * (legs1.track_m - legs0.track_m),
         };
-        RobotParts::new(
-            &self.geometry,
+        (
             from.position + t * (to.position - from.position),
             from.yaw_rad() + t * yaw_change_rad(from, to),
             legs,
@@ -623,6 +646,14 @@ impl ProofPose {
     fn best_m(&self) -> f32 {
         self.exact_m.unwrap_or(self.cheap_m.max(0.0))
     }
+}
+
+/// How far the clearance proof ([`Env::check_transition`]) looks for the clearance of a pose
+/// that ends a stretch of `travel_m`: a stretch needs its two ends' clearances to sum to more
+/// than its travel, so a little past half of it. The planner's own proof of the way there
+/// (`crate::planner`) uses the same caps, so its bounds are never above the simulator's.
+pub(crate) fn proof_cap_m(travel_m: f32) -> f32 {
+    0.5 * travel_m * (1.0 + 1.0e-3) + GRAZE_TOLERANCE_M
 }
 
 /// The legs' term of [`Env::motion_bound_m`]: how far any point of a leg (or the body, as it

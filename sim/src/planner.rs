@@ -31,8 +31,9 @@
 //! steps and the turn that straddling a slab or bar ahead calls for), which is not a lower bound
 //! and is therefore used for nothing else.
 
+use crate::collision::{place_parts, CLEARANCE_SLACK_M};
 use crate::collision::{Part, RobotParts, PART_COUNT};
-use crate::env::{Env, InvalidAction, Status};
+use crate::env::{proof_cap_m, Env, InvalidAction, Status, GRAZE_TOLERANCE_M};
 use crate::generate::{passing_legs, Behaviour};
 use crate::obstacle::ObstacleKind;
 use crate::state::{RobotState, YAW_STEPS_PER_TURN};
@@ -703,6 +704,121 @@ fn sweep_meets(
         })
 }
 
+/// How far [`state_clearance_m`] looks for a lattice state's clearance: more than the cap of
+/// any step's proof ([`proof_cap_m`] of the largest motion bound, about 0.08 m).
+const STATE_CAP_M: f32 = 0.25;
+
+/// What [`state_clearance_m`] takes off for rounding: its bound comes from the same function
+/// as the simulator's, with another cap (and possibly another position, a few ulps away), so
+/// it may differ from the simulator's in the last bits; 5 um is far more than that (a few
+/// ulps of the positions here are under 1 um) and far less than anything that matters.
+const STATE_MARGIN_M: f32 = 5.0e-6;
+
+/// Per lattice state (pose key, leg cell): the position its bound was computed at and
+/// `ObstacleSet::clearance_lower_bound_m` up to [`STATE_CAP_M`] there.
+type StateClearance = FastMap<(PoseKey, usize), (Point2<f32>, f32)>;
+
+/// A lower bound on the clearance the simulator's proof of a step sees at the lattice state
+/// `state` (pose key `key`, leg cell `cell`) at either end of a step whose proof caps its ends
+/// at `cap_m` (never above [`STATE_CAP_M`]): the simulator's cheap bound there is
+/// `clearance_lower_bound_m(parts, cap_m)`, which is `min(cap_m, B) - slack` for the parts'
+/// box-gap bound `B`, and its exact value, when it asks parry, is no lower. Worked out once per
+/// state, at the first position met with the key; a position `d` away from it (the same
+/// lattice pose reached by another sequence of moves, rounding differently) has a clearance at
+/// most `d` lower (every part moves by `d`).
+fn state_clearance_m(
+    env: &Env,
+    cache: &mut StateClearance,
+    state: &RobotState,
+    key: PoseKey,
+    cell: usize,
+    cap_m: f32,
+) -> f32 {
+    let (at, bound_m) = *cache.entry((key, cell)).or_insert_with(|| {
+        let geometry = env.geometry();
+        let bound_m = place_parts(
+            geometry,
+            state.position,
+            state.yaw_rad(),
+            state.leg_config(geometry),
+        )
+        .map_or(f32::NEG_INFINITY, |parts| {
+            env.obstacles()
+                .parts_clearance_lower_bound_m(&parts, env.reach_m(), STATE_CAP_M)
+        });
+        (state.position, bound_m)
+    });
+    (cap_m - CLEARANCE_SLACK_M).min(bound_m) - (state.position - at).norm() - STATE_MARGIN_M
+}
+
+/// Stretches the planner's proof holds at once (one per halving level: a step's motion halves
+/// below the graze tolerance in 11 levels); deeper, the simulator decides.
+const WAY_PROOF_STACK: usize = 24;
+
+/// Whether the simulator's proof of the way from `from` to `to` (`Env::check_transition`,
+/// motion bound `bound_m`) surely succeeds, decided without parry: the end pose is already
+/// known clear (the caller's test), and this replays the simulator's bisection with the cheap
+/// bounds alone, each no higher than the value the simulator uses at the same pose.
+///
+/// The simulator splits a stretch only when its values at the ends do not cover the travel;
+/// these values are lower, so this proof splits that stretch too, at the same fraction, with the
+/// same caps. So every pose the simulator places is placed here (the same `Env::pose_between`:
+/// a pose the legs cannot take ends this proof), every stretch the simulator ends with is one
+/// this proof covered, and none is shorter than the graze tolerance. A pose whose cheap bound is
+/// not above 0 ends this proof (the simulator might ask parry there and find it touching),
+/// except the start, which the simulator counts as 0. The verdict is the simulator's: this only
+/// ever says yes where it says yes, and the caller asks the simulator whenever this says no.
+///
+/// `from` and `to` come with their pose keys and leg cells, for [`state_clearance_m`].
+fn way_proven(
+    env: &Env,
+    cache: &mut StateClearance,
+    (from, from_key, from_cell): (&RobotState, PoseKey, usize),
+    (to, to_key, to_cell): (&RobotState, PoseKey, usize),
+    bound_m: f32,
+) -> bool {
+    let cap_m = proof_cap_m(bound_m);
+    if cap_m > STATE_CAP_M {
+        return false;
+    }
+    let end_m = state_clearance_m(env, cache, to, to_key, to_cell, cap_m);
+    if end_m <= 0.0 {
+        return false;
+    }
+    let start_m = state_clearance_m(env, cache, from, from_key, from_cell, cap_m).max(0.0);
+    // Stretches still to prove: (fraction, clearance bound) at each end.
+    let mut open: heapless::Vec<((f32, f32), (f32, f32)), WAY_PROOF_STACK> = heapless::Vec::new();
+    open.push(((0.0, start_m), (1.0, end_m)))
+        .expect("room for one");
+    while let Some(((a_t, a_m), (b_t, b_m))) = open.pop() {
+        let travel_m = bound_m * (b_t - a_t);
+        if a_m + b_m > travel_m {
+            continue;
+        }
+        if travel_m < GRAZE_TOLERANCE_M {
+            return false;
+        }
+        let t = 0.5 * (a_t + b_t);
+        let Ok(parts) = env.parts_between(from, to, t) else {
+            return false;
+        };
+        let mid_m = env.obstacles().parts_clearance_lower_bound_m(
+            &parts,
+            env.reach_m(),
+            proof_cap_m(travel_m),
+        ) - STATE_MARGIN_M;
+        if mid_m <= 0.0 {
+            return false;
+        }
+        if open.push(((t, mid_m), (b_t, b_m))).is_err()
+            || open.push(((a_t, a_m), (t, mid_m))).is_err()
+        {
+            return false;
+        }
+    }
+    true
+}
+
 // ---------------------------------------------------------------------------------------------
 // Heuristic.
 
@@ -1144,6 +1260,14 @@ struct Search<'a> {
     /// every obstacle; the same end pose is reached from many parents.
     end_clear: FastMap<(PoseKey, u16), bool>,
     in_arena: FastMap<PoseKey, bool>,
+    /// Lower bounds on the clearance of lattice states, for [`way_proven`]; see
+    /// [`state_clearance_m`].
+    state_clearance: StateClearance,
+    /// Whether every step [`way_proven`] accepts is also put to `Env::check_transition`, which
+    /// must accept it (tests of this module).
+    cross_check: bool,
+    /// Steps so checked.
+    cross_checked: usize,
     /// The obstacles' boxes, as the simulator builds them, loosened by the slack.
     obstacle_boxes: Vec<ObstacleBox>,
     give_up_m: f32,
@@ -1173,6 +1297,9 @@ impl<'a> Search<'a> {
             boxes: (0..YAW_STEPS_PER_TURN).map(|_| None).collect(),
             end_clear: FastMap::default(),
             in_arena: FastMap::default(),
+            state_clearance: FastMap::default(),
+            cross_check: false,
+            cross_checked: 0,
             obstacle_boxes: env
                 .obstacles()
                 .boxes()
@@ -1449,38 +1576,67 @@ impl<'a> Search<'a> {
             if !end_clear {
                 continue;
             }
+            // The planner's own tests first, for every predecessor; the simulator only for a
+            // candidate none of them settles. Only whether some predecessor's step is valid
+            // matters, not which.
+            let mut unsettled: heapless::Vec<RobotState, 9> = heapless::Vec::new();
+            let mut ok = false;
             for &(dc, dt) in &self.moves[m].leg_steps {
                 let (r, c) = (row as i32 - dc, col as i32 - dt);
                 if r < 0 || c < 0 || !legs.contains(r as usize, c as usize) {
                     continue;
                 }
                 let from = self.lattice.state(pose, r as usize, c as usize);
+                // A leg pose the legs cannot take on the way is refused by the simulator.
+                let Ok(bound_m) = env.motion_bound_m(&from, &to) else {
+                    continue;
+                };
                 // Every point of a part stays within half the motion bound of where it is at
                 // one end: when no part's span of start and end, grown by that, meets an
                 // obstacle box, the simulator's own first sweep test accepts the step.
-                let ok = match env.motion_bound_m(&from, &to) {
-                    Ok(bound_m) => {
-                        let start_boxes = self.boxes[from_yaw]
-                            .as_ref()
-                            .expect("filled above")
-                            .get(r as usize, c as usize);
-                        let sweep_clear = 0.5 * bound_m <= SWEEP_GROW_M
-                            && !sweep_meets(
-                                start_boxes,
-                                pose.position,
-                                end_boxes,
-                                next.position,
-                                0.5 * bound_m,
-                                &near_way,
-                            );
-                        sweep_clear || env.check_transition(&from, &to).is_ok()
-                    }
-                    Err(_) => false,
-                };
-                if ok {
-                    valid.insert(row, col);
+                let start_boxes = self.boxes[from_yaw]
+                    .as_ref()
+                    .expect("filled above")
+                    .get(r as usize, c as usize);
+                let sweep_clear = 0.5 * bound_m <= SWEEP_GROW_M
+                    && !sweep_meets(
+                        start_boxes,
+                        pose.position,
+                        end_boxes,
+                        next.position,
+                        0.5 * bound_m,
+                        &near_way,
+                    );
+                if sweep_clear {
+                    ok = true;
                     break;
                 }
+                if way_proven(
+                    env,
+                    &mut self.state_clearance,
+                    (&from, pose.key(), r as usize * LEG_COLS + c as usize),
+                    (&to, key, cell),
+                    bound_m,
+                ) {
+                    if self.cross_check {
+                        self.cross_checked += 1;
+                        assert_eq!(
+                            env.check_transition(&from, &to),
+                            Ok(()),
+                            "the planner's proof accepted {from:?} -> {to:?}"
+                        );
+                    }
+                    ok = true;
+                    break;
+                }
+                unsettled.push(from).expect("at most 9 leg steps");
+            }
+            if ok
+                || unsettled
+                    .iter()
+                    .any(|from| env.check_transition(from, &to).is_ok())
+            {
+                valid.insert(row, col);
             }
         }
         valid
@@ -1554,5 +1710,40 @@ impl<'a> Search<'a> {
         }
         actions.reverse();
         actions
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::env::EnvConfig;
+    use crate::generate::{generate_many, SceneKind};
+    use rand::SeedableRng;
+
+    /// Every step the planner's own proof of the way there accepts, the simulator accepts too:
+    /// searches on generated scenes of every kind with obstacles, each such step put to
+    /// `Env::check_transition` as well (the search asserts it).
+    #[test]
+    fn the_planners_proof_accepts_only_steps_the_simulator_accepts() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(17);
+        let mut checked = 0;
+        for kind in SceneKind::ALL {
+            for scene in generate_many(kind, &mut rng, 2) {
+                let env = Env::new(&scene, EnvConfig::default()).unwrap();
+                for weight in [1.0, FALLBACK_WEIGHT] {
+                    let config = PlannerConfig {
+                        max_expansions: 40,
+                        heuristic_weight: weight,
+                        ..PlannerConfig::default()
+                    };
+                    let mut search = Search::new(&env, &config);
+                    search.cross_check = true;
+                    search.run();
+                    checked += search.cross_checked;
+                }
+            }
+        }
+        println!("{checked} steps the planner's proof accepted, all accepted by the simulator");
+        assert!(checked > 10_000, "{checked}");
     }
 }
