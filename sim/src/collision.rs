@@ -592,19 +592,21 @@ impl ObstacleSet {
     ///
     /// `reach_m` bounds how far any part reaches horizontally from the body centre (every
     /// shape the part bounds measure included): an obstacle whose footprint is farther than
-    /// that plus the nearest found is skipped whole.
+    /// that plus the nearest found is skipped whole. `near`, when given, lists the only
+    /// obstacles (indices) that can be within `reach_m + up_to_m` ([`ObstacleSet::near`]).
     pub(crate) fn parts_clearance_lower_bound_m(
         &self,
         parts: &[Part; PART_COUNT],
         reach_m: f32,
         up_to_m: f32,
+        near: Option<&[usize]>,
     ) -> f32 {
         let mut nearest_m = up_to_m.max(0.0);
         let Part::Body { pose, .. } = &parts[0] else {
             unreachable!("the body comes first")
         };
         let (x, y) = (pose.translation.x, pose.translation.y);
-        for obstacle_aabb in &self.aabbs {
+        let mut visit = |obstacle_aabb: &Aabb| {
             let dx = (obstacle_aabb.mins.x - x)
                 .max(x - obstacle_aabb.maxs.x)
                 .max(0.0);
@@ -612,7 +614,7 @@ impl ObstacleSet {
                 .max(y - obstacle_aabb.maxs.y)
                 .max(0.0);
             if (dx * dx + dy * dy).sqrt() - reach_m >= nearest_m {
-                continue;
+                return;
             }
             for part in parts {
                 if part.ball_gap_m(obstacle_aabb) >= nearest_m {
@@ -620,8 +622,26 @@ impl ObstacleSet {
                 }
                 nearest_m = nearest_m.min(part.distance_lower_bound_m(obstacle_aabb));
             }
+        };
+        match near {
+            Some(near) => near.iter().for_each(|&i| visit(&self.aabbs[i])),
+            None => self.aabbs.iter().for_each(visit),
         }
         nearest_m - CLEARANCE_SLACK_M
+    }
+
+    /// The obstacles (indices) whose footprint comes within `within_m` of `centre`, as a
+    /// square test (so never fewer than a round one would find).
+    pub(crate) fn near(&self, centre: Point2<f32>, within_m: f32) -> Vec<usize> {
+        (0..self.boxes.len())
+            .filter(|&i| {
+                let b = &self.boxes[i];
+                b.min_x_m <= centre.x + within_m
+                    && b.max_x_m >= centre.x - within_m
+                    && b.min_y_m <= centre.y + within_m
+                    && b.max_y_m >= centre.y - within_m
+            })
+            .collect()
     }
 
     /// Whether some part, anywhere within `grow_m` of the box spanning its places in `start`

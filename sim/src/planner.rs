@@ -744,7 +744,7 @@ fn state_clearance_m(
         )
         .map_or(f32::NEG_INFINITY, |parts| {
             env.obstacles()
-                .parts_clearance_lower_bound_m(&parts, env.reach_m(), STATE_CAP_M)
+                .parts_clearance_lower_bound_m(&parts, env.reach_m(), STATE_CAP_M, None)
         });
         (state.position, bound_m)
     });
@@ -786,6 +786,11 @@ fn way_proven(
         return false;
     }
     let start_m = state_clearance_m(env, cache, from, from_key, from_cell, cap_m).max(0.0);
+    // Every pose on the way has its centre within the motion bound of the start, every part
+    // within the reach of its centre, and only clearances up to the cap count.
+    let near = env
+        .obstacles()
+        .near(from.position, env.reach_m() + bound_m + cap_m);
     // Stretches still to prove: (fraction, clearance bound) at each end.
     let mut open: heapless::Vec<((f32, f32), (f32, f32)), WAY_PROOF_STACK> = heapless::Vec::new();
     open.push(((0.0, start_m), (1.0, end_m)))
@@ -806,6 +811,7 @@ fn way_proven(
             &parts,
             env.reach_m(),
             proof_cap_m(travel_m),
+            Some(&near),
         ) - STATE_MARGIN_M;
         if mid_m <= 0.0 {
             return false;
