@@ -48,6 +48,9 @@ pub struct EnvConfig {
     /// The arena is the box around start and target grown by this margin; leaving it is an
     /// invalid action.
     pub arena_margin_m: f32,
+    /// Reward term of an undone action (collision, impossible pose, out of bounds); the paper's
+    /// is [`crate::reward::INVALID_PENALTY`], -0.1.
+    pub invalid_reward: f32,
 }
 
 impl Default for EnvConfig {
@@ -57,6 +60,7 @@ impl Default for EnvConfig {
             success_radius_m: 0.05,
             give_up_margin_m: 0.5,
             arena_margin_m: 0.6,
+            invalid_reward: crate::reward::INVALID_PENALTY,
         }
     }
 }
@@ -598,7 +602,12 @@ impl Env {
             Status::Running
         };
         Ok(StepOutcome {
-            reward: RewardTerms::new(before_m, after_m, invalid.is_some()),
+            reward: RewardTerms::with_invalid_reward(
+                before_m,
+                after_m,
+                invalid.is_some(),
+                self.config.invalid_reward,
+            ),
             invalid,
             status: self.status,
         })

@@ -17,12 +17,22 @@ pub struct RewardTerms {
 }
 
 impl RewardTerms {
-    /// The terms for one step.
+    /// The terms for one step, with the paper's invalid-action penalty.
     pub fn new(distance_before_m: f32, distance_after_m: f32, invalid: bool) -> Self {
+        Self::with_invalid_reward(distance_before_m, distance_after_m, invalid, INVALID_PENALTY)
+    }
+
+    /// The terms for one step, paying `invalid_reward` for an undone action.
+    pub fn with_invalid_reward(
+        distance_before_m: f32,
+        distance_after_m: f32,
+        invalid: bool,
+        invalid_reward: f32,
+    ) -> Self {
         RewardTerms {
             step: STEP_PENALTY,
             progress: distance_before_m - distance_after_m,
-            invalid: if invalid { INVALID_PENALTY } else { 0.0 },
+            invalid: if invalid { invalid_reward } else { 0.0 },
         }
     }
 

@@ -197,6 +197,20 @@ fn a_colliding_action_is_undone_and_penalised() {
     assert_eq!(outcome.reward.progress, 0.0);
     assert!((outcome.reward.total() - (STEP_PENALTY + INVALID_PENALTY)).abs() < 1e-6);
     assert!(env.collisions() >= 2);
+
+    // A configured penalty is what an undone action pays.
+    let config = EnvConfig {
+        invalid_reward: -1.0,
+        ..EnvConfig::default()
+    };
+    let block = vec![Obstacle::new(ObstacleKind::Block, 0.375, 0.0, ObstacleYaw::Deg0)];
+    let mut env = Env::new(&scenario(start, (0.9, 0.0), block), config).unwrap();
+    let mut outcome = env.step(forward()).unwrap();
+    while outcome.invalid.is_none() {
+        assert_eq!(outcome.reward.invalid, 0.0, "a valid step pays no penalty");
+        outcome = env.step(forward()).unwrap();
+    }
+    assert_eq!(outcome.reward.invalid, -1.0);
 }
 
 #[test]

@@ -95,6 +95,10 @@ pub struct RunConfig {
     pub total_env_steps: u64,
     /// Step limit of an episode.
     pub max_episode_steps: u32,
+    /// Reward of an undone action (collision, impossible pose, out of bounds). The paper's is
+    /// -0.1, the same as one step of time: a collision then costs next to nothing, and policies
+    /// learn to feel their way along obstacles (docs/results.md, "Keeping the behaviours").
+    pub invalid_reward: f32,
     /// Checkpoint every this many iterations (the last iteration always checkpoints).
     pub checkpoint_interval: usize,
     /// Worker threads stepping environments (std threads, each owns a fixed slice of envs).
@@ -127,6 +131,7 @@ impl Default for RunConfig {
             num_envs: 50,
             total_env_steps: 5_000_000,
             max_episode_steps: 100,
+            invalid_reward: -0.1,
             checkpoint_interval: 5,
             threads: 2,
             backend: "flex".into(),
@@ -289,6 +294,10 @@ impl TrainConfig {
         check(
             r.max_episode_steps >= 1,
             "run.max_episode_steps must be at least 1",
+        )?;
+        check(
+            r.invalid_reward.is_finite() && r.invalid_reward <= 0.0,
+            "run.invalid_reward must be a number <= 0 (the paper: -0.1)",
         )?;
         check(
             r.checkpoint_interval >= 1,

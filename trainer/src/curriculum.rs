@@ -64,6 +64,7 @@ fn behaviours(config: &TrainConfig) -> Result<Vec<Behaviour>, String> {
 fn episode_rules(config: &TrainConfig) -> EnvConfig {
     EnvConfig {
         max_steps: config.run.max_episode_steps,
+        invalid_reward: config.run.invalid_reward,
         ..EnvConfig::default()
     }
 }

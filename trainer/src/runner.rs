@@ -149,6 +149,7 @@ pub fn train_stage(
     let metrics_path = opts.out.join(METRICS_FILE);
     let env_config = EnvConfig {
         max_steps: run.max_episode_steps,
+        invalid_reward: run.invalid_reward,
         ..EnvConfig::default()
     };
     let steps_per_env = config.steps_per_env();

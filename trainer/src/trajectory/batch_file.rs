@@ -99,6 +99,8 @@ impl BatchHeader {
             success_radius_m: self.success_radius_m,
             give_up_margin_m: self.give_up_margin_m,
             arena_margin_m: self.arena_margin_m,
+            // Not stored: a stored trajectory has no undone action, so it is never paid.
+            ..EnvConfig::default()
         }
     }
 
