@@ -19,7 +19,12 @@ pub struct RewardTerms {
 impl RewardTerms {
     /// The terms for one step, with the paper's invalid-action penalty.
     pub fn new(distance_before_m: f32, distance_after_m: f32, invalid: bool) -> Self {
-        Self::with_invalid_reward(distance_before_m, distance_after_m, invalid, INVALID_PENALTY)
+        Self::with_invalid_reward(
+            distance_before_m,
+            distance_after_m,
+            invalid,
+            INVALID_PENALTY,
+        )
     }
 
     /// The terms for one step, paying `invalid_reward` for an undone action.

@@ -203,7 +203,12 @@ fn a_colliding_action_is_undone_and_penalised() {
         invalid_reward: -1.0,
         ..EnvConfig::default()
     };
-    let block = vec![Obstacle::new(ObstacleKind::Block, 0.375, 0.0, ObstacleYaw::Deg0)];
+    let block = vec![Obstacle::new(
+        ObstacleKind::Block,
+        0.375,
+        0.0,
+        ObstacleYaw::Deg0,
+    )];
     let mut env = Env::new(&scenario(start, (0.9, 0.0), block), config).unwrap();
     let mut outcome = env.step(forward()).unwrap();
     while outcome.invalid.is_none() {
