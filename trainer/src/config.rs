@@ -476,6 +476,12 @@ mod tests {
         let e = TrainConfig::from_toml("[curriculum]\nstart_stage_behaviours = [\"straight\"]\n")
             .unwrap_err();
         assert!(e.contains("curriculum.start_stage_behaviours"), "{e}");
+        let e = TrainConfig::from_toml("[run]\ninvalid_reward = 0.5\n").unwrap_err();
+        assert!(e.contains("run.invalid_reward"), "{e}");
+        let e = TrainConfig::from_toml("[curriculum]\nreplay_imitation_coef = -1.0\n").unwrap_err();
+        assert!(e.contains("curriculum.replay_imitation_coef"), "{e}");
+        let e = TrainConfig::from_toml("[curriculum]\nreplay_balance = \"kind\"\n").unwrap_err();
+        assert!(e.contains("replay_balance"), "{e}");
     }
 
     #[test]
