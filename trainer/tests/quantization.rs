@@ -2,7 +2,7 @@
 //! model's budget (the numbers in docs/model.md).
 #![allow(clippy::unwrap_used, clippy::indexing_slicing)]
 
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use wheelleg_runtime::model::format::{ConvRecord, DenseRecord, Envelope, InputRecord};
 use wheelleg_runtime::model::{
@@ -13,26 +13,8 @@ use wheelleg_trainer::quantize::{
     observation_mm, quantize, quantize_for_version, Calibration, QuantizedNetwork, RangeMethod,
 };
 
-/// A few boxes on flat ground and a plausible state (clearance, track, target x, target y).
 fn observation(rng: &mut ChaCha8Rng) -> (Vec<f32>, Vec<f32>) {
-    let mut height = vec![0.0f32; 32 * 32];
-    for _ in 0..rng.random_range(0..6) {
-        let (r0, c0) = (rng.random_range(0..32), rng.random_range(0..32));
-        let (h, w) = (rng.random_range(1..12), rng.random_range(1..12));
-        let top = rng.random_range(0.03..0.45);
-        for r in r0..(r0 + h).min(32) {
-            for c in c0..(c0 + w).min(32) {
-                height[r * 32 + c] = top;
-            }
-        }
-    }
-    let state = vec![
-        rng.random_range(0.1..0.35),
-        rng.random_range(0.3..0.5),
-        rng.random_range(-5.0..5.0),
-        rng.random_range(-5.0..5.0),
-    ];
-    (height, state)
+    wheelleg_trainer::quantize::synthetic::synthetic_observation(rng, 5.0)
 }
 
 /// A seeded random default network and its calibration on 400 random observations.

@@ -20,6 +20,7 @@ pub mod build;
 pub mod calibrate;
 pub mod params;
 pub mod qat;
+pub mod synthetic;
 
 pub use agreement::{agreement, Agreement};
 pub use build::{

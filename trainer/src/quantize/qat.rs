@@ -748,26 +748,8 @@ mod tests {
     use crate::quantize::{quantize, EvalPolicy};
     use wheelleg_runtime::model::format::FORMAT_VERSION;
 
-    /// A few boxes on flat ground and a plausible state (clearance, track, target x, target y).
     fn observation(rng: &mut ChaCha8Rng) -> RecordedObservation {
-        let mut height = vec![0.0f32; 32 * 32];
-        for _ in 0..rng.random_range(0..6) {
-            let (r0, c0) = (rng.random_range(0..32), rng.random_range(0..32));
-            let (h, w) = (rng.random_range(1..12), rng.random_range(1..12));
-            let top = rng.random_range(0.03..0.45);
-            for r in r0..(r0 + h).min(32) {
-                for c in c0..(c0 + w).min(32) {
-                    height[r * 32 + c] = top;
-                }
-            }
-        }
-        let state = vec![
-            rng.random_range(0.1..0.35),
-            rng.random_range(0.3..0.5),
-            rng.random_range(-3.0..3.0),
-            rng.random_range(-3.0..3.0),
-        ];
-        (height, state)
+        crate::quantize::synthetic::synthetic_observation(rng, 3.0)
     }
 
     fn argmax(head: &[f32]) -> usize {
