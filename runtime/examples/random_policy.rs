@@ -1,6 +1,7 @@
 //! Writes the default network with seeded random weights as a `.wlw` file and prints the
-//! greedy action index the runtime takes on the fixed observation of `nostd-check`, so that the
-//! no_std binary's decision can be checked against the host's:
+//! action index the runtime takes on the fixed observation of `nostd-check`, then the one it
+//! takes if that action is refused (`decision::Decider`), so that the no_std binary's decisions
+//! can be checked against the host's:
 //! `cargo run --release -p wheelleg-runtime --example random_policy -- OUT.wlw`
 // A host tool: failing loudly on bad arguments or I/O is its whole error handling.
 #![allow(
@@ -12,6 +13,7 @@
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use wheelleg_runtime::decision::Decider;
 use wheelleg_runtime::model::DefaultPolicy;
 use wheelleg_trainer::export::write_atomic;
 use wheelleg_trainer::network_f32::{Architecture, NetworkF32};
@@ -45,6 +47,11 @@ fn main() {
     write_atomic(std::path::Path::new(&path), &bytes).unwrap();
     let (height_mm, state_mm) = observation_mm(&height, &state);
     let policy = DefaultPolicy::from_bytes(&bytes).unwrap();
-    let action = policy.evaluate(&height_mm, &state_mm).unwrap().action();
-    println!("{}", action.index());
+    let outputs = policy.evaluate(&height_mm, &state_mm).unwrap();
+    let mut decider = Decider::new();
+    let first = decider.choose(&outputs.action_logits);
+    assert_eq!(first, outputs.action(), "nothing refused: the per-head argmax");
+    decider.record(first, false);
+    let second = decider.choose(&outputs.action_logits);
+    println!("{} {}", first.index(), second.index());
 }

@@ -4,13 +4,15 @@
 //! lang item, and any use of `alloc` would fail it with "no global memory allocator found".
 //!
 //! It loads the weights file named by `WHEELLEG_POLICY` at build time, takes one decision on a
-//! fixed observation, prints the action index and exits with 0 (or prints the error, exits 1).
+//! fixed observation and a second one as if the first had been refused (`decision::Decider`),
+//! prints both action indices and exits with 0 (or prints the error, exits 1).
 #![no_std]
 #![no_main]
 
 use core::fmt::Write;
 use core::panic::PanicInfo;
 
+use wheelleg_runtime::decision::Decider;
 use wheelleg_runtime::model::DefaultPolicy;
 
 static WEIGHTS: &[u8] = include_bytes!(env!("WHEELLEG_POLICY"));
@@ -66,12 +68,16 @@ extern "C" fn main(_argc: i32, _argv: *const *const u8) -> i32 {
         .map_err(|error| (error, None))
         .and_then(|policy| {
             policy
-                .act(&height_mm, &state_mm)
+                .evaluate(height_mm.as_flattened(), &state_mm)
                 .map_err(|error| (wheelleg_runtime::model::LoadError::Truncated, Some(error)))
         });
     match result {
-        Ok(action) => {
-            let _ = writeln!(Stdout, "{}", action.index());
+        Ok(outputs) => {
+            let mut decider = Decider::new();
+            let first = decider.choose(&outputs.action_logits);
+            decider.record(first, false);
+            let second = decider.choose(&outputs.action_logits);
+            let _ = writeln!(Stdout, "{} {}", first.index(), second.index());
             0
         }
         Err((load, None)) => {
