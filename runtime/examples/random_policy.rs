@@ -50,7 +50,11 @@ fn main() {
     let outputs = policy.evaluate(&height_mm, &state_mm).unwrap();
     let mut decider = Decider::new();
     let first = decider.choose(&outputs.action_logits);
-    assert_eq!(first, outputs.action(), "nothing refused: the per-head argmax");
+    assert_eq!(
+        first,
+        outputs.action(),
+        "nothing refused: the per-head argmax"
+    );
     decider.record(first, false);
     let second = decider.choose(&outputs.action_logits);
     println!("{} {}", first.index(), second.index());
