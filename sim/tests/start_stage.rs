@@ -50,6 +50,7 @@ fn drive_through(scene: &Scenario) -> Result<u32, String> {
         success_radius_m: -1.0,
         give_up_margin_m: 100.0,
         arena_margin_m: 100.0,
+        ..EnvConfig::default()
     };
     let mut env = Env::new(scene, rules).map_err(|e| e.to_string())?;
     let facing_target = scene.start.yaw_rad().cos() > 0.0;
