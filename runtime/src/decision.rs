@@ -60,11 +60,13 @@ impl Decider {
     }
 
     /// Tells the decider what became of `action`: `state_changed` is false when the robot is
-    /// exactly where it was (the action was refused, or did nothing). A change of state clears
-    /// the memory: in a new state every action deserves a fresh try. If every joint action has
-    /// been refused in one state, the memory starts over rather than leave nothing to choose.
+    /// exactly where it was (the action was refused). Idle never changes the state, whatever
+    /// the caller says, so it is remembered like a refusal: repeating it would loop just the
+    /// same. A change of state clears the memory: in a new state every action deserves a fresh
+    /// try. If every joint action has been refused in one state, the memory starts over rather
+    /// than leave nothing to choose.
     pub fn record(&mut self, action: Action, state_changed: bool) {
-        if state_changed {
+        if state_changed && action != Action::IDLE {
             self.reset();
             return;
         }
@@ -161,8 +163,14 @@ mod tests {
         assert_eq!(second.yaw, Step::Zero);
         decider.record(second, false);
         assert_eq!(decider.refused_count(), 2);
-        // Once the state changes, the best action is allowed again.
+        // The second choice was idle; idle never clears the memory, even when the caller
+        // reports a change.
+        assert_eq!(second, Action::IDLE);
         decider.record(Action::IDLE, true);
+        assert!(decider.is_refused(Action::IDLE));
+        assert_eq!(decider.refused_count(), 2);
+        // Once the state changes, the best action is allowed again.
+        decider.record(first, true);
         assert_eq!(decider.choose(&logits), first);
     }
 

@@ -132,8 +132,7 @@ impl Driver for PolicyDriver<'_> {
         env.observe(&mut self.observation);
         let (height_mm, state_mm) = observation_mm(&self.observation);
         if let Some((before, action)) = self.last {
-            self.decider
-                .record(action, *env.state() != before && action != Action::IDLE);
+            self.decider.record(action, *env.state() != before);
         }
         let outputs = self
             .policy

@@ -171,8 +171,7 @@ pub fn run_episodes(
             let outcome = envs[i]
                 .step(action)
                 .map_err(|_| "stepped a finished episode".to_string())?;
-            // Idle changes nothing either: repeating it would loop just the same.
-            deciders[i].record(action, outcome.invalid.is_none() && action != Action::IDLE);
+            deciders[i].record(action, outcome.invalid.is_none());
         }
     }
     Ok(envs)

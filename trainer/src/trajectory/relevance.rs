@@ -79,8 +79,7 @@ impl<'a> DecidingPolicy<'a> {
     /// The action for `observation`.
     pub fn act(&mut self, observation: &Observation) -> Action {
         if let Some((previous, action)) = &self.last {
-            let changed = previous != observation && *action != Action::IDLE;
-            self.decider.record(*action, changed);
+            self.decider.record(*action, previous != observation);
         }
         let (logits, _) = self
             .network
