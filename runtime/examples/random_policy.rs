@@ -13,7 +13,7 @@
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use wheelleg_runtime::decision::Decider;
+use wheelleg_runtime::decision::{Decider, ObservationKey};
 use wheelleg_runtime::model::DefaultPolicy;
 use wheelleg_trainer::export::write_atomic;
 use wheelleg_trainer::network_f32::{Architecture, NetworkF32};
@@ -48,14 +48,15 @@ fn main() {
     let (height_mm, state_mm) = observation_mm(&height, &state);
     let policy = DefaultPolicy::from_bytes(&bytes).unwrap();
     let outputs = policy.evaluate(&height_mm, &state_mm).unwrap();
-    let mut decider = Decider::new();
-    let first = decider.choose(&outputs.action_logits);
+    let key = ObservationKey::of_mm(&height_mm, &state_mm);
+    let mut decider: Decider = Decider::new();
+    let first = decider.choose(key, &outputs.action_logits);
     assert_eq!(
         first,
         outputs.action(),
         "nothing refused: the per-head argmax"
     );
-    decider.record(first, false);
-    let second = decider.choose(&outputs.action_logits);
+    // Refused: the same observation again.
+    let second = decider.choose(key, &outputs.action_logits);
     println!("{} {}", first.index(), second.index());
 }

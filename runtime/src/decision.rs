@@ -1,104 +1,217 @@
 //! From the policy's five heads to one action, without getting stuck.
 //!
-//! Taking each head's most probable choice is a deterministic rule, and a deterministic rule
-//! loops: when the chosen action is refused (it would collide, or the legs cannot reach the
-//! pose), the robot's state and so its observation stay exactly as they were, and the same
-//! observation gives the same action again until the episode's step limit. A sampling policy
-//! escapes by chance; on held-out complex scenes the baseline reaches 88.5% sampled and only
-//! 70.3% by per-head argmax (docs/results.md, "Decision rule").
+//! Taking each head's most probable choice is a deterministic rule in a deterministic world, and
+//! such a pair loops whenever the robot meets an observation it has already acted on: the same
+//! observation gives the same action, which leads the same way again. Two loops are common:
+//! - a refused action (it would collide, or the legs cannot reach the pose) leaves the robot
+//!   where it was, so the observation and the action repeat until the episode's step limit;
+//! - a cycle of moves (forward, back, forward...) near a target the policy cannot quite reach.
 //!
-//! [`Decider`] keeps the rule deterministic and removes the loop: it picks the most probable
-//! *joint* action that has not already been refused in the current state. The memory is a
-//! 243-bit set (one bit per joint action, 32 bytes), cleared whenever the state changes, so it
-//! never fills and never allocates.
+//! A sampling policy escapes by chance; on held-out complex scenes the baseline reaches 88.5%
+//! sampled and only 70.3% by per-head argmax (docs/results.md, "Decision rule").
+//!
+//! [`Decider`] keeps the rule deterministic and removes both loops: for each of the last
+//! `STATES` distinct observations it remembers which joint actions it already took there (a
+//! 243-bit set, 32 bytes), and it picks the most probable joint action not yet taken at the
+//! current observation. A fresh observation has nothing remembered, so there the rule is the
+//! per-head argmax. Observations are told apart by an [`ObservationKey`], a hash of exactly
+//! what the int8 policy reads (heights and state in millimetres), so no odometry is needed and
+//! the float and int8 paths key alike. Memory is fixed at compile time (`STATES` x 40 bytes;
+//! the default 128 covers a 100-step episode); the oldest observation is forgotten first.
 
 use crate::action::{Action, CHOICES, COUNT, DIMS};
 
-/// Words of the refused-action bit set.
+/// Words of one observation's taken-action bit set.
 const WORDS: usize = COUNT.div_ceil(32);
 
-/// The most probable joint action not yet refused in the current state.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct Decider {
-    refused: [u32; WORDS],
+/// Observations remembered by default: more than the decisions of one 100-step episode.
+pub const DEFAULT_STATES: usize = 128;
+
+/// Identifies an observation: a 64-bit FNV-1a hash of the height map (i16 millimetres) and the
+/// state (i32 millimetres), the integer inputs of the runtime's policy. Two observations that
+/// differ anywhere get different keys except with probability about 2^-64 (and then the robot
+/// merely avoids an action it took elsewhere).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct ObservationKey(pub u64);
+
+/// FNV-1a, 64-bit: written here because it is ten lines, needs no allocation and must give the
+/// same key on the robot and the host (a `core::hash::Hasher` does not promise a stable value).
+const FNV_OFFSET: u64 = 0xcbf2_9ce4_8422_2325;
+const FNV_PRIME: u64 = 0x0000_0100_0000_01b3;
+
+fn fnv(mut hash: u64, bytes: &[u8]) -> u64 {
+    for &byte in bytes {
+        hash ^= u64::from(byte);
+        hash = hash.wrapping_mul(FNV_PRIME);
+    }
+    hash
 }
 
-impl Decider {
-    /// A decider with nothing refused.
-    pub const fn new() -> Decider {
+impl ObservationKey {
+    /// The key of the runtime's integer inputs (heights then state, millimetres).
+    pub fn of_mm(height_mm: &[i16], state_mm: &[i32]) -> ObservationKey {
+        let mut hash = FNV_OFFSET;
+        for h in height_mm {
+            hash = fnv(hash, &h.to_le_bytes());
+        }
+        for s in state_mm {
+            hash = fnv(hash, &s.to_le_bytes());
+        }
+        ObservationKey(hash)
+    }
+
+    /// The key of an observation in metres, rounded to millimetres half away from zero as the
+    /// robot's inputs are (saturating, so absurd values cannot wrap), so a float policy on the
+    /// host and the int8 policy on the robot key the same observation alike.
+    pub fn of_metres(height_m: &[f32], state_m: &[f32]) -> ObservationKey {
+        let mut hash = FNV_OFFSET;
+        for h in height_m {
+            hash = fnv(hash, &(libm::roundf(h * 1000.0) as i16).to_le_bytes());
+        }
+        for s in state_m {
+            hash = fnv(hash, &(libm::roundf(s * 1000.0) as i32).to_le_bytes());
+        }
+        ObservationKey(hash)
+    }
+}
+
+/// The most probable joint action not yet taken at the current observation. Not `Copy`: at
+/// the default capacity it is 5 KB.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Decider<const STATES: usize = DEFAULT_STATES> {
+    keys: [ObservationKey; STATES],
+    taken: [[u32; WORDS]; STATES],
+    /// Slots in use (`keys[..len]`).
+    len: usize,
+    /// The slot to overwrite next once all are in use: the oldest observation.
+    oldest: usize,
+}
+
+impl<const STATES: usize> Default for Decider<STATES> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<const STATES: usize> Decider<STATES> {
+    /// A decider that remembers nothing yet.
+    pub const fn new() -> Decider<STATES> {
         Decider {
-            refused: [0; WORDS],
+            keys: [ObservationKey(0); STATES],
+            taken: [[0; WORDS]; STATES],
+            len: 0,
+            oldest: 0,
         }
     }
 
-    /// The joint action with the highest sum of per-head logits (the most probable joint
-    /// action: each head's log-normaliser is common to all joint actions) among those not
-    /// refused in the current state. Ties go to the lowest joint index, which is each head's
-    /// first maximum, as a per-head argmax takes it. Logits may be raw logits or
-    /// log-probabilities, in head order `Dim::ALL` and choice order `Step::ALL`. A NaN logit
-    /// never wins; if every score is NaN, the first unrefused action is taken.
-    pub fn choose<L: Copy + Into<f32>>(&self, logits: &[L; DIMS * CHOICES]) -> Action {
-        let mut best: Option<(usize, f32)> = None;
-        for index in 0..COUNT {
-            if self.is_refused_index(index) {
-                continue;
-            }
-            let score = joint_score(logits, index);
-            let better = match best {
-                None => true,
-                Some((_, best_score)) => {
-                    score > best_score || (best_score.is_nan() && !score.is_nan())
-                }
-            };
-            if better {
-                best = Some((index, score));
-            }
+    /// Picks the action for observation `key`, and remembers it as taken there: the joint
+    /// action with the highest sum of per-head logits (the most probable joint action: each
+    /// head's log-normaliser is common to all joint actions) among those not yet taken at this
+    /// observation. Ties go to the lowest joint index, which is each head's first maximum, as a
+    /// per-head argmax takes it. Logits may be raw logits or log-probabilities, in head order
+    /// `Dim::ALL` and choice order `Step::ALL`. A NaN logit never wins; if every score is NaN,
+    /// the first untaken action is taken. Once all 243 actions have been taken at one
+    /// observation, its memory starts over rather than leave nothing to choose.
+    pub fn choose<L: Copy + Into<f32>>(
+        &mut self,
+        key: ObservationKey,
+        logits: &[L; DIMS * CHOICES],
+    ) -> Action {
+        let Some(taken) = self.slot(key) else {
+            // No memory at all (STATES = 0): the plain most probable joint action.
+            return best_untaken(&[0; WORDS], logits);
+        };
+        if count(taken) >= COUNT {
+            *taken = [0; WORDS];
         }
-        // With at most 242 refusals (see `record`) some action is always left.
-        best.and_then(|(index, _)| Action::from_index(index))
-            .unwrap_or(Action::IDLE)
-    }
-
-    /// Tells the decider what became of `action`: `state_changed` is false when the robot is
-    /// exactly where it was (the action was refused). Idle never changes the state, whatever
-    /// the caller says, so it is remembered like a refusal: repeating it would loop just the
-    /// same. A change of state clears the memory: in a new state every action deserves a fresh
-    /// try. If every joint action has been refused in one state, the memory starts over rather
-    /// than leave nothing to choose.
-    pub fn record(&mut self, action: Action, state_changed: bool) {
-        if state_changed && action != Action::IDLE {
-            self.reset();
-            return;
-        }
+        let action = best_untaken(taken, logits);
         let index = action.index();
-        if let Some(word) = self.refused.get_mut(index / 32) {
+        if let Some(word) = taken.get_mut(index / 32) {
             *word |= 1 << (index % 32);
         }
-        if self.refused_count() >= COUNT {
-            self.reset();
-        }
+        action
     }
 
-    /// Forgets every refusal (a new episode, or a state change the caller knows of).
-    pub fn reset(&mut self) {
-        self.refused = [0; WORDS];
-    }
-
-    /// Whether `action` has been refused in the current state.
-    pub fn is_refused(&self, action: Action) -> bool {
-        self.is_refused_index(action.index())
-    }
-
-    /// How many joint actions have been refused in the current state.
-    pub fn refused_count(&self) -> usize {
-        self.refused.iter().map(|w| w.count_ones() as usize).sum()
-    }
-
-    fn is_refused_index(&self, index: usize) -> bool {
-        self.refused
-            .get(index / 32)
+    /// Whether `action` has already been taken at observation `key` (as far as the decider
+    /// still remembers).
+    pub fn was_taken(&self, key: ObservationKey, action: Action) -> bool {
+        let index = action.index();
+        self.find(key)
+            .and_then(|slot| self.taken.get(slot))
+            .and_then(|taken| taken.get(index / 32))
             .is_some_and(|word| word & (1 << (index % 32)) != 0)
     }
+
+    /// How many joint actions have been taken at observation `key`.
+    pub fn taken_count(&self, key: ObservationKey) -> usize {
+        self.find(key)
+            .and_then(|slot| self.taken.get(slot))
+            .map_or(0, count)
+    }
+
+    /// How many distinct observations are remembered (at most `STATES`).
+    pub fn remembered(&self) -> usize {
+        self.len
+    }
+
+    /// Forgets everything (a new episode, or a world that changed).
+    pub fn reset(&mut self) {
+        self.len = 0;
+        self.oldest = 0;
+    }
+
+    fn find(&self, key: ObservationKey) -> Option<usize> {
+        self.keys.get(..self.len)?.iter().position(|k| *k == key)
+    }
+
+    /// The taken-set of `key`, made (empty) if the observation is new, evicting the oldest
+    /// remembered observation when all slots are in use. `None` only when `STATES` is 0.
+    fn slot(&mut self, key: ObservationKey) -> Option<&mut [u32; WORDS]> {
+        let slot = match self.find(key) {
+            Some(slot) => slot,
+            None => {
+                let slot = if self.len < STATES {
+                    self.len += 1;
+                    self.len - 1
+                } else {
+                    let slot = self.oldest;
+                    self.oldest = (self.oldest + 1) % STATES.max(1);
+                    slot
+                };
+                *self.keys.get_mut(slot)? = key;
+                *self.taken.get_mut(slot)? = [0; WORDS];
+                slot
+            }
+        };
+        self.taken.get_mut(slot)
+    }
+}
+
+fn count(taken: &[u32; WORDS]) -> usize {
+    taken.iter().map(|w| w.count_ones() as usize).sum()
+}
+
+fn best_untaken<L: Copy + Into<f32>>(taken: &[u32; WORDS], logits: &[L; DIMS * CHOICES]) -> Action {
+    let mut best: Option<(usize, f32)> = None;
+    for index in 0..COUNT {
+        let is_taken = taken
+            .get(index / 32)
+            .is_some_and(|word| word & (1 << (index % 32)) != 0);
+        if is_taken {
+            continue;
+        }
+        let score = joint_score(logits, index);
+        let better = match best {
+            None => true,
+            Some((_, best_score)) => score > best_score || (best_score.is_nan() && !score.is_nan()),
+        };
+        if better {
+            best = Some((index, score));
+        }
+    }
+    // `choose` clears a full set first, so some action is always left.
+    best.and_then(|(index, _)| Action::from_index(index))
+        .unwrap_or(Action::IDLE)
 }
 
 /// Sum of the chosen logit of each head for joint action `index`.
@@ -121,6 +234,9 @@ mod tests {
     use super::*;
     use crate::action::Step;
 
+    const A: ObservationKey = ObservationKey(1);
+    const B: ObservationKey = ObservationKey(2);
+
     fn argmax_per_head(logits: &[f32; DIMS * CHOICES]) -> Action {
         let mut indices = [0usize; DIMS];
         for (h, index) in indices.iter_mut().enumerate() {
@@ -133,17 +249,8 @@ mod tests {
         Action::from_head_indices(indices).unwrap()
     }
 
-    #[test]
-    fn with_nothing_refused_it_is_the_per_head_argmax() {
-        let logits = [
-            0.1, 0.5, 0.2, 1.0, -1.0, 0.0, 0.3, 0.3, 0.1, -2.0, -1.0, -3.0, 0.0, 0.0, 0.0,
-        ];
-        assert_eq!(Decider::new().choose(&logits), argmax_per_head(&logits));
-    }
-
-    #[test]
-    fn a_refused_action_is_replaced_by_the_next_most_probable() {
-        // Move x: forward clearly best, then idle; other heads: idle clearly best.
+    /// Move x: forward clearly best, then idle; other heads: idle clearly best.
+    fn forward_logits() -> [f32; DIMS * CHOICES] {
         let mut logits = [0.0f32; DIMS * CHOICES];
         logits[0] = -5.0;
         logits[1] = 1.0;
@@ -151,54 +258,109 @@ mod tests {
         for h in 1..DIMS {
             logits[h * CHOICES + 1] = 3.0;
         }
-        let mut decider = Decider::new();
-        let first = decider.choose(&logits);
-        assert_eq!(first.move_x, Step::Plus);
-        decider.record(first, false);
-        let second = decider.choose(&logits);
-        assert_ne!(second, first);
-        // Next best: keep every head at its best but switch move x to idle (loses 1.0), rather
-        // than any other head (loses at least 3.0).
-        assert_eq!(second.move_x, Step::Zero);
-        assert_eq!(second.yaw, Step::Zero);
-        decider.record(second, false);
-        assert_eq!(decider.refused_count(), 2);
-        // The second choice was idle; idle never clears the memory, even when the caller
-        // reports a change.
-        assert_eq!(second, Action::IDLE);
-        decider.record(Action::IDLE, true);
-        assert!(decider.is_refused(Action::IDLE));
-        assert_eq!(decider.refused_count(), 2);
-        // Once the state changes, the best action is allowed again.
-        decider.record(first, true);
-        assert_eq!(decider.choose(&logits), first);
+        logits
     }
 
     #[test]
-    fn refusing_everything_starts_over_instead_of_running_dry() {
+    fn at_a_fresh_observation_it_is_the_per_head_argmax() {
+        let logits = [
+            0.1, 0.5, 0.2, 1.0, -1.0, 0.0, 0.3, 0.3, 0.1, -2.0, -1.0, -3.0, 0.0, 0.0, 0.0,
+        ];
+        assert_eq!(
+            Decider::<4>::new().choose(A, &logits),
+            argmax_per_head(&logits)
+        );
+    }
+
+    #[test]
+    fn a_repeated_observation_gets_the_next_most_probable_action() {
+        let logits = forward_logits();
+        let mut decider = Decider::<4>::new();
+        let first = decider.choose(A, &logits);
+        assert_eq!(first.move_x, Step::Plus);
+        // Refused: the robot sees the same observation again.
+        let second = decider.choose(A, &logits);
+        // Next best: keep every head at its best but switch move x to idle (loses 1.0), rather
+        // than any other head (loses at least 3.0).
+        assert_eq!(second, Action::IDLE);
+        assert!(decider.was_taken(A, first) && decider.was_taken(A, Action::IDLE));
+        assert_eq!(decider.taken_count(A), 2);
+        // Elsewhere the best action is fresh again...
+        assert_eq!(decider.choose(B, &logits), first);
+        // ...and coming back to A (a cycle A -> B -> A) does not repeat what A already did.
+        let third = decider.choose(A, &logits);
+        assert_ne!(third, first);
+        assert_ne!(third, second);
+        assert_eq!(decider.taken_count(A), 3);
+        assert_eq!(decider.remembered(), 2);
+    }
+
+    #[test]
+    fn the_oldest_observation_is_forgotten_first() {
+        let logits = forward_logits();
+        let mut decider = Decider::<2>::new();
+        let best = decider.choose(A, &logits);
+        decider.choose(B, &logits);
+        decider.choose(ObservationKey(3), &logits); // evicts A
+        assert_eq!(decider.remembered(), 2);
+        assert!(!decider.was_taken(A, best));
+        assert!(decider.was_taken(B, best));
+        assert_eq!(decider.choose(A, &logits), best, "A is fresh again");
+        decider.reset();
+        assert_eq!(decider.remembered(), 0);
+        // No memory at all is the plain most probable action, every time.
+        let mut none = Decider::<0>::new();
+        assert_eq!(none.choose(A, &logits), best);
+        assert_eq!(none.choose(A, &logits), best);
+    }
+
+    #[test]
+    fn taking_everything_starts_over_instead_of_running_dry() {
         let logits = [0i16; DIMS * CHOICES];
-        let mut decider = Decider::new();
+        let mut decider = Decider::<1>::new();
         let mut seen = [false; COUNT];
         for _ in 0..COUNT {
-            let action = decider.choose(&logits);
+            let action = decider.choose(A, &logits);
             assert!(!seen[action.index()], "an action was chosen twice");
             seen[action.index()] = true;
-            decider.record(action, false);
         }
-        assert_eq!(decider.refused_count(), 0, "the full set starts over");
-        assert_eq!(decider.choose(&logits), Action::from_index(0).unwrap());
+        assert_eq!(decider.taken_count(A), COUNT);
+        assert_eq!(
+            decider.choose(A, &logits),
+            Action::from_index(0).unwrap(),
+            "the full set starts over"
+        );
+        assert_eq!(decider.taken_count(A), 1);
     }
 
     #[test]
     fn nan_logits_never_panic_and_never_win() {
         let mut logits = [0.0f32; DIMS * CHOICES];
         logits[0] = f32::NAN;
-        let action = Decider::new().choose(&logits);
+        let action = Decider::<1>::new().choose(A, &logits);
         assert_ne!(action.move_x, Step::Minus);
         let all_nan = [f32::NAN; DIMS * CHOICES];
         assert_eq!(
-            Decider::new().choose(&all_nan),
+            Decider::<1>::new().choose(A, &all_nan),
             Action::from_index(0).unwrap()
         );
+    }
+
+    #[test]
+    fn keys_tell_observations_apart_and_float_and_integer_inputs_agree() {
+        let height_mm = [0i16, 150, -3, 42];
+        let state_mm = [80i32, 460, -1200, 35];
+        let key = ObservationKey::of_mm(&height_mm, &state_mm);
+        let height_m = [0.0f32, 0.15, -0.003, 0.0421];
+        let state_m = [0.08f32, 0.46, -1.2, 0.0349];
+        assert_eq!(ObservationKey::of_metres(&height_m, &state_m), key);
+        let mut moved = state_mm;
+        moved[2] += 1;
+        assert_ne!(ObservationKey::of_mm(&height_mm, &moved), key);
+        let mut lifted = height_mm;
+        lifted[3] = 43;
+        assert_ne!(ObservationKey::of_mm(&lifted, &state_mm), key);
+        // Absurd inputs saturate instead of wrapping or panicking.
+        let _ = ObservationKey::of_metres(&[f32::NAN, 1.0e9], &[f32::INFINITY]);
     }
 }

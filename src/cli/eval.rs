@@ -39,7 +39,8 @@ pub struct Args {
     #[arg(long, conflicts_with = "argmax")]
     stochastic: bool,
     /// Take each head's most probable choice even when that action was just refused (by
-    /// default a refused action is not repeated in the same state; see docs/results.md).
+    /// default an action already taken at the same observation is not repeated; see
+    /// docs/results.md, "Decision rule").
     #[arg(long)]
     argmax: bool,
     /// Planner budget per scenario (expanded states) for the shortest-path ratio; 0 skips it.
@@ -137,7 +138,8 @@ pub fn run(args: Args) -> CliResult {
     outln!(
         "decision rule        {}",
         match report.decision {
-            DecisionRule::Untried => "untried (most probable action not yet refused here)",
+            DecisionRule::Untried =>
+                "untried (most probable action not yet taken at this observation)",
             DecisionRule::Argmax => "argmax (each head's most probable choice)",
             DecisionRule::Sample => "sampled",
         }

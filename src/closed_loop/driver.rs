@@ -7,12 +7,11 @@
 use std::collections::VecDeque;
 use std::fmt;
 use wheelleg_runtime::action::Action;
-use wheelleg_runtime::decision::Decider;
+use wheelleg_runtime::decision::{Decider, ObservationKey};
 use wheelleg_runtime::model::DefaultPolicy;
 use wheelleg_runtime::observation::{HEIGHT_MAP_SIDE, STATE_LEN};
 use wheelleg_sim::env::{Env, Observation};
 use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig};
-use wheelleg_sim::state::RobotState;
 
 /// A decision maker of the closed loop.
 pub trait Driver {
@@ -98,10 +97,9 @@ pub struct PolicyDriver<'a> {
     policy: DefaultPolicy<'a>,
     label: String,
     observation: Observation,
-    /// Never repeats an action refused in the current state (see `wheelleg_runtime::decision`).
+    /// Never repeats an action already taken at the same observation (see
+    /// `wheelleg_runtime::decision`).
     decider: Decider,
-    /// The state and action of the previous decision: an unchanged state means it was refused.
-    last: Option<(RobotState, Action)>,
 }
 
 impl<'a> PolicyDriver<'a> {
@@ -114,7 +112,6 @@ impl<'a> PolicyDriver<'a> {
             label: label.to_owned(),
             observation: Observation::default(),
             decider: Decider::new(),
-            last: None,
         })
     }
 }
@@ -131,16 +128,12 @@ impl Driver for PolicyDriver<'_> {
     fn decide(&mut self, env: &Env) -> Result<Action, DriverError> {
         env.observe(&mut self.observation);
         let (height_mm, state_mm) = observation_mm(&self.observation);
-        if let Some((before, action)) = self.last {
-            self.decider.record(action, *env.state() != before);
-        }
         let outputs = self
             .policy
             .evaluate(height_mm.as_flattened(), &state_mm)
             .map_err(|e| DriverError(format!("{}: inference failed: {e}", self.label)))?;
-        let action = self.decider.choose(&outputs.action_logits);
-        self.last = Some((*env.state(), action));
-        Ok(action)
+        let key = ObservationKey::of_mm(height_mm.as_flattened(), &state_mm);
+        Ok(self.decider.choose(key, &outputs.action_logits))
     }
 }
 

@@ -2,7 +2,7 @@
 //! collision-free success rate, mean path length and its ratio to the planner's shortest path.
 //!
 //! All scenarios run in lock-step so the policy is evaluated once per step on the whole batch.
-//! Deterministic by default: the most probable joint action not yet refused in the current state
+//! Deterministic by default: the most probable joint action not yet taken at the same observation
 //! (`wheelleg_runtime::decision::Decider`, the rule the robot runs). Plain per-head argmax, which
 //! repeats a refused action until the step limit, is kept for comparison; stochastic draws come
 //! from the caller's seeded RNG.
@@ -13,7 +13,7 @@ use rand::Rng;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use wheelleg_runtime::action::{Action, CHOICES, DIMS};
-use wheelleg_runtime::decision::Decider;
+use wheelleg_runtime::decision::{Decider, ObservationKey};
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
 use wheelleg_sim::env::{Env, EnvConfig, Observation, Status};
 use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig};
@@ -61,7 +61,7 @@ pub struct EvalReport {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum DecisionRule {
-    /// The most probable joint action not yet refused in the current state (deterministic;
+    /// The most probable joint action not yet taken at the same observation (deterministic;
     /// what the robot runs).
     #[default]
     Untried,
@@ -139,7 +139,8 @@ pub fn run_episodes(
         .map(|s| Env::new(s, options.env_config).map_err(|e| format!("scenario {}: {e:?}", s.name)))
         .collect::<Result<Vec<_>, _>>()?;
     let mut obs = Observation::default();
-    let mut deciders = vec![Decider::new(); envs.len()];
+    let mut deciders: Vec<Decider> = vec![Decider::new(); envs.len()];
+    let mut keys = vec![ObservationKey(0); envs.len()];
     loop {
         let running: Vec<usize> = (0..envs.len())
             .filter(|&i| !envs[i].status().is_done())
@@ -152,6 +153,7 @@ pub fn run_episodes(
         for &i in &running {
             envs[i].observe(&mut obs);
             on_observation(&obs);
+            keys[i] = ObservationKey::of_metres(&obs.height_map, &obs.state);
             heights.extend_from_slice(&obs.height_map);
             states.extend_from_slice(&obs.state);
         }
@@ -165,13 +167,12 @@ pub fn run_episodes(
                     logits.copy_from_slice(
                         &out.log_probs[k * DIMS * CHOICES..(k + 1) * DIMS * CHOICES],
                     );
-                    deciders[i].choose(&logits)
+                    deciders[i].choose(keys[i], &logits)
                 }
             };
-            let outcome = envs[i]
+            envs[i]
                 .step(action)
                 .map_err(|_| "stepped a finished episode".to_string())?;
-            deciders[i].record(action, outcome.invalid.is_none());
         }
     }
     Ok(envs)

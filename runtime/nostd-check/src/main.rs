@@ -12,7 +12,7 @@
 use core::fmt::Write;
 use core::panic::PanicInfo;
 
-use wheelleg_runtime::decision::Decider;
+use wheelleg_runtime::decision::{Decider, ObservationKey};
 use wheelleg_runtime::model::DefaultPolicy;
 
 static WEIGHTS: &[u8] = include_bytes!(env!("WHEELLEG_POLICY"));
@@ -73,10 +73,11 @@ extern "C" fn main(_argc: i32, _argv: *const *const u8) -> i32 {
         });
     match result {
         Ok(outputs) => {
-            let mut decider = Decider::new();
-            let first = decider.choose(&outputs.action_logits);
-            decider.record(first, false);
-            let second = decider.choose(&outputs.action_logits);
+            // The second decision meets the same observation again (the first was refused).
+            let key = ObservationKey::of_mm(height_mm.as_flattened(), &state_mm);
+            let mut decider: Decider = Decider::new();
+            let first = decider.choose(key, &outputs.action_logits);
+            let second = decider.choose(key, &outputs.action_logits);
             let _ = writeln!(Stdout, "{} {}", first.index(), second.index());
             0
         }

@@ -11,7 +11,7 @@
 use crate::network_f32::NetworkF32;
 use nalgebra::{Point2, Vector2};
 use wheelleg_runtime::action::{Action, CHOICES, DIMS};
-use wheelleg_runtime::decision::Decider;
+use wheelleg_runtime::decision::{Decider, ObservationKey};
 use wheelleg_runtime::robot::RobotGeometry;
 use wheelleg_sim::env::{Env, EnvConfig, Observation, Status};
 use wheelleg_sim::obstacle::GRID_CELL_M;
@@ -58,29 +58,23 @@ pub struct RelevanceReport {
 }
 
 /// A float policy acting by the robot's rule (`wheelleg_runtime::decision::Decider`): the most
-/// probable joint action not yet refused in the current state. An observation equal to the
-/// previous one means the previous action was refused (the state did not change).
+/// probable joint action not yet taken at the current observation.
 pub struct DecidingPolicy<'a> {
     network: &'a NetworkF32,
     decider: Decider,
-    last: Option<(Observation, Action)>,
 }
 
 impl<'a> DecidingPolicy<'a> {
-    /// `network` with nothing refused yet.
+    /// `network` with nothing taken yet.
     pub fn new(network: &'a NetworkF32) -> DecidingPolicy<'a> {
         DecidingPolicy {
             network,
             decider: Decider::new(),
-            last: None,
         }
     }
 
     /// The action for `observation`.
     pub fn act(&mut self, observation: &Observation) -> Action {
-        if let Some((previous, action)) = &self.last {
-            self.decider.record(*action, previous != observation);
-        }
         let (logits, _) = self
             .network
             .forward(&observation.height_map, &observation.state);
@@ -88,9 +82,8 @@ impl<'a> DecidingPolicy<'a> {
         for (out, &l) in head_logits.iter_mut().zip(&logits) {
             *out = l;
         }
-        let action = self.decider.choose(&head_logits);
-        self.last = Some((observation.clone(), action));
-        action
+        let key = ObservationKey::of_metres(&observation.height_map, &observation.state);
+        self.decider.choose(key, &head_logits)
     }
 }
 
