@@ -2,7 +2,9 @@
 //! reported as samples/s) and whole training iterations (rollout + update, env steps/s).
 //!
 //! `cargo bench -p wheelleg-trainer --bench update`; backend from `WHEELLEG_BACKEND` (flex by
-//! default; others need their cargo feature). Figures: docs/decisions.md, docs/results.md.
+//! default; others need their cargo feature), conv layers from `WHEELLEG_CONV_KERNEL`
+//! (`ppo.conv_kernel`: `native` by default, or `burn`). Figures: docs/decisions.md,
+//! docs/results.md.
 
 #![allow(missing_docs)] // criterion_group! generates an undocumented function.
 
@@ -26,6 +28,10 @@ fn backend() -> BackendKind {
     BackendKind::from_name(&name).expect("WHEELLEG_BACKEND")
 }
 
+fn conv_kernel() -> String {
+    std::env::var("WHEELLEG_CONV_KERNEL").unwrap_or_else(|_| PpoConfig::default().conv_kernel)
+}
+
 fn random_batch(n: usize, rng: &mut ChaCha8Rng) -> Batch {
     Batch {
         heights_m: (0..n * HEIGHT_MAP_CELLS)
@@ -46,7 +52,11 @@ fn update_step(c: &mut Criterion) {
     let mut rng = ChaCha8Rng::seed_from_u64(0);
     let net = init_policy(&Architecture::default_policy(), &mut rng);
     let device = backend().device().expect("backend");
-    let mut ppo = Ppo::new(net, PpoConfig::default(), device).expect("ppo");
+    let config = PpoConfig {
+        conv_kernel: conv_kernel(),
+        ..PpoConfig::default()
+    };
+    let mut ppo = Ppo::new(net, config, device).expect("ppo");
     let batch = random_batch(MINIBATCH, &mut rng);
     let idx: Vec<usize> = (0..MINIBATCH).collect();
     let mut group = c.benchmark_group("ppo");
@@ -70,6 +80,7 @@ fn training_iteration(c: &mut Criterion) {
     let mut config = TrainConfig::default();
     config.run.backend = std::env::var("WHEELLEG_BACKEND").unwrap_or_else(|_| "flex".into());
     config.run.scene_kind = "complex".into();
+    config.ppo.conv_kernel = conv_kernel();
     config.run.steps_per_iteration = 2_000;
     config.run.num_envs = 50;
     config.run.total_env_steps = 2_000;

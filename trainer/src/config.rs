@@ -40,6 +40,11 @@ pub struct PpoConfig {
     /// Stop the epochs early once the approximate KL(old || new) of a minibatch exceeds this
     /// (0 disables).
     pub target_kl: f32,
+    /// Who computes the conv layers in updates: `native` (the specialised im2col + GEMM
+    /// kernel of `conv_kernel`, the default: measured faster, docs/decisions.md) or `burn`
+    /// (burn's conv2d inside the autodiff graph). Both give the same update within f32
+    /// rounding.
+    pub conv_kernel: String,
 }
 
 impl Default for PpoConfig {
@@ -58,6 +63,7 @@ impl Default for PpoConfig {
             max_grad_norm: 0.5,
             normalize_advantages: true,
             target_kl: 0.03,
+            conv_kernel: "native".into(),
         }
     }
 }
@@ -325,6 +331,8 @@ impl TrainConfig {
             "run.start_stage_window must be at least 1",
         )?;
         crate::network::BackendKind::from_name(&r.backend).map(|_| ())?;
+        crate::conv_kernel::ConvKernel::from_name(&p.conv_kernel)
+            .map_err(|e| format!("ppo.conv_kernel: {e}"))?;
         check(p.learning_rate > 0.0, "ppo.learning_rate must be positive")?;
         check(
             (0.0..=1.0).contains(&p.gamma),

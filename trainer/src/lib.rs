@@ -5,6 +5,7 @@
 //!
 //! - [`config`]: every hyperparameter, from a TOML file.
 //! - [`network`]: the actor-critic CNN as a burn graph over the [`network_f32`] parameters.
+//! - [`conv_kernel`]: the conv stack's specialised training kernel (im2col + GEMM).
 //! - [`vec_env`]: many simulator episodes stepped in lock-step over the cores.
 //! - [`storage`]: the rollout and its advantages (GAE).
 //! - [`ppo`]: the clipped surrogate, value loss, entropy bonus, Adam update.
@@ -26,6 +27,7 @@
 pub mod batch_policy;
 pub mod checkpoint;
 pub mod config;
+pub mod conv_kernel;
 pub mod curriculum;
 pub mod evaluate;
 pub mod export;

@@ -175,6 +175,19 @@ impl Net {
     /// Copies `net` to `device`. With `track_grad`, every parameter records gradients (the
     /// device must then be an autodiff device: `device.autodiff()`).
     pub fn new(net: &NetworkF32, device: &Device, track_grad: bool) -> Result<Net, String> {
+        Net::with_tracking(net, device, track_grad, track_grad)
+    }
+
+    /// Like [`Net::new`], choosing separately whether the conv parameters and the dense ones
+    /// record gradients. Training with the native conv kernel (`crate::conv_kernel`) tracks
+    /// only the dense ones and feeds [`Net::forward_from_features`]; [`Net::gradients`] then
+    /// reports zeros for the convs, to be replaced by the kernel's.
+    pub fn with_tracking(
+        net: &NetworkF32,
+        device: &Device,
+        track_convs: bool,
+        track_dense: bool,
+    ) -> Result<Net, String> {
         let Some(value_head) = &net.value_head else {
             return Err("the actor-critic network needs a value head".into());
         };
@@ -187,12 +200,12 @@ impl Net {
                         [s.out_channels, s.in_channels, s.kernel, s.kernel],
                     ),
                     device,
-                    track_grad,
+                    track_convs,
                 ),
                 bias: leaf(
                     TensorData::new(c.bias.clone(), [s.out_channels]),
                     device,
-                    track_grad,
+                    track_convs,
                 ),
                 options: ConvOptions::new([s.stride, s.stride], [s.padding, s.padding], [1, 1], 1),
             }
@@ -201,12 +214,12 @@ impl Net {
             weight: leaf(
                 TensorData::new(d.weights.clone(), [d.out_features, d.in_features]),
                 device,
-                track_grad,
+                track_dense,
             ),
             bias: leaf(
                 TensorData::new(d.bias.clone(), [d.out_features]),
                 device,
-                track_grad,
+                track_dense,
             ),
         };
         Ok(Net {
@@ -241,6 +254,19 @@ impl Net {
             ));
         }
         let features: Tensor<2> = x.reshape([batch, a.features_len()]);
+        self.forward_from_features(features, state, batch)
+    }
+
+    /// The network from the conv features on: `features` is `[batch, features_len]` (CHW
+    /// flatten per sample, as `crate::conv_kernel` returns them), `state` is
+    /// `batch * state_len`.
+    pub fn forward_from_features(
+        &self,
+        features: Tensor<2>,
+        state: Vec<f32>,
+        batch: usize,
+    ) -> Forward {
+        let a = &self.arch;
         let state: Tensor<2> =
             Tensor::from_data(TensorData::new(state, [batch, a.state_len]), &self.device);
         let mut h = Tensor::cat(vec![features, state], 1);
@@ -287,7 +313,7 @@ fn dense_forward(d: &DenseT, x: Tensor<2>) -> Tensor<2> {
     x.matmul(d.weight.clone().transpose()) + d.bias.clone().unsqueeze::<2>()
 }
 
-fn grad_vec<const D: usize>(t: &Tensor<D>, grads: &Gradients) -> Option<Vec<f32>> {
+pub(crate) fn grad_vec<const D: usize>(t: &Tensor<D>, grads: &Gradients) -> Option<Vec<f32>> {
     let g = t.grad(grads)?;
     let data = g.into_data();
     data.as_slice::<f32>().ok().map(<[f32]>::to_vec)
