@@ -263,24 +263,58 @@ impl TrainConfig {
         toml::to_string(self).unwrap_or_default()
     }
 
-    /// Whether `stored` (a checkpoint's config text) means the same config. Compared parsed, so
-    /// that a checkpoint written before a new section existed still matches when the section
-    /// holds its defaults.
+    /// What a resume from a checkpoint written with `stored` (its config text) would change:
+    /// one `"section.key: then -> now"` line per differing key, empty when the run may resume.
+    /// Compared parsed, so that a checkpoint written before a key existed still matches when
+    /// the key holds its default.
     ///
-    /// `run.total_env_steps` and the `[curriculum]` section are left out: the
-    /// budget because extending a finished run is what resuming is for; the curriculum
-    /// because it describes the pipeline around a stage, and
-    /// `wheelleg train all` copies what a stage uses of it into that stage's `run` and `ppo`,
-    /// so tuning a later stage does not lock out the finished earlier ones.
-    pub fn same_as_stored(&self, stored: &str) -> bool {
-        toml::from_str::<TrainConfig>(stored).is_ok_and(|c| {
-            let budget = self.run.total_env_steps;
-            let run = RunConfig {
-                total_env_steps: budget,
-                ..c.run
-            };
-            run == self.run && c.ppo == self.ppo && c.network == self.network
-        })
+    /// Compared: `[run]` (except `run.total_env_steps`: extending a finished run is what
+    /// resuming is for), `[ppo]`, `[network]`, and of `[curriculum]` only `curriculum_keys`.
+    /// The rest of the curriculum describes the pipeline around a stage, and `wheelleg train
+    /// all` copies what a stage uses of it into that stage's `run` and `ppo`, so tuning a later
+    /// stage does not lock out the finished earlier ones; a stage that reads curriculum keys
+    /// directly (the primary's replay) names them.
+    pub fn changes_from_stored(
+        &self,
+        stored: &str,
+        curriculum_keys: &[&str],
+    ) -> Result<Vec<String>, String> {
+        let then: TrainConfig =
+            toml::from_str(stored).map_err(|e| format!("stored config does not parse: {e}"))?;
+        let as_table = |c: &TrainConfig| {
+            toml::Table::try_from(c).map_err(|e| format!("config does not serialize: {e}"))
+        };
+        let (then, now) = (as_table(&then)?, as_table(self)?);
+        let mut keys: Vec<(&str, String)> = Vec::new();
+        for section in ["run", "ppo", "network"] {
+            let both = [&then, &now];
+            let names = both
+                .iter()
+                .filter_map(|t| t.get(section).and_then(toml::Value::as_table))
+                .flat_map(|t| t.keys().cloned())
+                .filter(|k| !(section == "run" && k == "total_env_steps"));
+            keys.extend(names.map(|k| (section, k)));
+        }
+        keys.extend(
+            curriculum_keys
+                .iter()
+                .map(|k| ("curriculum", k.to_string())),
+        );
+        keys.sort();
+        keys.dedup();
+        let value = |t: &toml::Table, section: &str, key: &str| {
+            t.get(section)
+                .and_then(toml::Value::as_table)
+                .and_then(|s| s.get(key))
+                .map_or_else(|| "(none)".to_string(), toml::Value::to_string)
+        };
+        Ok(keys
+            .into_iter()
+            .filter_map(|(section, key)| {
+                let (a, b) = (value(&then, section, &key), value(&now, section, &key));
+                (a != b).then(|| format!("{section}.{key}: {a} -> {b}"))
+            })
+            .collect())
     }
 
     /// Checks ranges, naming the offending key.
@@ -495,18 +529,28 @@ mod tests {
     #[test]
     fn a_resume_may_extend_the_budget_or_retune_the_curriculum_but_not_ppo() {
         let stored = TrainConfig::default().to_toml();
+        let changes =
+            |c: &TrainConfig, keys: &[&str]| c.changes_from_stored(&stored, keys).unwrap();
         let mut longer = TrainConfig::default();
         longer.run.total_env_steps *= 2;
-        assert!(longer.same_as_stored(&stored));
+        assert!(changes(&longer, &[]).is_empty());
         let mut retuned = TrainConfig::default();
         retuned.curriculum.secondary_init_temperature = 10.0;
-        assert!(retuned.same_as_stored(&stored));
+        assert!(changes(&retuned, &[]).is_empty());
+        retuned.curriculum.replay_imitation_coef = 0.5;
+        assert!(changes(&retuned, &["secondary_env_steps"]).is_empty());
+        assert_eq!(
+            changes(&retuned, &["replay_imitation_coef"]),
+            ["curriculum.replay_imitation_coef: 0.0 -> 0.5"],
+            "a stage that reads a curriculum key keeps it"
+        );
         let mut other = TrainConfig::default();
         other.ppo.entropy_coef *= 2.0;
-        assert!(!other.same_as_stored(&stored));
-        let mut other = TrainConfig::default();
         other.run.num_envs += 1;
-        assert!(!other.same_as_stored(&stored));
+        let found = changes(&other, &[]);
+        assert_eq!(found.len(), 2, "{found:?}");
+        assert!(found[0].starts_with("ppo.entropy_coef: "), "{found:?}");
+        assert!(found[1].starts_with("run.num_envs: "), "{found:?}");
         // A config stored before the start-stage keys existed means the curriculum off.
         let old = stored
             .lines()
@@ -514,9 +558,16 @@ mod tests {
             .collect::<Vec<_>>()
             .join("\n");
         assert!(old.len() < stored.len());
-        assert!(TrainConfig::default().same_as_stored(&old));
+        assert!(TrainConfig::default()
+            .changes_from_stored(&old, &[])
+            .unwrap()
+            .is_empty());
         let mut staged = TrainConfig::default();
         staged.run.start_stage = 0.0;
-        assert!(!staged.same_as_stored(&old));
+        assert!(!staged.changes_from_stored(&old, &[]).unwrap().is_empty());
+        assert!(TrainConfig::default()
+            .changes_from_stored("[run\n", &[])
+            .unwrap_err()
+            .contains("does not parse"));
     }
 }

@@ -304,7 +304,6 @@ pub fn run_primary(config: &TrainConfig, opts: &CurriculumOptions) -> Result<Run
         },
     };
     let dir = opts.out.join(PRIMARY_DIR);
-    refuse_changed_replay(config, &dir)?;
     let mut stage = config.clone();
     stage.run.scene_kind = "complex".into();
     let summary = run_stage(
@@ -321,41 +320,18 @@ pub fn run_primary(config: &TrainConfig, opts: &CurriculumOptions) -> Result<Run
                 imitation_coef: config.curriculum.replay_imitation_coef,
                 balance: config.curriculum.replay_balance,
             },
+            // Read from the curriculum section directly, so a resume must keep them.
+            resume_keeps: &[
+                "replay_steps_per_iteration",
+                "primary_init",
+                "replay_imitation_coef",
+                "replay_balance",
+            ],
             ..StageInputs::default()
         },
     )?;
     report_stage("primary", &summary);
     Ok(summary)
-}
-
-/// The primary stage's batches depend on four curriculum keys that the stage's own config
-/// check leaves out (see [`TrainConfig::same_as_stored`]): a resume must keep them.
-fn refuse_changed_replay(config: &TrainConfig, dir: &Path) -> Result<(), String> {
-    let path = dir.join(crate::runner::CHECKPOINT_FILE);
-    if !path.exists() {
-        return Ok(());
-    }
-    let stored = Checkpoint::load(&path)?;
-    let stored: TrainConfig = toml::from_str(&stored.config_toml)
-        .map_err(|e| format!("{}: stored config: {e}", path.display()))?;
-    let (a, b) = (&stored.curriculum, &config.curriculum);
-    if a.replay_steps_per_iteration != b.replay_steps_per_iteration
-        || a.primary_init != b.primary_init
-        || a.replay_imitation_coef != b.replay_imitation_coef
-        || a.replay_balance != b.replay_balance
-    {
-        return Err(format!(
-            "{} was written with curriculum.replay_steps_per_iteration = {}, \
-             curriculum.primary_init = {:?}, curriculum.replay_imitation_coef = {} and \
-             curriculum.replay_balance = {:?}; resume with the same values",
-            path.display(),
-            a.replay_steps_per_iteration,
-            a.primary_init,
-            a.replay_imitation_coef,
-            a.replay_balance,
-        ));
-    }
-    Ok(())
 }
 
 /// The whole pipeline: secondary policies, trajectory batch, primary policy.

@@ -126,6 +126,9 @@ pub struct StageInputs<'a> {
     pub record: Option<Behaviour>,
     /// How many trajectories `record` keeps.
     pub keep_trajectories: usize,
+    /// `[curriculum]` keys this stage reads directly, which a resume must therefore keep
+    /// (see [`TrainConfig::changes_from_stored`]).
+    pub resume_keeps: &'a [&'a str],
 }
 
 /// Trains a policy with PPO on fresh scenes of `config.run.scene_kind` (the baseline).
@@ -187,10 +190,14 @@ pub fn train_stage(
 
     if opts.resume {
         let (c, extras) = Checkpoint::load_with_extras(&ckpt_path)?;
-        if !config.same_as_stored(&c.config_toml) {
+        let changes = config
+            .changes_from_stored(&c.config_toml, inputs.resume_keeps)
+            .map_err(|e| format!("{}: {e}", ckpt_path.display()))?;
+        if !changes.is_empty() {
             return Err(format!(
-                "{} was written with a different config; resume with the run's own {}",
+                "{} was written with a different config ({}); resume with the run's own {}",
                 ckpt_path.display(),
+                changes.join(", "),
                 opts.out.join("config.toml").display()
             ));
         }

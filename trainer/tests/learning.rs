@@ -15,7 +15,7 @@ use wheelleg_trainer::evaluate::{evaluate, EvalOptions};
 use wheelleg_trainer::export::{export_policy, ExportOptions};
 use wheelleg_trainer::network::BackendKind;
 use wheelleg_trainer::quantize::EvalPolicy;
-use wheelleg_trainer::runner::{read_metrics, train, RunOptions};
+use wheelleg_trainer::runner::{read_metrics, train, train_stage, RunOptions, StageInputs};
 
 fn temp_dir(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("wheelleg-{name}-{}", std::process::id()));
@@ -141,6 +141,22 @@ fn a_resumed_run_matches_an_uninterrupted_one() {
     other.ppo.learning_rate *= 2.0;
     let e = train(&other, &opts(split.clone(), true, None)).unwrap_err();
     assert!(e.contains("different config"), "{e}");
+    assert!(
+        e.contains("ppo.learning_rate: "),
+        "the message names the key: {e}"
+    );
+    // A curriculum key is the stage's business only if the stage says it reads it.
+    let mut replay = config.clone();
+    replay.curriculum.replay_imitation_coef = 0.5;
+    let keeps = StageInputs {
+        resume_keeps: &["replay_imitation_coef"],
+        ..StageInputs::default()
+    };
+    let e = train_stage(&replay, &opts(split.clone(), true, None), keeps).unwrap_err();
+    assert!(
+        e.contains("curriculum.replay_imitation_coef: 0.0 -> 0.5"),
+        "{e}"
+    );
     let _ = std::fs::remove_dir_all(&whole);
     let _ = std::fs::remove_dir_all(&split);
 }
