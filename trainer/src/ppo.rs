@@ -10,7 +10,7 @@
 //! advantage computation live in `storage`/`runner`, so a caller can feed any [`Batch`].
 
 use crate::config::PpoConfig;
-use crate::conv_kernel::{self, ConvKernel};
+use crate::conv_kernel::{self, ConvKernel, ConvTape};
 use crate::network::{self, Net};
 use crate::network_f32::NetworkF32;
 use crate::storage::Batch;
@@ -177,6 +177,8 @@ pub struct Ppo {
     /// Optimizer state.
     pub adam: Adam,
     device: Device,
+    /// The native conv kernel's buffers, reused by every minibatch step.
+    conv_tape: ConvTape,
 }
 
 /// Observations are evaluated in chunks of this many samples (bounds memory of inference).
@@ -193,6 +195,7 @@ impl Ppo {
             net,
             adam,
             device,
+            conv_tape: ConvTape::default(),
         })
     }
 
@@ -327,7 +330,7 @@ impl Ppo {
         let device = self.device.clone().autodiff();
         // Native kernel: the conv features enter burn's graph as a leaf whose gradient feeds
         // the kernel's backward below; burn differentiates everything after them.
-        let (net, fwd, conv_tape) = match kernel {
+        let (net, fwd, features_leaf) = match kernel {
             ConvKernel::Burn => {
                 let net = Net::new(&self.net, &device, true)?;
                 let fwd = net.forward(heights, states, b);
@@ -335,12 +338,13 @@ impl Ppo {
             }
             ConvKernel::Native => {
                 let arch = &self.net.arch;
-                let (features, tape) = conv_kernel::forward(
+                let features = conv_kernel::forward_into(
                     &self.net.convs,
                     arch.height_rows,
                     arch.height_cols,
                     &heights,
                     b,
+                    &mut self.conv_tape,
                 )?;
                 let leaf = Tensor::<2>::from_data(
                     TensorData::new(features, [b, arch.features_len()]),
@@ -349,7 +353,7 @@ impl Ppo {
                 .require_grad();
                 let net = Net::with_tracking(&self.net, &device, false, true)?;
                 let fwd = net.forward_from_features(leaf.clone(), states, b);
-                (net, fwd, Some((leaf, tape)))
+                (net, fwd, Some(leaf))
             }
         };
         let data1 = |v: Vec<f32>| Tensor::<1>::from_data(TensorData::new(v, [b]), &device);
@@ -388,10 +392,11 @@ impl Ppo {
         }
         let grads = loss.backward();
         let mut g = net.gradients(&grads);
-        if let Some((leaf, tape)) = conv_tape {
+        if let Some(leaf) = features_leaf {
             let d_features =
                 network::grad_vec(&leaf, &grads).ok_or("no gradient reached the conv features")?;
-            let conv_grads = conv_kernel::backward(&self.net.convs, &tape, &d_features)?;
+            let conv_grads =
+                conv_kernel::backward(&self.net.convs, &mut self.conv_tape, &d_features)?;
             // `parameters` order starts with each conv's weights then bias.
             for (l, cg) in conv_grads.into_iter().enumerate() {
                 g[2 * l] = cg.weights;

@@ -115,12 +115,12 @@ fn random_case(
 fn check_against_burn(convs: &[Conv2dF32], rows: usize, cols: usize, batch: usize) {
     let (maps, d) = random_case(convs, rows, cols, batch, 1000 + batch as u64);
     let reference = burn_reference(convs, rows, cols, &maps, batch, &d);
-    let (features, tape) = forward(convs, rows, cols, &maps, batch).unwrap();
+    let (features, mut tape) = forward(convs, rows, cols, &maps, batch).unwrap();
     let e = max_relative_error(&features, &reference.features);
     assert!(e < TOLERANCE, "batch {batch}: features off by {e}");
     let inference = super::features(convs, rows, cols, &maps, batch).unwrap();
     assert_eq!(inference, features, "inference and training forward differ");
-    let grads = backward(convs, &tape, &d).unwrap();
+    let grads = backward(convs, &mut tape, &d).unwrap();
     assert_eq!(grads.len(), convs.len());
     for (l, (got, want)) in grads.iter().zip(&reference.grads).enumerate() {
         let ew = max_relative_error(&got.weights, &want.weights);
@@ -209,8 +209,8 @@ fn gradients_are_bit_identical_for_any_thread_count() {
             .build()
             .unwrap();
         pool.install(|| {
-            let (features, tape) = forward(&convs, rows, cols, &maps, batch).unwrap();
-            (features, backward(&convs, &tape, &d).unwrap())
+            let (features, mut tape) = forward(&convs, rows, cols, &maps, batch).unwrap();
+            (features, backward(&convs, &mut tape, &d).unwrap())
         })
     };
     let one = run(1);
@@ -220,15 +220,32 @@ fn gradients_are_bit_identical_for_any_thread_count() {
 }
 
 #[test]
+fn a_reused_tape_gives_the_results_of_a_fresh_one() {
+    let (convs, rows, cols) = policy_convs(17);
+    let mut reused = ConvTape::default();
+    for (batch, seed) in [(75, 18), (33, 19), (75, 20)] {
+        let (maps, d) = random_case(&convs, rows, cols, batch, seed);
+        let (fresh_features, mut fresh) = forward(&convs, rows, cols, &maps, batch).unwrap();
+        let features = forward_into(&convs, rows, cols, &maps, batch, &mut reused).unwrap();
+        assert_eq!(features, fresh_features);
+        assert_eq!(
+            backward(&convs, &mut reused, &d).unwrap(),
+            backward(&convs, &mut fresh, &d).unwrap()
+        );
+    }
+}
+
+#[test]
 fn bad_inputs_are_errors_not_panics() {
     let (convs, rows, cols) = policy_convs(16);
     assert!(forward(&convs, rows, cols, &[0.0; 100], 1).is_err());
-    let (_, tape) = forward(&convs, rows, cols, &vec![0.0; 2 * rows * cols], 2).unwrap();
-    assert!(backward(&convs, &tape, &[0.0; 3]).is_err());
+    let (_, mut tape) = forward(&convs, rows, cols, &vec![0.0; 2 * rows * cols], 2).unwrap();
+    assert!(backward(&convs, &mut tape, &[0.0; 3]).is_err());
     let mut broken = convs.clone();
     broken[1].weights.pop();
     assert!(forward(&broken, rows, cols, &vec![0.0; rows * cols], 1).is_err());
-    assert!(backward(&broken, &tape, &vec![0.0; 2 * 512]).is_err());
+    assert!(backward(&broken, &mut tape, &vec![0.0; 2 * 512]).is_err());
+    assert!(backward(&convs, &mut ConvTape::default(), &[]).is_err());
     let no_tape = super::features(&convs, rows, cols, &vec![0.0; rows * cols], 1);
     assert!(no_tape.is_ok());
     assert!(ConvKernel::from_name("cudnn").is_err());
