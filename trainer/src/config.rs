@@ -40,10 +40,10 @@ pub struct PpoConfig {
     /// Stop the epochs early once the approximate KL(old || new) of a minibatch exceeds this
     /// (0 disables).
     pub target_kl: f32,
-    /// Who computes the conv layers in updates: `native` (the specialised im2col + GEMM
-    /// kernel of `conv_kernel`, the default: measured faster, docs/decisions.md) or `burn`
-    /// (burn's conv2d inside the autodiff graph). Both give the same update within f32
-    /// rounding.
+    /// Who computes the conv layers, in updates and in `Ppo::evaluate`/`act` (rollouts):
+    /// `native` (the specialised im2col + GEMM kernel of `conv_kernel`, the default: measured
+    /// faster, docs/decisions.md) or `burn` (burn's conv2d, inside the autodiff graph in
+    /// updates). Both give the same results within f32 rounding.
     pub conv_kernel: String,
 }
 
@@ -524,6 +524,10 @@ mod tests {
         assert!(e.contains("curriculum.replay_imitation_coef"), "{e}");
         let e = TrainConfig::from_toml("[curriculum]\nreplay_balance = \"kind\"\n").unwrap_err();
         assert!(e.contains("replay_balance"), "{e}");
+        let e = TrainConfig::from_toml("[ppo]\nconv_kernel = \"cudnn\"\n").unwrap_err();
+        assert!(e.contains("ppo.conv_kernel") && e.contains("native"), "{e}");
+        let burn = TrainConfig::from_toml("[ppo]\nconv_kernel = \"burn\"\n").unwrap();
+        assert_eq!(burn.ppo.conv_kernel, "burn");
     }
 
     #[test]

@@ -18,6 +18,7 @@ use burn::tensor::{Device, Tensor, TensorData};
 use rand::seq::SliceRandom;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
+use std::sync::{Mutex, PoisonError};
 use wheelleg_runtime::action::{CHOICES, DIMS};
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
 
@@ -179,6 +180,9 @@ pub struct Ppo {
     device: Device,
     /// The native conv kernel's buffers, reused by every minibatch step.
     conv_tape: ConvTape,
+    /// The same for inference (`evaluate` takes `&self`): fresh buffers on every call were
+    /// measured 2-3x slower once training had run (allocator page faults).
+    eval_tape: Mutex<ConvTape>,
 }
 
 /// Observations are evaluated in chunks of this many samples (bounds memory of inference).
@@ -196,6 +200,7 @@ impl Ppo {
             adam,
             device,
             conv_tape: ConvTape::default(),
+            eval_tape: Mutex::new(ConvTape::default()),
         })
     }
 
@@ -227,12 +232,19 @@ impl Ppo {
                 ConvKernel::Burn => net.forward(heights.to_vec(), states, end - start),
                 ConvKernel::Native => {
                     let arch = &self.net.arch;
-                    let features = conv_kernel::features(
+                    // A poisoned lock only means another call panicked mid-way; the tape is
+                    // overwritten anyway.
+                    let mut tape = self
+                        .eval_tape
+                        .lock()
+                        .unwrap_or_else(PoisonError::into_inner);
+                    let features = conv_kernel::forward_into(
                         &self.net.convs,
                         arch.height_rows,
                         arch.height_cols,
                         heights,
                         end - start,
+                        &mut tape,
                     )?;
                     let features = Tensor::<2>::from_data(
                         TensorData::new(features, [end - start, arch.features_len()]),
