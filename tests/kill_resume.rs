@@ -168,6 +168,25 @@ fn a_training_run_killed_at_any_moment_resumes_to_the_same_result() {
     let config_path = dir.join("tiny.toml");
     std::fs::write(&config_path, CONFIG).unwrap();
     let run = dir.join("killed");
+    let config = TrainConfig::load(&config_path).unwrap();
+    // The uninterrupted reference run first: its duration scales the random kill moments, so
+    // they land inside a run on any machine (fixed 50 ms to 2.5 s windows stopped landing once
+    // the native conv kernel made the whole run shorter than 2.5 s).
+    let whole = dir.join("whole");
+    let whole_started = Instant::now();
+    let reference = train(
+        &config,
+        &RunOptions {
+            out: whole.clone(),
+            seed: SEED,
+            resume: false,
+            progress: false,
+            max_iterations: None,
+            kind: "baseline".into(),
+        },
+    )
+    .unwrap();
+    let whole_run = whole_started.elapsed();
     let mut rng = ChaCha8Rng::seed_from_u64(20_240_607);
     let (mut kills, mut during_write, mut before_first_checkpoint) = (0, 0, 0);
     let mut resumed_from = Vec::new();
@@ -184,7 +203,7 @@ fn a_training_run_killed_at_any_moment_resumes_to_the_same_result() {
         }
         let mut child = spawn(&config_path, &run, checkpoint);
         let moment = match k % 3 {
-            0 => Moment::Random(Duration::from_millis(rng.random_range(50..2_500))),
+            0 => Moment::Random(whole_run.mul_f64(rng.random_range(0.02..0.25))),
             1 => Moment::CheckpointWrite,
             _ => Moment::MetricsLine,
         };
@@ -221,7 +240,6 @@ fn a_training_run_killed_at_any_moment_resumes_to_the_same_result() {
     let last = Checkpoint::load(&run.join(CHECKPOINT_FILE)).unwrap();
     assert_eq!(last.iteration, ITERATIONS);
     assert_eq!(last.env_steps, ITERATIONS * 200);
-    let config = TrainConfig::load(&config_path).unwrap();
     assert_eq!(last.config_toml, config.to_toml());
     assert_eq!(
         std::fs::read_to_string(run.join("config.toml")).unwrap(),
@@ -235,19 +253,6 @@ fn a_training_run_killed_at_any_moment_resumes_to_the_same_result() {
     assert!(leftovers.is_empty(), "temporaries left: {leftovers:?}");
 
     // And it is the run an uninterrupted process makes with the same seed.
-    let whole = dir.join("whole");
-    let reference = train(
-        &config,
-        &RunOptions {
-            out: whole.clone(),
-            seed: SEED,
-            resume: false,
-            progress: false,
-            max_iterations: None,
-            kind: "baseline".into(),
-        },
-    )
-    .unwrap();
     let uninterrupted = Checkpoint::load(&reference.checkpoint).unwrap();
     assert_eq!(last.network, uninterrupted.network);
     assert_eq!(last.adam, uninterrupted.adam);
@@ -261,9 +266,10 @@ fn a_training_run_killed_at_any_moment_resumes_to_the_same_result() {
     assert_eq!(learning(&metrics), learning(&read_metrics(&whole).unwrap()));
 
     eprintln!(
-        "kill/resume: {kills} kills ({during_write} during a checkpoint write, \
+        "kill/resume: whole run {:.1} s; {kills} kills ({during_write} during a checkpoint write, \
          {before_first_checkpoint} before the first checkpoint), resumed from iterations \
          {resumed_from:?}; {:.1} s",
+        whole_run.as_secs_f64(),
         started.elapsed().as_secs_f64()
     );
     // The kills really hit the moments the test is about.
