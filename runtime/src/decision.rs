@@ -334,6 +334,12 @@ mod tests {
     }
 
     #[test]
+    fn the_default_memory_is_about_five_kilobytes() {
+        // 128 observations x (8-byte key + 32-byte set) + two counters: the 5 KB the docs state.
+        assert!(core::mem::size_of::<Decider>() <= 128 * 40 + 16);
+    }
+
+    #[test]
     fn nan_logits_never_panic_and_never_win() {
         let mut logits = [0.0f32; DIMS * CHOICES];
         logits[0] = f32::NAN;
