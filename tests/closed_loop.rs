@@ -18,6 +18,7 @@ use wheelleg_firmware_sim::candump::{parse_log, CandumpWriter, DEFAULT_EPOCH_US}
 use wheelleg_firmware_sim::rig::{true_wheel_speed_sum, StopReason};
 use wheelleg_runtime::action::{Action, Step};
 use wheelleg_runtime::can::node_map::{Axis, Joint};
+use wheelleg_runtime::guard::{CollisionGuard, DEFAULT_MARGIN_M};
 use wheelleg_runtime::robot::{LegId, WHEELLEG};
 use wheelleg_sim::env::{Env, InvalidAction, Observation, Status};
 use wheelleg_sim::generate::{generate, Behaviour, SceneKind};
@@ -512,4 +513,54 @@ fn trained_policy_closed_loop_success_is_within_2_points_of_simulation() {
     .unwrap();
     eprintln!("{comparison:?}");
     assert!(comparison.gap_points() <= 2.0, "{comparison:?}");
+}
+
+#[test]
+fn the_collision_guard_spares_the_trained_policy_collisions() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("weights/policy.wlw");
+    let Ok(bytes) = std::fs::read(&path) else {
+        eprintln!(
+            "SKIPPED the_collision_guard_spares_the_trained_policy_collisions: no trained weights \
+             at {}",
+            path.display()
+        );
+        return;
+    };
+    // Held out, as above.
+    let mut rng = ChaCha8Rng::seed_from_u64(9_000);
+    let scenes: Vec<Scenario> = (0..100)
+        .map(|i| generate(SceneKind::Complex, &mut rng, format!("held-out-{i}")))
+        .collect();
+    // (successes, collision-free successes, collisions) over the scenes.
+    let run = |guarded: bool| {
+        let mut tally = (0, 0, 0);
+        for scene in &scenes {
+            let mut env = Env::new(scene, Default::default()).unwrap();
+            let driver = PolicyDriver::from_bytes(&bytes, "weights/policy.wlw").unwrap();
+            let mut driver = if guarded {
+                driver.with_guard(CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M))
+            } else {
+                driver
+            };
+            let status = simulate(&mut env, &mut driver).unwrap();
+            let success = status == Status::Success;
+            tally.0 += usize::from(success);
+            tally.1 += usize::from(success && env.collisions() == 0);
+            tally.2 += env.collisions();
+        }
+        tally
+    };
+    let (alone, guarded) = (run(false), run(true));
+    eprintln!(
+        "policy alone {alone:?}, guarded {guarded:?} (successes, collision-free, collisions)"
+    );
+    assert!(
+        guarded.2 * 2 < alone.2,
+        "alone {alone:?}, guarded {guarded:?}"
+    );
+    assert!(guarded.1 >= alone.1, "alone {alone:?}, guarded {guarded:?}");
+    assert!(
+        guarded.0 + 2 >= alone.0,
+        "alone {alone:?}, guarded {guarded:?}"
+    );
 }

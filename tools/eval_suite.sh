@@ -3,7 +3,7 @@
 # path, ratio to the planner's shortest) and 200 held-out scenes of each leg behaviour
 # (success / collision-free), the figures of docs/results.md.
 #
-#   tools/eval_suite.sh [--stochastic|--argmax] CKPT_OR_WLW...
+#   tools/eval_suite.sh [--stochastic|--argmax|--guard] CKPT_OR_WLW...
 #
 # WHEELLEG names the binary (default: target/release/wheelleg). Seeds: the committed held-out
 # complex set (generator seed 1,000,000) and generated behaviour scenes at seed 1,000,000, never
@@ -12,11 +12,11 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bin=${WHEELLEG:-target/release/wheelleg}
 rule=()
-if [[ "${1:-}" == --stochastic || "${1:-}" == --argmax ]]; then
+if [[ "${1:-}" == --stochastic || "${1:-}" == --argmax || "${1:-}" == --guard ]]; then
     rule=("$1")
     shift
 fi
-[[ $# -gt 0 ]] || { echo "usage: $0 [--stochastic|--argmax] POLICY..." >&2; exit 2; }
+[[ $# -gt 0 ]] || { echo "usage: $0 [--stochastic|--argmax|--guard] POLICY..." >&2; exit 2; }
 heldout=eval/heldout-complex-s1000000.json
 plan=eval/heldout-complex-s1000000.plan.json
 summary() {

@@ -14,7 +14,11 @@
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use wheelleg_runtime::decision::{Decider, ObservationKey};
+use wheelleg_runtime::guard::{CollisionGuard, HeightMapRef, DEFAULT_MARGIN_M};
+use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::model::DefaultPolicy;
+use wheelleg_runtime::observation::HEIGHT_MAP_CELLS;
+use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_trainer::export::write_atomic;
 use wheelleg_trainer::network_f32::{Architecture, NetworkF32};
 use wheelleg_trainer::quantize::{observation_mm, quantize, Calibration, RangeMethod};
@@ -58,5 +62,24 @@ fn main() {
     );
     // Refused: the same observation again.
     let second = decider.choose(key, &outputs.action_logits);
-    println!("{} {}", first.index(), second.index());
+    // The third with the collision guard, at the default pose.
+    let guard = CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M);
+    let legs = LegConfig {
+        clearance_m: WHEELLEG.default_clearance_m,
+        track_m: WHEELLEG.default_track_m,
+    };
+    let map: &[i16; HEIGHT_MAP_CELLS] = height_mm.as_slice().try_into().unwrap();
+    let third = decider.choose_checked(
+        key,
+        &outputs.action_logits,
+        CollisionGuard::LEVELS,
+        |level, action| guard.allows(level, HeightMapRef::Millimetres(map), legs, action),
+    );
+    println!(
+        "{} {} {} {:?}",
+        first.index(),
+        second.index(),
+        third.action.index(),
+        third.level
+    );
 }

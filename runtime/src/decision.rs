@@ -117,19 +117,71 @@ impl<const STATES: usize> Decider<STATES> {
         key: ObservationKey,
         logits: &[L; DIMS * CHOICES],
     ) -> Action {
-        let Some(taken) = self.slot(key) else {
-            // No memory at all (STATES = 0): the plain most probable joint action.
-            return best_untaken(&[0; WORDS], logits);
+        self.choose_checked(key, logits, 0, |_, _| true).action
+    }
+
+    /// [`Decider::choose`] among the actions a check accepts (a look-ahead check such as
+    /// [`crate::guard::CollisionGuard`]), with `levels` checks from strict to lenient: the most
+    /// probable joint action not yet taken at this observation that `allowed(0, action)`
+    /// passes; if it refuses every untaken action, the most probable that `allowed(1, action)`
+    /// passes; and so on. `allowed` is asked lazily, best candidate first, so a policy that is
+    /// right costs one check. When every level refuses every untaken action, the plain choice
+    /// is taken anyway (a check that is wrong must not stop the robot for good), and the
+    /// returned [`Checked::level`] is `None`.
+    pub fn choose_checked<L: Copy + Into<f32>>(
+        &mut self,
+        key: ObservationKey,
+        logits: &[L; DIMS * CHOICES],
+        levels: usize,
+        mut allowed: impl FnMut(usize, Action) -> bool,
+    ) -> Checked {
+        let mut checks = 0;
+        let taken = match self.slot(key) {
+            Some(taken) => {
+                if count(taken) >= COUNT {
+                    *taken = [0; WORDS];
+                }
+                *taken
+            }
+            None => [0; WORDS],
         };
-        if count(taken) >= COUNT {
-            *taken = [0; WORDS];
+        for level in 0..levels {
+            let mut excluded = taken;
+            while count(&excluded) < COUNT {
+                let candidate = best_untaken(&excluded, logits);
+                checks += 1;
+                if allowed(level, candidate) {
+                    self.mark_taken(key, candidate);
+                    return Checked {
+                        action: candidate,
+                        level: Some(level),
+                        checks,
+                    };
+                }
+                let index = candidate.index();
+                if let Some(word) = excluded.get_mut(index / 32) {
+                    *word |= 1 << (index % 32);
+                }
+            }
         }
-        let action = best_untaken(taken, logits);
+        let action = best_untaken(&taken, logits);
+        self.mark_taken(key, action);
+        Checked {
+            action,
+            level: None,
+            checks,
+        }
+    }
+
+    fn mark_taken(&mut self, key: ObservationKey, action: Action) {
         let index = action.index();
-        if let Some(word) = taken.get_mut(index / 32) {
+        if let Some(word) = self
+            .find(key)
+            .and_then(|slot| self.taken.get_mut(slot))
+            .and_then(|taken| taken.get_mut(index / 32))
+        {
             *word |= 1 << (index % 32);
         }
-        action
     }
 
     /// Whether `action` has already been taken at observation `key` (as far as the decider
@@ -185,6 +237,18 @@ impl<const STATES: usize> Decider<STATES> {
         };
         self.taken.get_mut(slot)
     }
+}
+
+/// What [`Decider::choose_checked`] decided.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Checked {
+    /// The action to take.
+    pub action: Action,
+    /// The strictest check level that passed it; `None`: every level refused every untaken
+    /// action, and this is the plain choice.
+    pub level: Option<usize>,
+    /// How many candidates were checked.
+    pub checks: usize,
 }
 
 fn count(taken: &[u32; WORDS]) -> usize {
@@ -330,6 +394,51 @@ mod tests {
             Action::from_index(0).unwrap(),
             "the full set starts over"
         );
+        assert_eq!(decider.taken_count(A), 1);
+    }
+
+    #[test]
+    fn a_check_skips_refused_actions_without_remembering_them() {
+        let mut decider: Decider = Decider::new();
+        let logits = forward_logits();
+        let forward = argmax_per_head(&logits);
+        let mut asked = 0;
+        let checked = decider.choose_checked(A, &logits, 1, |_, action| {
+            asked += 1;
+            action != forward
+        });
+        assert_eq!(checked.level, Some(0));
+        assert_eq!(checked.checks, 2);
+        assert_eq!(asked, 2);
+        assert_ne!(checked.action, forward);
+        // The refused action was not taken, so without the check it is still the first choice.
+        assert!(!decider.was_taken(A, forward));
+        assert!(decider.was_taken(A, checked.action));
+        assert_eq!(decider.choose(A, &logits), forward);
+    }
+
+    #[test]
+    fn a_lenient_level_is_asked_only_when_the_strict_one_refuses_everything() {
+        let mut decider: Decider = Decider::new();
+        let logits = forward_logits();
+        let forward = argmax_per_head(&logits);
+        // Level 0 refuses everything; level 1 refuses only the forward move.
+        let checked = decider.choose_checked(A, &logits, 2, |level, action| {
+            level == 1 && action != forward
+        });
+        assert_eq!(checked.level, Some(1));
+        assert_eq!(checked.checks, COUNT + 2);
+        assert_ne!(checked.action, forward);
+    }
+
+    #[test]
+    fn a_check_that_refuses_everything_falls_back_to_the_plain_choice() {
+        let mut decider: Decider = Decider::new();
+        let logits = forward_logits();
+        let checked = decider.choose_checked(A, &logits, 2, |_, _| false);
+        assert_eq!(checked.level, None);
+        assert_eq!(checked.checks, 2 * COUNT);
+        assert_eq!(checked.action, argmax_per_head(&logits));
         assert_eq!(decider.taken_count(A), 1);
     }
 

@@ -19,6 +19,7 @@ use wheelleg::closed_loop::{
 use wheelleg_firmware_sim::candump::{CandumpWriter, DEFAULT_EPOCH_US};
 use wheelleg_firmware_sim::rig::RigError;
 use wheelleg_runtime::can::node_map::Axis;
+use wheelleg_runtime::guard::CollisionGuard;
 use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::env::{Env, Status};
 use wheelleg_sim::generate::{generate, SceneKind};
@@ -70,6 +71,10 @@ pub struct Args {
     /// ...from this decision on (1-based).
     #[arg(long, requires = "silent_node")]
     silent_at_step: Option<u32>,
+    /// Check each of the policy's actions against the height map before sending it (the
+    /// runtime's collision guard), growing every map column by MARGIN_M metres on each side (default 0.005).
+    #[arg(long, value_name = "MARGIN_M", num_args = 0..=1, default_missing_value = "0.005")]
+    guard: Option<f32>,
 }
 
 /// The scene to run and how it was chosen.
@@ -215,10 +220,13 @@ pub fn run(args: Args) -> CliResult {
         Some(path) => {
             bytes =
                 std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
-            Box::new(PolicyDriver::from_bytes(
-                &bytes,
-                &path.display().to_string(),
-            )?)
+            let driver = PolicyDriver::from_bytes(&bytes, &path.display().to_string())?;
+            match args.guard {
+                Some(margin_m) => {
+                    Box::new(driver.with_guard(CollisionGuard::new(WHEELLEG, margin_m)))
+                }
+                None => Box::new(driver),
+            }
         }
         None => Box::new(
             PlannerDriver::new(closed_loop.env(), &planner).map_err(|e| {

@@ -1,5 +1,5 @@
 //! `wheelleg eval --policy CKPT|WEIGHTS (--scenarios FILE | --generated N --kind K) --seed S [--json]
-//! [--stochastic | --argmax] [--planner-expansions N | --planner-results PLAN.json]`.
+//! [--stochastic | --argmax | --guard [MARGIN_M]] [--planner-expansions N | --planner-results PLAN.json]`.
 
 use super::CliResult;
 use rand::SeedableRng;
@@ -50,6 +50,12 @@ pub struct Args {
     /// the planner is then not run, so one planner pass serves every policy.
     #[arg(long, conflicts_with = "planner_expansions")]
     planner_results: Option<PathBuf>,
+    /// Check each action against the height map before taking it, as a robot running the
+    /// runtime's collision guard does, growing every map column by MARGIN_M metres on each side
+    /// (default 0.005; negative shrinks them). Only with the default decision rule.
+    #[arg(long, value_name = "MARGIN_M", num_args = 0..=1, allow_negative_numbers = true,
+          default_missing_value = "0.005", conflicts_with_all = ["stochastic", "argmax"])]
+    guard: Option<f32>,
 }
 
 /// Runs `eval`.
@@ -90,6 +96,7 @@ pub fn run(args: Args) -> CliResult {
         },
         planner_expansions: args.planner_expansions,
         known_shortest,
+        guard_margin_m: args.guard,
         ..EvalOptions::default()
     };
     let mut rng = ChaCha8Rng::seed_from_u64(args.seed);
@@ -143,6 +150,14 @@ pub fn run(args: Args) -> CliResult {
             DecisionRule::Argmax => "argmax (each head's most probable choice)",
             DecisionRule::Sample => "sampled",
         }
+    );
+    outln!(
+        "collision guard      {}",
+        report
+            .guard_margin_m
+            .map_or("off (the policy alone)".to_string(), |m| format!(
+                "on, map columns grown by {m} m"
+            ))
     );
     outln!("success rate         {:.1}%", 100.0 * report.success_rate);
     outln!(

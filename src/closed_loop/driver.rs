@@ -8,6 +8,8 @@ use std::collections::VecDeque;
 use std::fmt;
 use wheelleg_runtime::action::Action;
 use wheelleg_runtime::decision::{Decider, ObservationKey};
+use wheelleg_runtime::guard::{CollisionGuard, HeightMapRef};
+use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::model::DefaultPolicy;
 use wheelleg_runtime::observation::{HEIGHT_MAP_SIDE, STATE_LEN};
 use wheelleg_sim::env::{Env, Observation};
@@ -100,6 +102,8 @@ pub struct PolicyDriver<'a> {
     /// Never repeats an action already taken at the same observation (see
     /// `wheelleg_runtime::decision`).
     decider: Decider,
+    /// Checks each action against the height map first, when set.
+    guard: Option<CollisionGuard>,
 }
 
 impl<'a> PolicyDriver<'a> {
@@ -112,16 +116,28 @@ impl<'a> PolicyDriver<'a> {
             label: label.to_owned(),
             observation: Observation::default(),
             decider: Decider::new(),
+            guard: None,
         })
+    }
+
+    /// Checks every action with `guard` before taking it (`wheelleg_runtime::guard`): the
+    /// policy's most probable action that the guard passes is taken.
+    pub fn with_guard(mut self, guard: CollisionGuard) -> PolicyDriver<'a> {
+        self.guard = Some(guard);
+        self
     }
 }
 
 impl Driver for PolicyDriver<'_> {
     fn describe(&self) -> String {
         format!(
-            "int8 policy {} ({:?} kernel)",
+            "int8 policy {} ({:?} kernel){}",
             self.label,
-            self.policy.kernel()
+            self.policy.kernel(),
+            self.guard.map_or(String::new(), |g| format!(
+                ", collision guard (columns grown by {} m)",
+                g.margin_m()
+            ))
         )
     }
 
@@ -133,7 +149,24 @@ impl Driver for PolicyDriver<'_> {
             .evaluate(height_mm.as_flattened(), &state_mm)
             .map_err(|e| DriverError(format!("{}: inference failed: {e}", self.label)))?;
         let key = ObservationKey::of_mm(height_mm.as_flattened(), &state_mm);
-        Ok(self.decider.choose(key, &outputs.action_logits))
+        let Some(guard) = &self.guard else {
+            return Ok(self.decider.choose(key, &outputs.action_logits));
+        };
+        let cells = height_mm
+            .as_flattened()
+            .try_into()
+            .map_err(|_| DriverError("height map of the wrong size".to_owned()))?;
+        let legs = LegConfig {
+            clearance_m: state_mm[0] as f32 * 1.0e-3,
+            track_m: state_mm[1] as f32 * 1.0e-3,
+        };
+        let checked = self.decider.choose_checked(
+            key,
+            &outputs.action_logits,
+            CollisionGuard::LEVELS,
+            |level, action| guard.allows(level, HeightMapRef::Millimetres(cells), legs, action),
+        );
+        Ok(checked.action)
     }
 }
 

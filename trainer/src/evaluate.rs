@@ -14,7 +14,10 @@ use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use wheelleg_runtime::action::{Action, CHOICES, DIMS};
 use wheelleg_runtime::decision::{Decider, ObservationKey};
+use wheelleg_runtime::guard::{CollisionGuard, HeightMapRef};
+use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
+use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::env::{Env, EnvConfig, Observation, Status};
 use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig};
 use wheelleg_sim::scenario::Scenario;
@@ -43,6 +46,9 @@ pub struct ScenarioResult {
 pub struct EvalReport {
     /// How actions were chosen.
     pub decision: DecisionRule,
+    /// Padding of the look-ahead collision guard, when one checked the actions
+    /// (`wheelleg_runtime::guard`); none: the policy alone.
+    pub guard_margin_m: Option<f32>,
     /// Fraction of scenarios reached.
     pub success_rate: f32,
     /// Fraction reached without collision.
@@ -85,6 +91,10 @@ pub struct EvalOptions {
     /// given, the planner is not run: one planner pass over a held-out set then serves every
     /// policy evaluated on it.
     pub known_shortest: Option<HashMap<String, Option<usize>>>,
+    /// Check each action against the height map before taking it
+    /// (`wheelleg_runtime::guard::CollisionGuard` with this margin), as a robot running the
+    /// guard does; only with [`DecisionRule::Untried`]. None: the policy alone.
+    pub guard_margin_m: Option<f32>,
 }
 
 #[derive(Deserialize)]
@@ -121,6 +131,7 @@ impl Default for EvalOptions {
             planner_expansions: 20_000,
             env_config: EnvConfig::default(),
             known_shortest: None,
+            guard_margin_m: None,
         }
     }
 }
@@ -141,6 +152,15 @@ pub fn run_episodes(
     let mut obs = Observation::default();
     let mut deciders: Vec<Decider> = vec![Decider::new(); envs.len()];
     let mut keys = vec![ObservationKey(0); envs.len()];
+    let guard = match (options.guard_margin_m, options.decision) {
+        (None, _) => None,
+        (Some(margin_m), DecisionRule::Untried) => Some(CollisionGuard::new(WHEELLEG, margin_m)),
+        (Some(_), rule) => {
+            return Err(format!(
+                "the collision guard needs the untried decision rule, not {rule:?}"
+            ))
+        }
+    };
     loop {
         let running: Vec<usize> = (0..envs.len())
             .filter(|&i| !envs[i].status().is_done())
@@ -167,7 +187,28 @@ pub fn run_episodes(
                     logits.copy_from_slice(
                         &out.log_probs[k * DIMS * CHOICES..(k + 1) * DIMS * CHOICES],
                     );
-                    deciders[i].choose(keys[i], &logits)
+                    match &guard {
+                        None => deciders[i].choose(keys[i], &logits),
+                        Some(guard) => {
+                            let cells = &heights[k * HEIGHT_MAP_CELLS..(k + 1) * HEIGHT_MAP_CELLS];
+                            let cells: &[f32; HEIGHT_MAP_CELLS] = cells
+                                .try_into()
+                                .map_err(|_| "height map of the wrong size".to_string())?;
+                            let legs = LegConfig {
+                                clearance_m: states[k * STATE_LEN],
+                                track_m: states[k * STATE_LEN + 1],
+                            };
+                            let map = HeightMapRef::Metres(cells);
+                            deciders[i]
+                                .choose_checked(
+                                    keys[i],
+                                    &logits,
+                                    CollisionGuard::LEVELS,
+                                    |level, action| guard.allows(level, map, legs, action),
+                                )
+                                .action
+                        }
+                    }
                 }
             };
             envs[i]
@@ -259,6 +300,7 @@ pub fn evaluate(
     });
     Ok(EvalReport {
         decision: options.decision,
+        guard_margin_m: options.guard_margin_m,
         success_rate: successes.len() as f32 / n,
         collision_free_rate: results.iter().filter(|r| r.collision_free).count() as f32 / n,
         mean_steps,

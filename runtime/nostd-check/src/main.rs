@@ -13,7 +13,11 @@ use core::fmt::Write;
 use core::panic::PanicInfo;
 
 use wheelleg_runtime::decision::{Decider, ObservationKey};
+use wheelleg_runtime::guard::{CollisionGuard, HeightMapRef, DEFAULT_MARGIN_M};
+use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::model::DefaultPolicy;
+use wheelleg_runtime::observation::HEIGHT_MAP_CELLS;
+use wheelleg_runtime::robot::WHEELLEG;
 
 static WEIGHTS: &[u8] = include_bytes!(env!("WHEELLEG_POLICY"));
 
@@ -78,7 +82,30 @@ extern "C" fn main(_argc: i32, _argv: *const *const u8) -> i32 {
             let mut decider: Decider = Decider::new();
             let first = decider.choose(key, &outputs.action_logits);
             let second = decider.choose(key, &outputs.action_logits);
-            let _ = writeln!(Stdout, "{} {}", first.index(), second.index());
+            // The third with the collision guard, at the default pose.
+            let guard = CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M);
+            let legs = LegConfig {
+                clearance_m: WHEELLEG.default_clearance_m,
+                track_m: WHEELLEG.default_track_m,
+            };
+            let map: &[i16; HEIGHT_MAP_CELLS] = match height_mm.as_flattened().try_into() {
+                Ok(map) => map,
+                Err(_) => return 1,
+            };
+            let third = decider.choose_checked(
+                key,
+                &outputs.action_logits,
+                CollisionGuard::LEVELS,
+                |level, action| guard.allows(level, HeightMapRef::Millimetres(map), legs, action),
+            );
+            let _ = writeln!(
+                Stdout,
+                "{} {} {} {:?}",
+                first.index(),
+                second.index(),
+                third.action.index(),
+                third.level
+            );
             0
         }
         Err((load, None)) => {

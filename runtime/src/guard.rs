@@ -1,0 +1,539 @@
+//! A look-ahead check on the height map: refuse an action the robot can already see would hit
+//! something, or that its legs cannot take.
+//!
+//! The policy is trained to avoid collisions, but it errs, and an action the world refuses costs a
+//! whole decision and, in a real robot, a bump. Everything needed to foresee most of those
+//! refusals is on board: the robot's geometry, the height map it just measured and the motion
+//! each action commands ([`crate::motion`]). The guard replays that motion against the map; the
+//! [`crate::decision::Decider`] then skips the actions it refuses.
+//!
+//! The model, and why it is only an estimate:
+//! - each map cell with a height `h > 0` is a column: the cell's square (side
+//!   [`HEIGHT_MAP_CELL_M`], aligned with the map) from the ground up to `h`. The map samples each
+//!   cell at its centre, so an obstacle's true edge lies up to half a cell beyond or short of
+//!   the square's edge. The guard's `margin_m` grows (or, negative, shrinks) every square by
+//!   that much on each side: half a cell covers everything the map may have missed, minus half
+//!   a cell leaves only the sample points, where an obstacle certainly is;
+//! - the robot is the simulator's 13 parts: the body box, per leg a thigh and a shank capsule
+//!   in the leg plane and a wheel (a cylinder with its axle along body y);
+//! - the step is the path [`crate::motion::StepMotion`] drives: a straight line and a steady
+//!   turn, legs moving in a straight line in (clearance, track). It is checked at
+//!   [`POSE_FRACTIONS`] of the way; a 5-degree turn moves the body's corners 23 mm, so poses a
+//!   quarter step apart are at most 6 mm from any pose between them.
+//! - the cell squares are not turned with the robot: over one step the robot turns at most 5
+//!   degrees, which moves a square's corner by under 3 mm.
+//!
+//! Cost: for each pose, the occupied cells within the robot's reach times 13 parts, a few
+//! multiplications each; no allocation.
+
+use crate::action::Action;
+use crate::leg::LegConfig;
+use crate::motion::{target_config, BaseDisplacement};
+use crate::observation::{
+    cell_centre_in_robot_m, HEIGHT_MAP_CELLS, HEIGHT_MAP_CELL_M, HEIGHT_MAP_SIDE,
+};
+use crate::robot::{LegId, RobotGeometry};
+use nalgebra::{Point2, Point3};
+
+/// Where along the step (0 = start, 1 = end) the robot's pose is checked.
+pub const POSE_FRACTIONS: [f32; 4] = [0.25, 0.5, 0.75, 1.0];
+
+/// The growth of every column the guard uses by default: 5 mm. The robot straddles the widest
+/// slab (0.45 m) at full track (0.56 m) with 35 mm between each wheel and the slab's edge, and
+/// the map may show that edge up to half a cell (25 mm) farther out than it is; a margin past
+/// 10 mm would refuse the straddle outright in the worst alignment, so the default stays well
+/// under it. docs/results.md measures the margins from -25 mm to 25 mm.
+pub const DEFAULT_MARGIN_M: f32 = 0.005;
+
+/// A height map the guard reads: the runtime's integer millimetres or the host's metres.
+#[derive(Clone, Copy, Debug)]
+pub enum HeightMapRef<'a> {
+    /// Heights in millimetres, the policy's integer inputs.
+    Millimetres(&'a [i16; HEIGHT_MAP_CELLS]),
+    /// Heights in metres.
+    Metres(&'a [f32; HEIGHT_MAP_CELLS]),
+}
+
+impl HeightMapRef<'_> {
+    fn height_m(&self, index: usize) -> f32 {
+        match self {
+            HeightMapRef::Millimetres(cells) => {
+                cells.get(index).map_or(0.0, |&mm| f32::from(mm) * 1.0e-3)
+            }
+            HeightMapRef::Metres(cells) => cells.get(index).copied().unwrap_or(0.0),
+        }
+    }
+}
+
+/// Why the guard refuses an action.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Refusal {
+    /// The legs cannot take the configuration the action asks for (or one on the way).
+    Unreachable,
+    /// A part of the robot would meet a column of the height map (grown by the margin) at one
+    /// of the checked poses.
+    Collision,
+}
+
+/// Checks actions against the height map before they are sent.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CollisionGuard {
+    geometry: RobotGeometry,
+    margin_m: f32,
+    /// Cells farther than this from the robot's centre (along x or y) cannot touch it anywhere
+    /// along a step.
+    reach_m: f32,
+}
+
+impl CollisionGuard {
+    /// A guard for `geometry` that grows every column's square by `margin_m` on each side
+    /// (clamped to at least minus half a cell, the bare sample point; non-finite counts as 0).
+    /// Heights are not padded: they are measured
+    /// to the millimetre, not sampled.
+    pub fn new(geometry: RobotGeometry, margin_m: f32) -> CollisionGuard {
+        let margin_m = if margin_m.is_finite() {
+            margin_m.max(-0.5 * HEIGHT_MAP_CELL_M)
+        } else {
+            0.0
+        };
+        let half_track_m = 0.5 * geometry.track_range_m[1] + 0.5 * geometry.wheel_width_m;
+        let half_length_m =
+            (0.5 * geometry.body_length_m).max(geometry.hip_x_m + geometry.wheel_radius_m);
+        // The farthest any part gets from the centre, plus one step of travel and the growth.
+        let reach_m = libm::hypotf(half_length_m, half_track_m.max(0.5 * geometry.body_width_m))
+            + crate::action::MOVE_STEP_M * core::f32::consts::SQRT_2
+            + margin_m.max(0.0)
+            + HEIGHT_MAP_CELL_M;
+        CollisionGuard {
+            geometry,
+            margin_m,
+            reach_m,
+        }
+    }
+
+    /// Check levels for [`crate::decision::Decider::choose_checked`]: [`Self::allows`] at
+    /// level 0 is [`Self::check`], at level 1 [`Self::check_no_deeper`].
+    pub const LEVELS: usize = 2;
+
+    /// The check of `level` (see [`Self::LEVELS`]): whether `action` passes it. Levels past
+    /// the last refuse everything.
+    pub fn allows(
+        &self,
+        level: usize,
+        heights: HeightMapRef<'_>,
+        legs: LegConfig,
+        action: Action,
+    ) -> bool {
+        match level {
+            0 => self.check(heights, legs, action).is_ok(),
+            1 => self.check_no_deeper(heights, legs, action).is_ok(),
+            _ => false,
+        }
+    }
+
+    /// How much every column's square is grown on each side (negative: shrunk).
+    pub fn margin_m(&self) -> f32 {
+        self.margin_m
+    }
+
+    /// Whether `action`, taken from leg configuration `legs`, stays clear of the height map
+    /// `heights` (seen from the robot's current pose) at every checked pose of its step.
+    pub fn check(
+        &self,
+        heights: HeightMapRef<'_>,
+        legs: LegConfig,
+        action: Action,
+    ) -> Result<(), Refusal> {
+        match self.deepest_overlap_m(heights, legs, action, Some(0.0))? {
+            overlap_m if overlap_m >= 0.0 => Err(Refusal::Collision),
+            _ => Ok(()),
+        }
+    }
+
+    /// The lenient check, for when [`CollisionGuard::check`] refuses everything: the robot
+    /// already overlaps a column where it stands (the grown columns claim more than is there),
+    /// so any action whose step overlaps no deeper than the current pose does passes, and one
+    /// that goes deeper is refused.
+    pub fn check_no_deeper(
+        &self,
+        heights: HeightMapRef<'_>,
+        legs: LegConfig,
+        action: Action,
+    ) -> Result<(), Refusal> {
+        let here_m = self.deepest_overlap_m(heights, legs, Action::IDLE, None)?;
+        let allowed_m = here_m.max(0.0) + OVERLAP_TOLERANCE_M;
+        match self.deepest_overlap_m(heights, legs, action, Some(allowed_m))? {
+            overlap_m if overlap_m >= allowed_m => Err(Refusal::Collision),
+            _ => Ok(()),
+        }
+    }
+
+    /// The deepest overlap of any part with any column over the step's checked poses (0:
+    /// touching; negative: no overlap), stopping early once it reaches `stop_m`. `IDLE` gives
+    /// the current pose.
+    fn deepest_overlap_m(
+        &self,
+        heights: HeightMapRef<'_>,
+        legs: LegConfig,
+        action: Action,
+        stop_m: Option<f32>,
+    ) -> Result<f32, Refusal> {
+        let target = target_config(legs, action);
+        if !self.geometry.is_reachable(target) {
+            return Err(Refusal::Unreachable);
+        }
+        let base = BaseDisplacement::of_action(action);
+        let mut deepest_m = f32::NEG_INFINITY;
+        for t in POSE_FRACTIONS {
+            let legs_t = LegConfig {
+                clearance_m: legs.clearance_m + t * (target.clearance_m - legs.clearance_m),
+                track_m: legs.track_m + t * (target.track_m - legs.track_m),
+            };
+            let parts = Parts::place(&self.geometry, legs_t).ok_or(Refusal::Unreachable)?;
+            let inverse = base.isometry_at(t).inverse();
+            for row in 0..HEIGHT_MAP_SIDE {
+                for col in 0..HEIGHT_MAP_SIDE {
+                    let (x_m, y_m) = cell_centre_in_robot_m(row, col);
+                    if x_m.abs() > self.reach_m || y_m.abs() > self.reach_m {
+                        continue;
+                    }
+                    let height_m = heights.height_m(row * HEIGHT_MAP_SIDE + col);
+                    if height_m.is_nan() || height_m <= 0.0 {
+                        continue;
+                    }
+                    let centre = inverse * Point2::new(x_m, y_m);
+                    let column = Column {
+                        x_m: centre.x,
+                        y_m: centre.y,
+                        half_m: 0.5 * HEIGHT_MAP_CELL_M + self.margin_m,
+                        height_m,
+                    };
+                    deepest_m = deepest_m.max(parts.overlap_m(&column));
+                    if stop_m.is_some_and(|stop_m| deepest_m >= stop_m) {
+                        return Ok(deepest_m);
+                    }
+                }
+            }
+        }
+        Ok(deepest_m)
+    }
+}
+
+/// Overlap the lenient check forgives on top of the current pose's: rounding between poses.
+const OVERLAP_TOLERANCE_M: f32 = 1.0e-4;
+
+/// A column of the height map in the frame of the robot at the checked pose: a square from the
+/// ground up to its height.
+struct Column {
+    x_m: f32,
+    y_m: f32,
+    half_m: f32,
+    height_m: f32,
+}
+
+/// The robot's parts at one leg configuration, in its own frame with z measured from the ground.
+struct Parts {
+    clearance_m: f32,
+    body_half_x_m: f32,
+    body_half_y_m: f32,
+    /// Per leg: hip, knee and wheel centre.
+    legs: [[Point3<f32>; 3]; 4],
+    link_radius_m: f32,
+    wheel_radius_m: f32,
+    wheel_half_width_m: f32,
+}
+
+impl Parts {
+    fn place(geometry: &RobotGeometry, legs: LegConfig) -> Option<Parts> {
+        let joints = geometry.leg_ik(legs).ok()?;
+        let centre_height_m = geometry.body_centre_height_m(legs.clearance_m);
+        let mut points = [[Point3::origin(); 3]; 4];
+        for (slot, leg) in points.iter_mut().zip(LegId::ALL) {
+            let p = geometry.leg_points(leg, joints);
+            *slot = [p.hip, p.knee, p.wheel].map(|q| Point3::new(q.x, q.y, q.z + centre_height_m));
+        }
+        Some(Parts {
+            clearance_m: legs.clearance_m,
+            body_half_x_m: 0.5 * geometry.body_length_m,
+            body_half_y_m: 0.5 * geometry.body_width_m,
+            legs: points,
+            link_radius_m: geometry.link_radius_m,
+            wheel_radius_m: geometry.wheel_radius_m,
+            wheel_half_width_m: 0.5 * geometry.wheel_width_m,
+        })
+    }
+
+    /// How deep the deepest part reaches into `column` (0: touching, as the simulator counts it; negative: apart). For the body box it is the
+    /// least of its overlaps along x, y and z; for the round parts, radius minus
+    /// distance.
+    fn overlap_m(&self, column: &Column) -> f32 {
+        let half_m = column.half_m;
+        let body_m = (self.body_half_x_m + half_m - column.x_m.abs())
+            .min(self.body_half_y_m + half_m - column.y_m.abs())
+            .min(column.height_m - self.clearance_m);
+        let (link_reach_m, wheel_reach_m) = (self.link_radius_m, self.wheel_radius_m);
+        let mut deepest_m = body_m;
+        for [hip, knee, wheel] in &self.legs {
+            // Every point of a leg is in its leg plane, at the hip's x.
+            let dx_m = ((column.x_m - hip.x).abs() - half_m).max(0.0);
+            for (a, b) in [(hip, knee), (knee, wheel)] {
+                let d_yz_m = segment_rect_distance_m(
+                    (a.y, a.z),
+                    (b.y, b.z),
+                    (column.y_m - half_m, 0.0),
+                    (column.y_m + half_m, column.height_m),
+                );
+                deepest_m = deepest_m.max(link_reach_m - libm::hypotf(dx_m, d_yz_m));
+            }
+            // Wheel: a disc in the x-z plane, as wide as the wheel along y.
+            let dy_m = (column.y_m - wheel.y).abs() - half_m;
+            let side_m = self.wheel_half_width_m - dy_m;
+            let dx_m = ((column.x_m - wheel.x).abs() - half_m).max(0.0);
+            let dz_m = (wheel.z - column.height_m).max(0.0);
+            deepest_m = deepest_m.max(side_m.min(wheel_reach_m - libm::hypotf(dx_m, dz_m)));
+        }
+        deepest_m
+    }
+}
+
+/// Distance in a plane from the segment `a`-`b` to the axis-aligned rectangle `lo`-`hi` (0 when
+/// they meet). Two disjoint convex polygons are nearest at a vertex of one of them, so the
+/// distance is the least of the segment's ends to the rectangle and the rectangle's corners to
+/// the segment, once a crossing is ruled out.
+fn segment_rect_distance_m(a: (f32, f32), b: (f32, f32), lo: (f32, f32), hi: (f32, f32)) -> f32 {
+    if segment_crosses_rect(a, b, lo, hi) {
+        return 0.0;
+    }
+    let point_to_rect = |p: (f32, f32)| {
+        let dx = (lo.0 - p.0).max(p.0 - hi.0).max(0.0);
+        let dy = (lo.1 - p.1).max(p.1 - hi.1).max(0.0);
+        libm::hypotf(dx, dy)
+    };
+    let point_to_segment = |p: (f32, f32)| {
+        let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+        let length_sq = dx * dx + dy * dy;
+        let t = if length_sq > 0.0 {
+            (((p.0 - a.0) * dx + (p.1 - a.1) * dy) / length_sq).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        libm::hypotf(a.0 + t * dx - p.0, a.1 + t * dy - p.1)
+    };
+    let corners = [lo, (hi.0, lo.1), hi, (lo.0, hi.1)];
+    corners
+        .into_iter()
+        .map(point_to_segment)
+        .chain([a, b].into_iter().map(point_to_rect))
+        .fold(f32::INFINITY, f32::min)
+}
+
+/// Whether the segment `a`-`b` has a point in the closed rectangle `lo`-`hi` (Liang-Barsky
+/// clipping: the parameter interval left after each slab must stay non-empty).
+fn segment_crosses_rect(a: (f32, f32), b: (f32, f32), lo: (f32, f32), hi: (f32, f32)) -> bool {
+    let (mut t0, mut t1) = (0.0f32, 1.0f32);
+    for (start, delta, min, max) in [(a.0, b.0 - a.0, lo.0, hi.0), (a.1, b.1 - a.1, lo.1, hi.1)] {
+        if delta == 0.0 {
+            if start < min || start > max {
+                return false;
+            }
+            continue;
+        }
+        let (mut enter, mut leave) = ((min - start) / delta, (max - start) / delta);
+        if enter > leave {
+            core::mem::swap(&mut enter, &mut leave);
+        }
+        t0 = t0.max(enter);
+        t1 = t1.min(leave);
+        if t0 > t1 {
+            return false;
+        }
+    }
+    true
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::action::Step;
+    use crate::robot::WHEELLEG;
+
+    fn flat() -> [f32; HEIGHT_MAP_CELLS] {
+        [0.0; HEIGHT_MAP_CELLS]
+    }
+
+    fn default_legs() -> LegConfig {
+        LegConfig {
+            clearance_m: WHEELLEG.default_clearance_m,
+            track_m: WHEELLEG.default_track_m,
+        }
+    }
+
+    fn forward() -> Action {
+        let mut action = Action::IDLE;
+        action.set(crate::action::Dim::MoveX, Step::Plus);
+        action
+    }
+
+    /// Puts a block of `height_m` over robot-frame x in `[x0, x1]`, y in `[y0, y1]` (cell
+    /// centres inside count).
+    fn block(map: &mut [f32; HEIGHT_MAP_CELLS], x: (f32, f32), y: (f32, f32), height_m: f32) {
+        for row in 0..HEIGHT_MAP_SIDE {
+            for col in 0..HEIGHT_MAP_SIDE {
+                let (cx, cy) = cell_centre_in_robot_m(row, col);
+                if cx >= x.0 && cx <= x.1 && cy >= y.0 && cy <= y.1 {
+                    map[row * HEIGHT_MAP_SIDE + col] = height_m;
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn flat_ground_lets_every_reachable_action_through() {
+        let guard = CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M);
+        let map = flat();
+        for index in 0..crate::action::COUNT {
+            let action = Action::from_index(index).unwrap();
+            let reachable = WHEELLEG.is_reachable(target_config(default_legs(), action));
+            let verdict = guard.check(HeightMapRef::Metres(&map), default_legs(), action);
+            assert_eq!(verdict.is_ok(), reachable, "{action:?}: {verdict:?}");
+        }
+    }
+
+    #[test]
+    fn a_wall_just_ahead_refuses_forward_but_not_backward() {
+        let guard = CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M);
+        let mut map = flat();
+        // The wheels' front edge is at hip_x + radius = 0.25 m; a tall wall from 0.31 m.
+        block(&mut map, (0.31, 0.8), (-0.8, 0.8), 0.5);
+        let mut backward = Action::IDLE;
+        backward.set(crate::action::Dim::MoveX, Step::Minus);
+        let map_ref = HeightMapRef::Metres(&map);
+        assert_eq!(
+            guard.check(map_ref, default_legs(), forward()),
+            Err(Refusal::Collision)
+        );
+        assert_eq!(guard.check(map_ref, default_legs(), backward), Ok(()));
+        assert_eq!(guard.check(map_ref, default_legs(), Action::IDLE), Ok(()));
+    }
+
+    #[test]
+    fn a_low_bar_between_the_wheels_passes_under_a_high_body_only() {
+        let guard = CollisionGuard::new(WHEELLEG, 0.01);
+        let mut map = flat();
+        // A bar across the centre line, narrower than the gap between the wheels, 0.10 m high.
+        block(&mut map, (0.0, 0.05), (-0.06, 0.06), 0.10);
+        let map_ref = HeightMapRef::Metres(&map);
+        let low = LegConfig {
+            clearance_m: 0.08,
+            track_m: WHEELLEG.default_track_m,
+        };
+        let high = LegConfig {
+            clearance_m: 0.16,
+            track_m: WHEELLEG.default_track_m,
+        };
+        assert_eq!(
+            guard.check(map_ref, low, Action::IDLE),
+            Err(Refusal::Collision)
+        );
+        assert_eq!(guard.check(map_ref, high, Action::IDLE), Ok(()));
+    }
+
+    #[test]
+    fn where_everything_is_refused_the_lenient_level_lets_the_robot_back_off_only() {
+        let guard = CollisionGuard::new(WHEELLEG, 0.025);
+        let mut map = flat();
+        // A wall whose first cells are centred 25 mm beyond the front wheels' reach: grown by
+        // 25 mm, the columns overlap the wheels by 25 mm, so the strict check refuses even
+        // standing still, and backing off too (its first quarter is still 12 mm inside).
+        block(&mut map, (0.275, 0.8), (-0.8, 0.8), 0.5);
+        let map_ref = HeightMapRef::Metres(&map);
+        let mut backward = Action::IDLE;
+        backward.set(crate::action::Dim::MoveX, Step::Minus);
+        assert_eq!(
+            guard.check(map_ref, default_legs(), Action::IDLE),
+            Err(Refusal::Collision)
+        );
+        assert_eq!(
+            guard.check_no_deeper(map_ref, default_legs(), backward),
+            Ok(())
+        );
+        assert_eq!(
+            guard.check_no_deeper(map_ref, default_legs(), Action::IDLE),
+            Ok(())
+        );
+        assert_eq!(
+            guard.check_no_deeper(map_ref, default_legs(), forward()),
+            Err(Refusal::Collision)
+        );
+        assert!(guard.allows(1, map_ref, default_legs(), backward));
+        assert!(!guard.allows(0, map_ref, default_legs(), backward));
+        assert!(!guard.allows(CollisionGuard::LEVELS, map_ref, default_legs(), backward));
+    }
+
+    #[test]
+    fn millimetres_and_metres_agree() {
+        let guard = CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M);
+        let mut map = flat();
+        block(&mut map, (0.2, 0.4), (0.15, 0.4), 0.07);
+        let mut map_mm = [0i16; HEIGHT_MAP_CELLS];
+        for (mm, m) in map_mm.iter_mut().zip(map.iter()) {
+            *mm = libm::roundf(m * 1000.0) as i16;
+        }
+        for index in 0..crate::action::COUNT {
+            let action = Action::from_index(index).unwrap();
+            assert_eq!(
+                guard.check(HeightMapRef::Metres(&map), default_legs(), action),
+                guard.check(HeightMapRef::Millimetres(&map_mm), default_legs(), action),
+            );
+        }
+    }
+
+    #[test]
+    fn unreachable_legs_are_refused() {
+        let guard = CollisionGuard::new(WHEELLEG, 0.0);
+        let legs = LegConfig {
+            clearance_m: WHEELLEG.clearance_range_m[1],
+            track_m: WHEELLEG.default_track_m,
+        };
+        let mut up = Action::IDLE;
+        up.set(crate::action::Dim::Clearance, Step::Plus);
+        let map = flat();
+        assert_eq!(
+            guard.check(HeightMapRef::Metres(&map), legs, up),
+            Err(Refusal::Unreachable)
+        );
+    }
+
+    #[test]
+    fn bad_heights_and_margins_do_not_panic() {
+        let guard = CollisionGuard::new(WHEELLEG, f32::NAN);
+        assert_eq!(guard.margin_m(), 0.0);
+        let mut map = [f32::NAN; HEIGHT_MAP_CELLS];
+        map[0] = f32::INFINITY;
+        map[1] = -1.0;
+        let verdict = guard.check(HeightMapRef::Metres(&map), default_legs(), forward());
+        assert_eq!(verdict, Ok(()));
+        let bad_legs = LegConfig {
+            clearance_m: f32::NAN,
+            track_m: 0.3,
+        };
+        assert_eq!(
+            guard.check(HeightMapRef::Metres(&map), bad_legs, forward()),
+            Err(Refusal::Unreachable)
+        );
+    }
+
+    #[test]
+    fn segment_rect_distance_cases() {
+        let (lo, hi) = ((0.0, 0.0), (1.0, 1.0));
+        assert_eq!(segment_rect_distance_m((0.5, 0.5), (3.0, 3.0), lo, hi), 0.0);
+        assert_eq!(
+            segment_rect_distance_m((-1.0, 0.5), (2.0, 0.5), lo, hi),
+            0.0
+        );
+        assert!((segment_rect_distance_m((2.0, -1.0), (2.0, 2.0), lo, hi) - 1.0).abs() < 1e-6);
+        // A diagonal passing the corner (1, 1) at distance sqrt(2).
+        let d = segment_rect_distance_m((1.0, 3.0), (3.0, 1.0), lo, hi);
+        assert!((d - core::f32::consts::SQRT_2).abs() < 1e-6, "{d}");
+    }
+}

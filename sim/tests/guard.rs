@@ -1,0 +1,161 @@
+//! The runtime's look-ahead collision guard (`wheelleg_runtime::guard`), which sees only the
+//! height map, against the simulator's exact verdict on the same actions.
+//!
+//! The guard must not be blind: with its columns grown by half a cell (all the map's sampling
+//! can hide), an action the simulator refuses for a collision is one the guard refuses too. At
+//! its default margin (5 mm, small enough to let the robot straddle and squeeze) it trades a
+//! few misses for few refusals of clear moves.
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use wheelleg_runtime::action::{Action, COUNT};
+use wheelleg_runtime::guard::{CollisionGuard, HeightMapRef, Refusal, DEFAULT_MARGIN_M};
+use wheelleg_runtime::leg::LegConfig;
+use wheelleg_runtime::robot::WHEELLEG;
+use wheelleg_sim::env::{Env, EnvConfig, InvalidAction, Observation};
+use wheelleg_sim::generate::{generate, SceneKind};
+
+#[derive(Default, Debug)]
+struct Tally {
+    /// Actions compared.
+    actions: usize,
+    /// The simulator refused for a collision.
+    sim_collisions: usize,
+    /// ... and the guard let through.
+    missed: usize,
+    /// The simulator accepted (or refused for another reason) and the guard refused for a
+    /// collision.
+    false_refusals: usize,
+    /// The simulator accepted.
+    sim_accepted: usize,
+    /// Reachability verdicts that differ.
+    reach_disagreements: usize,
+}
+
+/// Random walks through scenes of every kind; at each state every action is tried in a copy of
+/// the episode and checked by the guard.
+fn compare(margin_m: f32, seed: u64, scenes_per_kind: usize, steps: usize) -> Tally {
+    let guard = CollisionGuard::new(WHEELLEG, margin_m);
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut tally = Tally::default();
+    let mut obs = Observation::default();
+    for kind in SceneKind::ALL {
+        for n in 0..scenes_per_kind {
+            let scene = generate(kind, &mut rng, format!("{kind:?}-{n}"));
+            let mut env =
+                Env::new(&scene, EnvConfig::default()).expect("generated scenes are valid");
+            for _ in 0..steps {
+                if env.status().is_done() {
+                    break;
+                }
+                env.observe(&mut obs);
+                let legs = LegConfig {
+                    clearance_m: obs.state[0],
+                    track_m: obs.state[1],
+                };
+                let mut accepted = Vec::new();
+                for index in 0..COUNT {
+                    let action = Action::from_index(index).expect("in range");
+                    let verdict = guard.check(HeightMapRef::Metres(&obs.height_map), legs, action);
+                    let mut copy = env.clone();
+                    let outcome = copy.step(action).expect("episode running");
+                    tally.actions += 1;
+                    match outcome.invalid {
+                        Some(InvalidAction::Collision) => {
+                            tally.sim_collisions += 1;
+                            if verdict.is_ok() {
+                                tally.missed += 1;
+                                if std::env::var("GUARD_DEBUG").is_ok() {
+                                    eprintln!(
+                                        "missed {kind:?} legs {legs:?} action {action:?} pos {:?}",
+                                        env.state()
+                                    );
+                                }
+                            }
+                        }
+                        Some(InvalidAction::Impossible(_)) => {
+                            if verdict != Err(Refusal::Unreachable) {
+                                tally.reach_disagreements += 1;
+                            }
+                        }
+                        Some(InvalidAction::OutOfBounds) => {}
+                        None => {
+                            tally.sim_accepted += 1;
+                            accepted.push(action);
+                            match verdict {
+                                Err(Refusal::Collision) => tally.false_refusals += 1,
+                                Err(Refusal::Unreachable) => tally.reach_disagreements += 1,
+                                Ok(()) => {}
+                            }
+                        }
+                    }
+                }
+                // Walk on with an accepted action, half the time a forward one, so that the
+                // walks meet obstacles.
+                let forward: Vec<Action> = accepted
+                    .iter()
+                    .copied()
+                    .filter(|a| a.move_x.sign() > 0)
+                    .collect();
+                let from = if !forward.is_empty() && rng.random_bool(0.5) {
+                    &forward
+                } else {
+                    &accepted
+                };
+                if from.is_empty() {
+                    break;
+                }
+                let pick = from[rng.random_range(0..from.len())];
+                env.step(pick).expect("episode running");
+            }
+        }
+    }
+    tally
+}
+
+#[test]
+fn grown_by_half_a_cell_the_guard_sees_the_collisions_the_simulator_finds() {
+    // Half a cell covers everything the map's sampling may hide (but corners of obstacles that
+    // fall between sample points).
+    let tally = compare(
+        0.5 * wheelleg_runtime::observation::HEIGHT_MAP_CELL_M,
+        7,
+        4,
+        30,
+    );
+    eprintln!("{tally:?}");
+    assert!(
+        tally.sim_collisions > 1000,
+        "the walks must meet obstacles: {tally:?}"
+    );
+    assert_eq!(tally.reach_disagreements, 0, "{tally:?}");
+    let missed = tally.missed as f64 / tally.sim_collisions as f64;
+    assert!(
+        missed < 0.01,
+        "missed {:.2}% of collisions: {tally:?}",
+        100.0 * missed
+    );
+}
+
+#[test]
+fn at_the_default_margin_the_guard_catches_most_collisions_and_refuses_few_clear_moves() {
+    let tally = compare(DEFAULT_MARGIN_M, 8, 4, 30);
+    eprintln!("{tally:?}");
+    assert!(
+        tally.sim_collisions > 1000,
+        "the walks must meet obstacles: {tally:?}"
+    );
+    assert_eq!(tally.reach_disagreements, 0, "{tally:?}");
+    let missed = tally.missed as f64 / tally.sim_collisions as f64;
+    let refused = tally.false_refusals as f64 / tally.sim_accepted as f64;
+    assert!(
+        missed < 0.10,
+        "missed {:.2}% of collisions: {tally:?}",
+        100.0 * missed
+    );
+    assert!(
+        refused < 0.07,
+        "refused {:.1}% of clear actions: {tally:?}",
+        100.0 * refused
+    );
+}
