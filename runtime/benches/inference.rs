@@ -1,7 +1,8 @@
 //! Per-decision latency of the shipped network at batch 1: the int8 runtime with the scalar and
 //! the AVX2 kernel (seeded random weights, and `weights/policy.wlw` when it exists), and the
 //! trainer's f32 forward pass as the float reference, in one run. onnxruntime's figures for the
-//! same network come from `tools/onnx_reference.py` (docs/model.md, "Speed").
+//! same network come from `tools/onnx_reference.py` (docs/model.md, "Speed"). The collision
+//! guard's check of one action, in the same group, puts its cost beside a decision's.
 //!
 //! `cargo bench -p wheelleg-runtime --bench inference`
 // Bench setup: a failed unwrap is a broken benchmark, reported loudly.
@@ -17,7 +18,12 @@
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use wheelleg_runtime::action::Action;
+use wheelleg_runtime::guard::{CollisionGuard, HeightMapRef, DEFAULT_MARGIN_M};
+use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::model::{DefaultPolicy, Kernel, Scratch};
+use wheelleg_runtime::observation::HEIGHT_MAP_CELLS;
+use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_trainer::network_f32::{Architecture, NetworkF32};
 use wheelleg_trainer::quantize::{observation_mm, quantize, Calibration, RangeMethod};
 
@@ -103,6 +109,36 @@ fn bench_decision(c: &mut Criterion) {
     });
     group.bench_function("load_and_validate", |b| {
         b.iter(|| DefaultPolicy::from_bytes(black_box(&bytes)).unwrap())
+    });
+    // The collision guard's check of one action that passes (so every pose and column is
+    // looked at: its full cost), beside a wall and a bar near the robot.
+    let guard = CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M);
+    let legs = LegConfig {
+        clearance_m: WHEELLEG.default_clearance_m,
+        track_m: WHEELLEG.default_track_m,
+    };
+    let mut map = [0i16; HEIGHT_MAP_CELLS];
+    for row in 7..10 {
+        for col in 8..24 {
+            map[row * 32 + col] = 400;
+        }
+    }
+    for row in 12..20 {
+        for col in 4..6 {
+            map[row * 32 + col] = 150;
+        }
+    }
+    assert!(guard
+        .check(HeightMapRef::Millimetres(&map), legs, Action::IDLE)
+        .is_ok());
+    group.bench_function("guard_check_one_clear_action", |b| {
+        b.iter(|| {
+            guard.check(
+                HeightMapRef::Millimetres(black_box(&map)),
+                black_box(legs),
+                black_box(Action::IDLE),
+            )
+        })
     });
     group.finish();
 }

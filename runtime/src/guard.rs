@@ -169,7 +169,8 @@ impl CollisionGuard {
     }
 
     /// The deepest overlap of any part with any column over the step's checked poses (0:
-    /// touching; negative: no overlap), stopping early once it reaches `stop_m`. `IDLE` gives
+    /// touching; negative: no overlap, and then not exact, as columns that cannot reach the
+    /// robot are skipped), stopping early once it reaches `stop_m`. `IDLE` gives
     /// the current pose.
     fn deepest_overlap_m(
         &self,
@@ -191,12 +192,9 @@ impl CollisionGuard {
             };
             let parts = Parts::place(&self.geometry, legs_t).ok_or(Refusal::Unreachable)?;
             let inverse = base.isometry_at(t).inverse();
-            for row in 0..HEIGHT_MAP_SIDE {
-                for col in 0..HEIGHT_MAP_SIDE {
+            for row in self.cells_within_reach() {
+                for col in self.cells_within_reach() {
                     let (x_m, y_m) = cell_centre_in_robot_m(row, col);
-                    if x_m.abs() > self.reach_m || y_m.abs() > self.reach_m {
-                        continue;
-                    }
                     let height_m = heights.height_m(row * HEIGHT_MAP_SIDE + col);
                     if height_m.is_nan() || height_m <= 0.0 {
                         continue;
@@ -208,6 +206,9 @@ impl CollisionGuard {
                         half_m: 0.5 * HEIGHT_MAP_CELL_M + self.margin_m,
                         height_m,
                     };
+                    if !parts.may_touch(&column) {
+                        continue;
+                    }
                     deepest_m = deepest_m.max(parts.overlap_m(&column));
                     if stop_m.is_some_and(|stop_m| deepest_m >= stop_m) {
                         return Ok(deepest_m);
@@ -216,6 +217,17 @@ impl CollisionGuard {
             }
         }
         Ok(deepest_m)
+    }
+
+    /// The rows (or columns: the map is square and centred) whose cells lie within the
+    /// robot's reach of its centre along that axis.
+    fn cells_within_reach(&self) -> core::ops::Range<usize> {
+        let half = 0.5 * (HEIGHT_MAP_SIDE as f32 - 1.0);
+        let cells = self.reach_m / HEIGHT_MAP_CELL_M;
+        // Saturating casts: a huge reach covers the whole map, never more.
+        let first = libm::ceilf(half - cells).max(0.0) as usize;
+        let last = libm::floorf(half + cells).min(HEIGHT_MAP_SIDE as f32 - 1.0) as usize;
+        first..last + 1
     }
 }
 
@@ -241,6 +253,8 @@ struct Parts {
     link_radius_m: f32,
     wheel_radius_m: f32,
     wheel_half_width_m: f32,
+    /// Half the extent of the whole robot along its x and y: a column beyond cannot touch it.
+    half_extent_m: (f32, f32),
 }
 
 impl Parts {
@@ -252,7 +266,16 @@ impl Parts {
             let p = geometry.leg_points(leg, joints);
             *slot = [p.hip, p.knee, p.wheel].map(|q| Point3::new(q.x, q.y, q.z + centre_height_m));
         }
+        let mut half_extent_m = (0.5 * geometry.body_length_m, 0.5 * geometry.body_width_m);
+        for [hip, knee, wheel] in &points {
+            let reach_x_m = hip.x.abs() + geometry.wheel_radius_m.max(geometry.link_radius_m);
+            let reach_y_m = (wheel.y.abs() + 0.5 * geometry.wheel_width_m)
+                .max(knee.y.abs().max(hip.y.abs()) + geometry.link_radius_m);
+            half_extent_m.0 = half_extent_m.0.max(reach_x_m);
+            half_extent_m.1 = half_extent_m.1.max(reach_y_m);
+        }
         Some(Parts {
+            half_extent_m,
             clearance_m: legs.clearance_m,
             body_half_x_m: 0.5 * geometry.body_length_m,
             body_half_y_m: 0.5 * geometry.body_width_m,
@@ -263,9 +286,15 @@ impl Parts {
         })
     }
 
-    /// How deep the deepest part reaches into `column` (0: touching, as the simulator counts it; negative: apart). For the body box it is the
-    /// least of its overlaps along x, y and z; for the round parts, radius minus
-    /// distance.
+    /// Whether `column` is within the robot's extent at all (if not, it overlaps nothing).
+    fn may_touch(&self, column: &Column) -> bool {
+        column.x_m.abs() - column.half_m <= self.half_extent_m.0
+            && column.y_m.abs() - column.half_m <= self.half_extent_m.1
+    }
+
+    /// How deep the deepest part reaches into `column` (0: touching, as the simulator counts
+    /// it; negative: apart). For the body box it is the least of its overlaps along x, y and z;
+    /// for the round parts, radius minus distance.
     fn overlap_m(&self, column: &Column) -> f32 {
         let half_m = column.half_m;
         let body_m = (self.body_half_x_m + half_m - column.x_m.abs())
