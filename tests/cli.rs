@@ -68,6 +68,11 @@ fn generate_plan_and_render_a_scenario_file() {
     let cached = eval(&["--planner-results", plan_file.to_str().unwrap()]);
     assert!(planned["steps_vs_shortest"].is_number(), "{planned}");
     assert_eq!(planned["steps_vs_shortest"], cached["steps_vs_shortest"]);
+    assert!(planned["median_steps_vs_shortest"].is_number(), "{planned}");
+    assert_eq!(
+        planned["median_steps_vs_shortest"],
+        cached["median_steps_vs_shortest"]
+    );
     let other = dir.join("other-plan.json");
     std::fs::write(
         &other,

@@ -170,5 +170,9 @@ pub fn run(args: Args) -> CliResult {
         opt(report.steps_vs_shortest, 3),
         report.planner_budget_exceeded
     );
+    outln!(
+        "median vs shortest   {} (per scenario: the typical detour)",
+        opt(report.median_steps_vs_shortest, 3)
+    );
     Ok(())
 }

@@ -57,6 +57,9 @@ pub struct EvalReport {
     pub mean_steps: Option<f32>,
     /// Sum of policy steps over sum of planner steps, over scenarios both solved.
     pub steps_vs_shortest: Option<f32>,
+    /// Median over the same scenarios of each one's steps over its planner steps: the typical
+    /// detour, which a few long ones do not move (the sum ratio above weighs them fully).
+    pub median_steps_vs_shortest: Option<f32>,
     /// Successful scenarios left out of the ratio because the planner ran out of budget.
     pub planner_budget_exceeded: usize,
     /// Per scenario.
@@ -298,6 +301,16 @@ pub fn evaluate(
                 .map(|r| r.planner_steps.unwrap_or(1) as f32)
                 .sum::<f32>()
     });
+    let mut ratios: Vec<f32> = both
+        .iter()
+        .filter_map(|r| Some(r.steps as f32 / r.planner_steps? as f32))
+        .collect();
+    ratios.sort_unstable_by(f32::total_cmp);
+    let median_steps_vs_shortest = match ratios.len() {
+        0 => None,
+        len if len % 2 == 1 => Some(ratios[len / 2]),
+        len => Some(0.5 * (ratios[len / 2 - 1] + ratios[len / 2])),
+    };
     Ok(EvalReport {
         decision: options.decision,
         guard_margin_m: options.guard_margin_m,
@@ -305,6 +318,7 @@ pub fn evaluate(
         collision_free_rate: results.iter().filter(|r| r.collision_free).count() as f32 / n,
         mean_steps,
         steps_vs_shortest,
+        median_steps_vs_shortest,
         planner_budget_exceeded: if options.planner_expansions > 0
             || options.known_shortest.is_some()
         {
