@@ -69,11 +69,12 @@ fn main() {
         track_m: WHEELLEG.default_track_m,
     };
     let map: &[i16; HEIGHT_MAP_CELLS] = height_mm.as_slice().try_into().unwrap();
-    let third = decider.choose_checked(
+    let third = guard.choose(
+        &mut decider,
         key,
         &outputs.action_logits,
-        CollisionGuard::LEVELS,
-        |level, action| guard.allows(level, HeightMapRef::Millimetres(map), legs, action),
+        HeightMapRef::Millimetres(map),
+        legs,
     );
     println!(
         "{} {} {} {:?}",

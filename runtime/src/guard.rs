@@ -26,7 +26,8 @@
 //! Cost: for each pose, the occupied cells within the robot's reach times 13 parts, a few
 //! multiplications each; no allocation.
 
-use crate::action::Action;
+use crate::action::{Action, CHOICES, DIMS};
+use crate::decision::{Checked, Decider, ObservationKey};
 use crate::leg::LegConfig;
 use crate::motion::{target_config, BaseDisplacement};
 use crate::observation::{
@@ -129,6 +130,22 @@ impl CollisionGuard {
             1 => self.check_no_deeper(heights, legs, action).is_ok(),
             _ => false,
         }
+    }
+
+    /// The decider's choice for observation `key` among the actions this guard passes
+    /// ([`crate::decision::Decider::choose_checked`] over [`Self::LEVELS`]): what a robot
+    /// running the guard does each decision.
+    pub fn choose<const STATES: usize, L: Copy + Into<f32>>(
+        &self,
+        decider: &mut Decider<STATES>,
+        key: ObservationKey,
+        logits: &[L; DIMS * CHOICES],
+        heights: HeightMapRef<'_>,
+        legs: LegConfig,
+    ) -> Checked {
+        decider.choose_checked(key, logits, Self::LEVELS, |level, action| {
+            self.allows(level, heights, legs, action)
+        })
     }
 
     /// How much every column's square is grown on each side (negative: shrunk).

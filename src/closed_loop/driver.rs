@@ -160,11 +160,12 @@ impl Driver for PolicyDriver<'_> {
             clearance_m: state_mm[0] as f32 * 1.0e-3,
             track_m: state_mm[1] as f32 * 1.0e-3,
         };
-        let checked = self.decider.choose_checked(
+        let checked = guard.choose(
+            &mut self.decider,
             key,
             &outputs.action_logits,
-            CollisionGuard::LEVELS,
-            |level, action| guard.allows(level, HeightMapRef::Millimetres(cells), legs, action),
+            HeightMapRef::Millimetres(cells),
+            legs,
         );
         Ok(checked.action)
     }

@@ -46,7 +46,7 @@ pub struct ScenarioResult {
 pub struct EvalReport {
     /// How actions were chosen.
     pub decision: DecisionRule,
-    /// Padding of the look-ahead collision guard, when one checked the actions
+    /// Margin of the look-ahead collision guard, when one checked the actions
     /// (`wheelleg_runtime::guard`); none: the policy alone.
     pub guard_margin_m: Option<f32>,
     /// Fraction of scenarios reached.
@@ -201,13 +201,13 @@ pub fn run_episodes(
                                 clearance_m: states[k * STATE_LEN],
                                 track_m: states[k * STATE_LEN + 1],
                             };
-                            let map = HeightMapRef::Metres(cells);
-                            deciders[i]
-                                .choose_checked(
+                            guard
+                                .choose(
+                                    &mut deciders[i],
                                     keys[i],
                                     &logits,
-                                    CollisionGuard::LEVELS,
-                                    |level, action| guard.allows(level, map, legs, action),
+                                    HeightMapRef::Metres(cells),
+                                    legs,
                                 )
                                 .action
                         }

@@ -92,11 +92,12 @@ extern "C" fn main(_argc: i32, _argv: *const *const u8) -> i32 {
                 Ok(map) => map,
                 Err(_) => return 1,
             };
-            let third = decider.choose_checked(
+            let third = guard.choose(
+                &mut decider,
                 key,
                 &outputs.action_logits,
-                CollisionGuard::LEVELS,
-                |level, action| guard.allows(level, HeightMapRef::Millimetres(map), legs, action),
+                HeightMapRef::Millimetres(map),
+                legs,
             );
             let _ = writeln!(
                 Stdout,
