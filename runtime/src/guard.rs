@@ -18,8 +18,10 @@
 //!   in the leg plane and a wheel (a cylinder with its axle along body y);
 //! - the step is the path [`crate::motion::StepMotion`] drives: a straight line and a steady
 //!   turn, legs moving in a straight line in (clearance, track). It is checked at
-//!   [`POSE_FRACTIONS`] of the way; a 5-degree turn moves the body's corners 23 mm, so poses a
-//!   quarter step apart are at most 6 mm from any pose between them.
+//!   [`POSE_FRACTIONS`] of the way. A step moves no point of the robot farther than 94 mm (a
+//!   diagonal move, 71 mm, plus a 5-degree turn at the body's corners, 23 mm), so every pose on
+//!   the way is within 12 mm of a checked one (or of the start, which the world accepted);
+//!   the simulator proves the whole way clear, the guard only samples it.
 //! - the cell squares are not turned with the robot: over one step the robot turns at most 5
 //!   degrees, which moves a square's corner by under 3 mm.
 //!
