@@ -407,7 +407,22 @@ fn demo_binary_writes_the_path_and_the_bus_log() {
         stdout.contains("driver:    int8 policy random.wlw"),
         "{stdout}"
     );
+    // The robot's stack checks every action against the height map unless told not to.
+    assert!(stdout.contains("collision guard"), "{stdout}");
     assert!(dir.join("policy-out/path.png").is_file());
+    let out = demo(
+        &dir,
+        &[
+            "--out",
+            "unguarded",
+            "--weights",
+            "random.wlw",
+            "--no-guard",
+        ],
+    );
+    let stdout = text(&out.stdout);
+    assert!(out.status.success());
+    assert!(!stdout.contains("collision guard"), "{stdout}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

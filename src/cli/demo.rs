@@ -19,7 +19,7 @@ use wheelleg::closed_loop::{
 use wheelleg_firmware_sim::candump::{CandumpWriter, DEFAULT_EPOCH_US};
 use wheelleg_firmware_sim::rig::RigError;
 use wheelleg_runtime::can::node_map::Axis;
-use wheelleg_runtime::guard::CollisionGuard;
+use wheelleg_runtime::guard::{CollisionGuard, DEFAULT_MARGIN_M};
 use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::env::{Env, Status};
 use wheelleg_sim::generate::{generate, SceneKind};
@@ -71,10 +71,16 @@ pub struct Args {
     /// ...from this decision on (1-based).
     #[arg(long, requires = "silent_node")]
     silent_at_step: Option<u32>,
-    /// Check each of the policy's actions against the height map before sending it (the
-    /// runtime's collision guard), growing every map column by MARGIN_M metres on each side (default 0.005).
-    #[arg(long, value_name = "MARGIN_M", num_args = 0..=1, default_missing_value = "0.005")]
-    guard: Option<f32>,
+    /// How far the collision guard grows every height-map column, in metres per side: each of
+    /// the policy's actions is checked against the map before it is sent
+    /// (`wheelleg_runtime::guard`; docs/results.md, "Collision guard").
+    #[arg(long, value_name = "MARGIN_M", default_value_t = DEFAULT_MARGIN_M,
+          allow_negative_numbers = true)]
+    guard_margin: f32,
+    /// Send the policy's actions unchecked (the policy alone, as `wheelleg eval` measures it
+    /// without `--guard`).
+    #[arg(long)]
+    no_guard: bool,
 }
 
 /// The scene to run and how it was chosen.
@@ -221,11 +227,10 @@ pub fn run(args: Args) -> CliResult {
             bytes =
                 std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
             let driver = PolicyDriver::from_bytes(&bytes, &path.display().to_string())?;
-            match args.guard {
-                Some(margin_m) => {
-                    Box::new(driver.with_guard(CollisionGuard::new(WHEELLEG, margin_m)))
-                }
-                None => Box::new(driver),
+            if args.no_guard {
+                Box::new(driver)
+            } else {
+                Box::new(driver.with_guard(CollisionGuard::new(WHEELLEG, args.guard_margin)))
             }
         }
         None => Box::new(
