@@ -145,8 +145,20 @@ impl CollisionGuard {
         heights: HeightMapRef<'_>,
         legs: LegConfig,
     ) -> Checked {
-        decider.choose_checked(key, logits, Self::LEVELS, |level, action| {
-            self.allows(level, heights, legs, action)
+        // The current pose's overlap, which the lenient level compares every candidate with:
+        // found once, when that level is first asked, not once per candidate.
+        let mut here: Option<Result<f32, Refusal>> = None;
+        decider.choose_checked(key, logits, Self::LEVELS, |level, action| match level {
+            0 => self.check(heights, legs, action).is_ok(),
+            1 => {
+                let here_m = *here.get_or_insert_with(|| {
+                    self.deepest_overlap_m(heights, legs, Action::IDLE, None)
+                });
+                here_m
+                    .and_then(|here_m| self.no_deeper_than(heights, legs, action, here_m))
+                    .is_ok()
+            }
+            _ => false,
         })
     }
 
@@ -180,6 +192,17 @@ impl CollisionGuard {
         action: Action,
     ) -> Result<(), Refusal> {
         let here_m = self.deepest_overlap_m(heights, legs, Action::IDLE, None)?;
+        self.no_deeper_than(heights, legs, action, here_m)
+    }
+
+    /// [`Self::check_no_deeper`] with the current pose's overlap `here_m` already known.
+    fn no_deeper_than(
+        &self,
+        heights: HeightMapRef<'_>,
+        legs: LegConfig,
+        action: Action,
+        here_m: f32,
+    ) -> Result<(), Refusal> {
         let allowed_m = here_m.max(0.0) + OVERLAP_TOLERANCE_M;
         match self.deepest_overlap_m(heights, legs, action, Some(allowed_m))? {
             overlap_m if overlap_m >= allowed_m => Err(Refusal::Collision),

@@ -113,6 +113,18 @@ fn compare(margin_m: f32, seed: u64, scenes_per_kind: usize, steps: usize) -> Ta
     tally
 }
 
+/// The share of the simulator's collisions the guard let through, after checking that the walks
+/// met obstacles and that both agree on which poses the legs can reach.
+fn missed_share(tally: &Tally) -> f64 {
+    eprintln!("{tally:?}");
+    assert!(
+        tally.sim_collisions > 1000,
+        "the walks must meet obstacles: {tally:?}"
+    );
+    assert_eq!(tally.reach_disagreements, 0, "{tally:?}");
+    tally.missed as f64 / tally.sim_collisions as f64
+}
+
 #[test]
 fn grown_by_half_a_cell_the_guard_sees_the_collisions_the_simulator_finds() {
     // Half a cell covers everything the map's sampling may hide (but corners of obstacles that
@@ -123,13 +135,7 @@ fn grown_by_half_a_cell_the_guard_sees_the_collisions_the_simulator_finds() {
         4,
         30,
     );
-    eprintln!("{tally:?}");
-    assert!(
-        tally.sim_collisions > 1000,
-        "the walks must meet obstacles: {tally:?}"
-    );
-    assert_eq!(tally.reach_disagreements, 0, "{tally:?}");
-    let missed = tally.missed as f64 / tally.sim_collisions as f64;
+    let missed = missed_share(&tally);
     assert!(
         missed < 0.01,
         "missed {:.2}% of collisions: {tally:?}",
@@ -140,13 +146,7 @@ fn grown_by_half_a_cell_the_guard_sees_the_collisions_the_simulator_finds() {
 #[test]
 fn at_the_default_margin_the_guard_catches_most_collisions_and_refuses_few_clear_moves() {
     let tally = compare(DEFAULT_MARGIN_M, 8, 4, 30);
-    eprintln!("{tally:?}");
-    assert!(
-        tally.sim_collisions > 1000,
-        "the walks must meet obstacles: {tally:?}"
-    );
-    assert_eq!(tally.reach_disagreements, 0, "{tally:?}");
-    let missed = tally.missed as f64 / tally.sim_collisions as f64;
+    let missed = missed_share(&tally);
     let refused = tally.false_refusals as f64 / tally.sim_accepted as f64;
     assert!(
         missed < 0.10,
