@@ -531,11 +531,11 @@ fn trained_policy_closed_loop_success_is_within_2_points_of_simulation() {
 }
 
 #[test]
-fn the_collision_guard_spares_the_trained_policy_collisions() {
+fn the_collision_guard_spares_collisions_and_arrival_adds_successes() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("weights/policy.wlw");
     let Ok(bytes) = std::fs::read(&path) else {
         eprintln!(
-            "SKIPPED the_collision_guard_spares_the_trained_policy_collisions: no trained weights \
+            "SKIPPED the_collision_guard_spares_collisions_and_arrival_adds_successes: no trained weights \
              at {}",
             path.display()
         );
@@ -547,13 +547,18 @@ fn the_collision_guard_spares_the_trained_policy_collisions() {
         .map(|i| generate(SceneKind::Complex, &mut rng, format!("held-out-{i}")))
         .collect();
     // (successes, collision-free successes, collisions) over the scenes.
-    let run = |guarded: bool| {
+    let run = |guarded: bool, arrival: bool| {
         let mut tally = (0, 0, 0);
         for scene in &scenes {
             let mut env = Env::new(scene, Default::default()).unwrap();
             let driver = PolicyDriver::from_bytes(&bytes, "weights/policy.wlw").unwrap();
-            let mut driver = if guarded {
+            let driver = if guarded {
                 driver.with_guard(CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M))
+            } else {
+                driver
+            };
+            let mut driver = if arrival {
+                driver.with_arrival(env.config().success_radius_m)
             } else {
                 driver
             };
@@ -565,9 +570,16 @@ fn the_collision_guard_spares_the_trained_policy_collisions() {
         }
         tally
     };
-    let (alone, guarded) = (run(false), run(true));
+    let (alone, guarded, arriving) = (run(false, false), run(true, false), run(true, true));
     eprintln!(
-        "policy alone {alone:?}, guarded {guarded:?} (successes, collision-free, collisions)"
+        "policy alone {alone:?}, guarded {guarded:?}, guarded with arrival {arriving:?} \
+         (successes, collision-free, collisions)"
+    );
+    // The arrival rule ends an episode as soon as one step can (an episode changes course only
+    // if the world refuses that step, which the guard makes rare): it loses no success.
+    assert!(
+        arriving.0 >= guarded.0 && arriving.1 >= guarded.1,
+        "guarded {guarded:?}, with arrival {arriving:?}"
     );
     assert!(
         guarded.2 * 2 < alone.2,

@@ -13,6 +13,7 @@
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use wheelleg_runtime::arrival::{Arrival, DEFAULT_RADIUS_M};
 use wheelleg_runtime::decision::{Decider, ObservationKey};
 use wheelleg_runtime::guard::{CollisionGuard, HeightMapRef, DEFAULT_MARGIN_M};
 use wheelleg_runtime::leg::LegConfig;
@@ -75,6 +76,7 @@ fn main() {
         &outputs.action_logits,
         HeightMapRef::Millimetres(map),
         legs,
+        Some(&Arrival::from_state_mm(&state_mm, DEFAULT_RADIUS_M)),
     );
     println!(
         "{} {} {} {:?}",

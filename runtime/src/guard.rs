@@ -29,6 +29,7 @@
 //! multiplications each; no allocation.
 
 use crate::action::{Action, CHOICES, DIMS};
+use crate::arrival::Arrival;
 use crate::decision::{Checked, Decider, ObservationKey};
 use crate::leg::LegConfig;
 use crate::motion::{target_config, BaseDisplacement};
@@ -136,7 +137,9 @@ impl CollisionGuard {
 
     /// The decider's choice for observation `key` among the actions this guard passes
     /// ([`crate::decision::Decider::choose_checked`] over [`Self::LEVELS`]): what a robot
-    /// running the guard does each decision.
+    /// running the guard does each decision. With an `arrival`, an action that reaches the
+    /// target and passes the strict check comes first, where [`Arrival::applies`]. The
+    /// returned level is the guard's ([`Self::allows`]), whether or not the action arrives.
     pub fn choose<const STATES: usize, L: Copy + Into<f32>>(
         &self,
         decider: &mut Decider<STATES>,
@@ -144,22 +147,36 @@ impl CollisionGuard {
         logits: &[L; DIMS * CHOICES],
         heights: HeightMapRef<'_>,
         legs: LegConfig,
+        arrival: Option<&Arrival>,
     ) -> Checked {
+        let arrival = arrival.filter(|a| a.applies(decider, key) && a.within_one_step());
+        let first = usize::from(arrival.is_some());
+        // Levels numbered as if arrival were always asked: 0 arrival, 1 strict, 2 lenient.
+        let skipped = 1 - first;
         // The current pose's overlap, which the lenient level compares every candidate with:
         // found once, when that level is first asked, not once per candidate.
         let mut here: Option<Result<f32, Refusal>> = None;
-        decider.choose_checked(key, logits, Self::LEVELS, |level, action| match level {
-            0 => self.check(heights, legs, action).is_ok(),
-            1 => {
-                let here_m = *here.get_or_insert_with(|| {
-                    self.deepest_overlap_m(heights, legs, Action::IDLE, None)
-                });
-                here_m
-                    .and_then(|here_m| self.no_deeper_than(heights, legs, action, here_m))
-                    .is_ok()
-            }
-            _ => false,
-        })
+        let mut checked =
+            decider.choose_checked(key, logits, first + Self::LEVELS, |level, action| {
+                match level + skipped {
+                    0 => {
+                        arrival.is_some_and(|a| a.reached_by(action))
+                            && self.check(heights, legs, action).is_ok()
+                    }
+                    1 => self.check(heights, legs, action).is_ok(),
+                    2 => {
+                        let here_m = *here.get_or_insert_with(|| {
+                            self.deepest_overlap_m(heights, legs, Action::IDLE, None)
+                        });
+                        here_m
+                            .and_then(|here_m| self.no_deeper_than(heights, legs, action, here_m))
+                            .is_ok()
+                    }
+                    _ => false,
+                }
+            });
+        checked.level = checked.level.map(|level| level.saturating_sub(first));
+        checked
     }
 
     /// How much every column's square is grown on each side (negative: shrunk).
@@ -539,6 +556,45 @@ mod tests {
         assert!(guard.allows(1, map_ref, default_legs(), backward));
         assert!(!guard.allows(0, map_ref, default_legs(), backward));
         assert!(!guard.allows(CollisionGuard::LEVELS, map_ref, default_legs(), backward));
+    }
+
+    #[test]
+    fn arrival_goes_first_only_where_the_guard_passes_it() {
+        let guard = CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M);
+        // The target 6 cm ahead: one step forward arrives. The policy wants to turn in place.
+        let arrival = Arrival::new(nalgebra::Vector2::new(0.06, 0.0), 0.05);
+        let mut logits = [0.0f32; DIMS * CHOICES];
+        for head in 0..DIMS {
+            logits[head * CHOICES + 1] = 2.0;
+        }
+        logits[2 * CHOICES + 2] = 3.0;
+        let key = ObservationKey(7);
+        let clear = flat();
+        let checked = guard.choose(
+            &mut Decider::<4>::new(),
+            key,
+            &logits,
+            HeightMapRef::Metres(&clear),
+            default_legs(),
+            Some(&arrival),
+        );
+        assert!(arrival.reached_by(checked.action), "{checked:?}");
+        assert_eq!(checked.action.move_x, Step::Plus);
+        assert_eq!(checked.level, Some(0), "the guard's strict level passed it");
+        // A wall just beyond the wheels: every arriving step is refused, so the policy's turn.
+        let mut walled = flat();
+        block(&mut walled, (0.31, 0.8), (-0.8, 0.8), 0.5);
+        let checked = guard.choose(
+            &mut Decider::<4>::new(),
+            key,
+            &logits,
+            HeightMapRef::Metres(&walled),
+            default_legs(),
+            Some(&arrival),
+        );
+        assert!(!arrival.reached_by(checked.action), "{checked:?}");
+        assert_eq!(checked.action.yaw, Step::Plus);
+        assert_eq!(checked.level, Some(0));
     }
 
     #[test]

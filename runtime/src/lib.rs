@@ -9,6 +9,7 @@
 //! - [`leg`]: 3-joint leg inverse and forward kinematics, and the reachable (clearance, track) set.
 //! - [`action`]: the 5-D discrete action and its step sizes.
 //! - [`decision`]: from the policy's heads to one action, never repeating a refused one.
+//! - [`arrival`]: the last step: when one action reaches the target, the most probable such.
 //! - [`guard`]: a look-ahead check of each action against the height map, before it is sent.
 //! - [`observation`]: the height map's layout and the state vector the policy sees.
 //! - [`model`]: the int8 policy network: weights file, loader, integer inference (scalar / AVX2).
@@ -19,6 +20,7 @@
 #![deny(unsafe_code)]
 
 pub mod action;
+pub mod arrival;
 pub mod base;
 pub mod can;
 pub mod decision;

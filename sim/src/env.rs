@@ -57,7 +57,7 @@ impl Default for EnvConfig {
     fn default() -> Self {
         EnvConfig {
             max_steps: 100,
-            success_radius_m: 0.05,
+            success_radius_m: wheelleg_runtime::arrival::DEFAULT_RADIUS_M,
             give_up_margin_m: 0.5,
             arena_margin_m: 0.6,
             invalid_reward: crate::reward::INVALID_PENALTY,

@@ -81,6 +81,11 @@ pub struct Args {
     /// without `--guard`).
     #[arg(long)]
     no_guard: bool,
+    /// Leave the last step to the policy too: by default, whenever some action ends within the
+    /// success radius of the target, the policy's most probable such action is taken
+    /// (`wheelleg_runtime::arrival`; docs/results.md, "The last step").
+    #[arg(long)]
+    no_arrival: bool,
 }
 
 /// The scene to run and how it was chosen.
@@ -226,7 +231,10 @@ pub fn run(args: Args) -> CliResult {
         Some(path) => {
             bytes =
                 std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
-            let driver = PolicyDriver::from_bytes(&bytes, &path.display().to_string())?;
+            let mut driver = PolicyDriver::from_bytes(&bytes, &path.display().to_string())?;
+            if !args.no_arrival {
+                driver = driver.with_arrival(closed_loop.env().config().success_radius_m);
+            }
             if args.no_guard {
                 Box::new(driver)
             } else {

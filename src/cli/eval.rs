@@ -1,5 +1,5 @@
 //! `wheelleg eval --policy CKPT|WEIGHTS (--scenarios FILE | --generated N --kind K) --seed S [--json]
-//! [--stochastic | --argmax | --guard [MARGIN_M]] [--planner-expansions N | --planner-results PLAN.json]`.
+//! [--stochastic | --argmax | --guard [MARGIN_M] --arrival] [--planner-expansions N | --planner-results PLAN.json]`.
 
 use super::CliResult;
 use rand::SeedableRng;
@@ -56,6 +56,11 @@ pub struct Args {
     #[arg(long, value_name = "MARGIN_M", num_args = 0..=1, allow_negative_numbers = true,
           default_missing_value = "0.005", conflicts_with_all = ["stochastic", "argmax"])]
     guard: Option<f32>,
+    /// Whenever some action ends within the success radius of the target, take the policy's
+    /// most probable such action (after the guard, if on), as a robot running the runtime's
+    /// arrival rule does. Only with the default decision rule.
+    #[arg(long, conflicts_with_all = ["stochastic", "argmax"])]
+    arrival: bool,
 }
 
 /// Runs `eval`.
@@ -97,6 +102,7 @@ pub fn run(args: Args) -> CliResult {
         planner_expansions: args.planner_expansions,
         known_shortest,
         guard_margin_m: args.guard,
+        arrival: args.arrival,
         ..EvalOptions::default()
     };
     let mut rng = ChaCha8Rng::seed_from_u64(args.seed);
@@ -158,6 +164,14 @@ pub fn run(args: Args) -> CliResult {
             .map_or("off (the policy alone)".to_string(), |m| format!(
                 "on, map columns grown by {m} m"
             ))
+    );
+    outln!(
+        "arrival rule         {}",
+        if report.arrival {
+            "on (an action that reaches the target goes first)"
+        } else {
+            "off"
+        }
     );
     outln!("success rate         {:.1}%", 100.0 * report.success_rate);
     outln!(

@@ -7,6 +7,7 @@
 use std::collections::VecDeque;
 use std::fmt;
 use wheelleg_runtime::action::Action;
+use wheelleg_runtime::arrival::Arrival;
 use wheelleg_runtime::decision::{Decider, ObservationKey};
 use wheelleg_runtime::guard::{CollisionGuard, HeightMapRef};
 use wheelleg_runtime::leg::LegConfig;
@@ -104,6 +105,8 @@ pub struct PolicyDriver<'a> {
     decider: Decider,
     /// Checks each action against the height map first, when set.
     guard: Option<CollisionGuard>,
+    /// Takes an action that reaches the target within this radius when one does, when set.
+    arrival_radius_m: Option<f32>,
 }
 
 impl<'a> PolicyDriver<'a> {
@@ -117,6 +120,7 @@ impl<'a> PolicyDriver<'a> {
             observation: Observation::default(),
             decider: Decider::new(),
             guard: None,
+            arrival_radius_m: None,
         })
     }
 
@@ -126,18 +130,27 @@ impl<'a> PolicyDriver<'a> {
         self.guard = Some(guard);
         self
     }
+
+    /// Takes the policy's most probable action that ends within `radius_m` of the target
+    /// whenever one does (`wheelleg_runtime::arrival`; after the guard, if one is set).
+    pub fn with_arrival(mut self, radius_m: f32) -> PolicyDriver<'a> {
+        self.arrival_radius_m = Some(radius_m);
+        self
+    }
 }
 
 impl Driver for PolicyDriver<'_> {
     fn describe(&self) -> String {
         format!(
-            "int8 policy {} ({:?} kernel){}",
+            "int8 policy {} ({:?} kernel){}{}",
             self.label,
             self.policy.kernel(),
             self.guard.map_or(String::new(), |g| format!(
                 ", collision guard (columns grown by {} m)",
                 g.margin_m()
-            ))
+            )),
+            self.arrival_radius_m
+                .map_or(String::new(), |r| format!(", arrival within {r} m"))
         )
     }
 
@@ -149,8 +162,18 @@ impl Driver for PolicyDriver<'_> {
             .evaluate(height_mm.as_flattened(), &state_mm)
             .map_err(|e| DriverError(format!("{}: inference failed: {e}", self.label)))?;
         let key = ObservationKey::of_mm(height_mm.as_flattened(), &state_mm);
+        let arrival = self
+            .arrival_radius_m
+            .map(|radius_m| Arrival::from_state_mm(&state_mm, radius_m));
         let Some(guard) = &self.guard else {
-            return Ok(self.decider.choose(key, &outputs.action_logits));
+            return Ok(match arrival {
+                Some(arrival) => {
+                    arrival
+                        .choose(&mut self.decider, key, &outputs.action_logits)
+                        .action
+                }
+                None => self.decider.choose(key, &outputs.action_logits),
+            });
         };
         let cells = height_mm
             .as_flattened()
@@ -166,6 +189,7 @@ impl Driver for PolicyDriver<'_> {
             &outputs.action_logits,
             HeightMapRef::Millimetres(cells),
             legs,
+            arrival.as_ref(),
         );
         Ok(checked.action)
     }

@@ -13,6 +13,7 @@ use rand::Rng;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use wheelleg_runtime::action::{Action, CHOICES, DIMS};
+use wheelleg_runtime::arrival::Arrival;
 use wheelleg_runtime::decision::{Decider, ObservationKey};
 use wheelleg_runtime::guard::{CollisionGuard, HeightMapRef};
 use wheelleg_runtime::leg::LegConfig;
@@ -39,6 +40,9 @@ pub struct ScenarioResult {
     pub status: String,
     /// The planner's shortest step count, when it found one within its budget.
     pub planner_steps: Option<usize>,
+    /// Distance from the body centre to the target when the episode ended: how near a
+    /// failed episode came.
+    pub final_distance_m: f32,
 }
 
 /// The whole evaluation.
@@ -49,6 +53,9 @@ pub struct EvalReport {
     /// Margin of the look-ahead collision guard, when one checked the actions
     /// (`wheelleg_runtime::guard`); none: the policy alone.
     pub guard_margin_m: Option<f32>,
+    /// Whether an action that reaches the target was taken first whenever one did
+    /// (`wheelleg_runtime::arrival`).
+    pub arrival: bool,
     /// Fraction of scenarios reached.
     pub success_rate: f32,
     /// Fraction reached without collision.
@@ -98,6 +105,10 @@ pub struct EvalOptions {
     /// (`wheelleg_runtime::guard::CollisionGuard` with this margin), as a robot running the
     /// guard does; only with [`DecisionRule::Untried`]. None: the policy alone.
     pub guard_margin_m: Option<f32>,
+    /// Take the policy's most probable action that reaches the target whenever one does
+    /// (`wheelleg_runtime::arrival`, at the episode's success radius); only with
+    /// [`DecisionRule::Untried`].
+    pub arrival: bool,
 }
 
 #[derive(Deserialize)]
@@ -135,6 +146,7 @@ impl Default for EvalOptions {
             env_config: EnvConfig::default(),
             known_shortest: None,
             guard_margin_m: None,
+            arrival: false,
         }
     }
 }
@@ -155,6 +167,12 @@ pub fn run_episodes(
     let mut obs = Observation::default();
     let mut deciders: Vec<Decider> = vec![Decider::new(); envs.len()];
     let mut keys = vec![ObservationKey(0); envs.len()];
+    if options.arrival && options.decision != DecisionRule::Untried {
+        return Err(format!(
+            "arrival needs the untried decision rule, not {:?}",
+            options.decision
+        ));
+    }
     let guard = match (options.guard_margin_m, options.decision) {
         (None, _) => None,
         (Some(margin_m), DecisionRule::Untried) => Some(CollisionGuard::new(WHEELLEG, margin_m)),
@@ -190,8 +208,17 @@ pub fn run_episodes(
                     logits.copy_from_slice(
                         &out.log_probs[k * DIMS * CHOICES..(k + 1) * DIMS * CHOICES],
                     );
+                    let state = &states[k * STATE_LEN..(k + 1) * STATE_LEN];
+                    let arrival = options
+                        .arrival
+                        .then(|| Arrival::from_state_m(state, options.env_config.success_radius_m));
                     match &guard {
-                        None => deciders[i].choose(keys[i], &logits),
+                        None => match arrival {
+                            Some(arrival) => {
+                                arrival.choose(&mut deciders[i], keys[i], &logits).action
+                            }
+                            None => deciders[i].choose(keys[i], &logits),
+                        },
                         Some(guard) => {
                             let cells = &heights[k * HEIGHT_MAP_CELLS..(k + 1) * HEIGHT_MAP_CELLS];
                             let cells: &[f32; HEIGHT_MAP_CELLS] = cells
@@ -208,6 +235,7 @@ pub fn run_episodes(
                                     &logits,
                                     HeightMapRef::Metres(cells),
                                     legs,
+                                    arrival.as_ref(),
                                 )
                                 .action
                         }
@@ -284,6 +312,7 @@ pub fn evaluate(
             collisions: env.collisions(),
             status: format!("{:?}", env.status()),
             planner_steps,
+            final_distance_m: env.distance_to_target_m(),
         });
     }
     let n = results.len().max(1) as f32;
@@ -314,6 +343,7 @@ pub fn evaluate(
     Ok(EvalReport {
         decision: options.decision,
         guard_margin_m: options.guard_margin_m,
+        arrival: options.arrival,
         success_rate: successes.len() as f32 / n,
         collision_free_rate: results.iter().filter(|r| r.collision_free).count() as f32 / n,
         mean_steps,
@@ -365,6 +395,49 @@ mod tests {
         fn kind(&self) -> &'static str {
             "fixed"
         }
+    }
+
+    #[test]
+    fn arrival_takes_the_one_step_the_policy_would_not() {
+        // The target 6 cm to the robot's right: one step right arrives; the policy only ever
+        // wants forward, then left.
+        let scenario = Scenario {
+            name: "target-beside".into(),
+            start: RobotState::new(Point2::new(0.0, 0.125), 0),
+            target: Point2::new(0.0, 0.065),
+            obstacles: vec![],
+        };
+        let run = |arrival| {
+            let options = EvalOptions {
+                planner_expansions: 0,
+                arrival,
+                ..EvalOptions::default()
+            };
+            let mut rng = ChaCha8Rng::seed_from_u64(0);
+            evaluate(
+                &Fixated,
+                std::slice::from_ref(&scenario),
+                &options,
+                &mut rng,
+            )
+            .unwrap()
+        };
+        let alone = run(false);
+        assert!(!alone.arrival);
+        assert_ne!(alone.scenarios[0].status, "Success");
+        let arriving = run(true);
+        assert!(arriving.arrival);
+        assert_eq!(arriving.scenarios[0].status, "Success");
+        assert_eq!(arriving.scenarios[0].steps, 1);
+        assert!(arriving.scenarios[0].final_distance_m <= 0.05);
+        // Not with a rule that does not remember what it took.
+        let options = EvalOptions {
+            decision: DecisionRule::Argmax,
+            arrival: true,
+            ..EvalOptions::default()
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(0);
+        assert!(evaluate(&Fixated, &[scenario], &options, &mut rng).is_err());
     }
 
     #[test]

@@ -12,6 +12,7 @@
 use core::fmt::Write;
 use core::panic::PanicInfo;
 
+use wheelleg_runtime::arrival::{Arrival, DEFAULT_RADIUS_M};
 use wheelleg_runtime::decision::{Decider, ObservationKey};
 use wheelleg_runtime::guard::{CollisionGuard, HeightMapRef, DEFAULT_MARGIN_M};
 use wheelleg_runtime::leg::LegConfig;
@@ -98,6 +99,7 @@ extern "C" fn main(_argc: i32, _argv: *const *const u8) -> i32 {
                 &outputs.action_logits,
                 HeightMapRef::Millimetres(map),
                 legs,
+                Some(&Arrival::from_state_mm(&state_mm, DEFAULT_RADIUS_M)),
             );
             let _ = writeln!(
                 Stdout,
