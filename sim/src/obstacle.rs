@@ -97,6 +97,17 @@ impl GroundBox {
         x_m >= self.min_x_m && x_m <= self.max_x_m && y_m >= self.min_y_m && y_m <= self.max_y_m
     }
 
+    /// Distance on the ground from `point` to the footprint (0 on or inside it).
+    pub fn ground_distance_m(&self, point: Point2<f32>) -> f32 {
+        let dx_m = (self.min_x_m - point.x)
+            .max(point.x - self.max_x_m)
+            .max(0.0);
+        let dy_m = (self.min_y_m - point.y)
+            .max(point.y - self.max_y_m)
+            .max(0.0);
+        dx_m.hypot(dy_m)
+    }
+
     /// Half extents (x, y, z) of the box.
     pub fn half_extents(&self) -> Vector3<f32> {
         Vector3::new(

@@ -188,5 +188,20 @@ pub fn run(args: Args) -> CliResult {
         "median vs shortest   {} (per scenario: the typical detour)",
         opt(report.median_steps_vs_shortest, 3)
     );
+    outln!();
+    outln!(
+        "beside the target    scenarios  success  coll-free   (an obstacle within {} m of it)",
+        wheelleg_trainer::evaluate::BESIDE_TARGET_M
+    );
+    for b in &report.by_target_beside {
+        let pct = |n: usize| 100.0 * n as f32 / b.scenarios.max(1) as f32;
+        outln!(
+            "  {:<18} {:>9} {:>7.1}% {:>9.1}%",
+            b.beside,
+            b.scenarios,
+            pct(b.successes),
+            pct(b.collision_free)
+        );
+    }
     Ok(())
 }

@@ -241,6 +241,16 @@ pub struct Checkpoint {
 pub struct CheckpointExtras {
     /// The start-stage curriculum's state, when the run uses it.
     pub start_stage: Option<StartStageState>,
+    /// Each environment's remembered failed scenes (scenario-file JSON), when the run
+    /// re-samples them (`run.failure_resample_probability`). Extras written before this field
+    /// existed end after `start_stage`; they still load (see [`Checkpoint::from_bytes`]).
+    pub failures: Option<Vec<String>>,
+}
+
+/// The extras as written before `failures` existed.
+#[derive(Deserialize)]
+struct ExtrasBeforeFailures {
+    start_stage: Option<StartStageState>,
 }
 
 /// Where a run's start-stage curriculum stands (`run.start_stage`).
@@ -314,6 +324,20 @@ impl Checkpoint {
             CheckpointExtras::default()
         } else {
             let (extras, tail): (CheckpointExtras, &[u8]) = postcard::take_from_bytes(rest)
+                .or_else(|e| {
+                    // postcard records carry no field names: an older record is one that
+                    // decodes in the older shape and leaves nothing behind.
+                    match postcard::take_from_bytes::<ExtrasBeforeFailures>(rest) {
+                        Ok((old, [])) => Ok((
+                            CheckpointExtras {
+                                start_stage: old.start_stage,
+                                failures: None,
+                            },
+                            &[][..],
+                        )),
+                        _ => Err(e),
+                    }
+                })
                 .map_err(|e| format!("checkpoint corrupt: extras: {e}"))?;
             if !tail.is_empty() {
                 return Err(format!(
@@ -425,6 +449,7 @@ mod tests {
                 window: vec![(4, 10), (7, 9)],
                 env_stages: vec![0.2, 0.3],
             }),
+            failures: Some(vec!["{\"scenarios\": []}".into(), String::new()]),
         };
         let bytes = c.to_bytes_with(&extras).unwrap();
         assert!(bytes.len() > plain.len());
@@ -442,6 +467,27 @@ mod tests {
         file.extend_from_slice(&payload);
         let e = Checkpoint::from_bytes_with_extras(&file).unwrap_err();
         assert!(e.contains("after the extras"), "{e}");
+    }
+
+    #[test]
+    fn extras_written_before_the_failure_memory_still_load() {
+        let c = sample();
+        let start_stage = StartStageState {
+            stage: 0.5,
+            window: vec![(1, 2)],
+            env_stages: vec![0.5],
+        };
+        // The older record: a struct of the start stage alone, encoded as that field.
+        let mut payload = postcard::to_allocvec(&c).unwrap();
+        payload.extend(postcard::to_allocvec(&Some(start_stage.clone())).unwrap());
+        let mut file = MAGIC.to_vec();
+        file.extend_from_slice(&(payload.len() as u64).to_le_bytes());
+        file.extend_from_slice(&fnv1a(&payload).to_le_bytes());
+        file.extend_from_slice(&payload);
+        let (back, extras) = Checkpoint::from_bytes_with_extras(&file).unwrap();
+        assert_eq!(back, c);
+        assert_eq!(extras.start_stage, Some(start_stage));
+        assert_eq!(extras.failures, None);
     }
 
     /// Regression (fuzz target `checkpoint_payload`): a stored architecture whose feature count

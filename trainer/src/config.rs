@@ -87,6 +87,14 @@ impl Default for NetworkConfig {
     }
 }
 
+/// `run` keys a resumed run may change: its budget, and the re-sampling of failed scenes
+/// (which only changes which scenes come next).
+const RESUMABLE_CHANGES: [&str; 3] = [
+    "total_env_steps",
+    "failure_resample_probability",
+    "failure_memory_per_env",
+];
+
 /// The run: budget, scenes, parallelism, logging.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -127,6 +135,13 @@ pub struct RunConfig {
     pub start_stage_success_rate: f32,
     /// Iterations the success rate is measured over (the window restarts after each advance).
     pub start_stage_window: usize,
+    /// Algorithm 2's memory of failed configurations: each environment remembers the scenes
+    /// it failed (up to `failure_memory_per_env`) and starts its next episode on one of them
+    /// with this probability, instead of a fresh scene. 0, the default, turns it off. A
+    /// finished run may be continued with it changed (`--resume`).
+    pub failure_resample_probability: f64,
+    /// Failed scenes each environment remembers (the oldest is forgotten first).
+    pub failure_memory_per_env: usize,
 }
 
 impl Default for RunConfig {
@@ -146,6 +161,8 @@ impl Default for RunConfig {
             start_stage_step: 0.1,
             start_stage_success_rate: 0.5,
             start_stage_window: 3,
+            failure_resample_probability: 0.0,
+            failure_memory_per_env: 8,
         }
     }
 }
@@ -269,7 +286,7 @@ impl TrainConfig {
     /// the key holds its default.
     ///
     /// Compared: `[run]` (except `run.total_env_steps`: extending a finished run is what
-    /// resuming is for), `[ppo]`, `[network]`, and of `[curriculum]` only `curriculum_keys`.
+    /// resuming is for, and the failure re-sampling keys), `[ppo]`, `[network]`, and of `[curriculum]` only `curriculum_keys`.
     /// The rest of the curriculum describes the pipeline around a stage, and `wheelleg train
     /// all` copies what a stage uses of it into that stage's `run` and `ppo`, so tuning a later
     /// stage does not lock out the finished earlier ones; a stage that reads curriculum keys
@@ -292,7 +309,7 @@ impl TrainConfig {
                 .iter()
                 .filter_map(|t| t.get(section).and_then(toml::Value::as_table))
                 .flat_map(|t| t.keys().cloned())
-                .filter(|k| !(section == "run" && k == "total_env_steps"));
+                .filter(|k| !(section == "run" && RESUMABLE_CHANGES.contains(&k.as_str())));
             keys.extend(names.map(|k| (section, k)));
         }
         keys.extend(
@@ -363,6 +380,10 @@ impl TrainConfig {
         check(
             r.start_stage_window >= 1,
             "run.start_stage_window must be at least 1",
+        )?;
+        check(
+            (0.0..=1.0).contains(&r.failure_resample_probability),
+            "run.failure_resample_probability must be in [0, 1] (0: off)",
         )?;
         crate::network::BackendKind::from_name(&r.backend).map(|_| ())?;
         crate::conv_kernel::ConvKernel::from_name(&p.conv_kernel)
@@ -537,6 +558,9 @@ mod tests {
             |c: &TrainConfig, keys: &[&str]| c.changes_from_stored(&stored, keys).unwrap();
         let mut longer = TrainConfig::default();
         longer.run.total_env_steps *= 2;
+        assert!(changes(&longer, &[]).is_empty());
+        longer.run.failure_resample_probability = 0.3;
+        longer.run.failure_memory_per_env = 4;
         assert!(changes(&longer, &[]).is_empty());
         let mut retuned = TrainConfig::default();
         retuned.curriculum.secondary_init_temperature = 10.0;

@@ -43,6 +43,38 @@ pub struct ScenarioResult {
     /// Distance from the body centre to the target when the episode ended: how near a
     /// failed episode came.
     pub final_distance_m: f32,
+    /// The kind of obstacle nearest the target, if one is within [`BESIDE_TARGET_M`]:
+    /// whether the robot must end its way beside, over or astride something.
+    pub target_beside: Option<String>,
+}
+
+/// How near an obstacle's footprint must come to the target for the target to count as beside
+/// it: 0.25 m, about the robot's half length, so the robot standing at the target is within
+/// reach of it.
+pub const BESIDE_TARGET_M: f32 = 0.25;
+
+/// Results of the scenarios whose target is beside one kind of obstacle (or beside none).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct TargetBeside {
+    /// `bar`, `slab`, `block`, or `nothing`.
+    pub beside: String,
+    /// Scenarios.
+    pub scenarios: usize,
+    /// Of them reached.
+    pub successes: usize,
+    /// Of them reached without collision.
+    pub collision_free: usize,
+}
+
+/// The kind of the obstacle nearest `scenario`'s target, if within [`BESIDE_TARGET_M`].
+fn target_beside(scenario: &Scenario) -> Option<&'static str> {
+    scenario
+        .obstacles
+        .iter()
+        .map(|o| (o.ground_box().ground_distance_m(scenario.target), o.kind))
+        .filter(|(distance_m, _)| *distance_m <= BESIDE_TARGET_M)
+        .min_by(|a, b| a.0.total_cmp(&b.0))
+        .map(|(_, kind)| kind.name())
 }
 
 /// The whole evaluation.
@@ -69,6 +101,9 @@ pub struct EvalReport {
     pub median_steps_vs_shortest: Option<f32>,
     /// Successful scenarios left out of the ratio because the planner ran out of budget.
     pub planner_budget_exceeded: usize,
+    /// The results split by what stands beside the target (nothing first, then bar, slab,
+    /// block): where the failures are.
+    pub by_target_beside: Vec<TargetBeside>,
     /// Per scenario.
     pub scenarios: Vec<ScenarioResult>,
 }
@@ -313,6 +348,7 @@ pub fn evaluate(
             status: format!("{:?}", env.status()),
             planner_steps,
             final_distance_m: env.distance_to_target_m(),
+            target_beside: target_beside(s).map(str::to_owned),
         });
     }
     let n = results.len().max(1) as f32;
@@ -340,6 +376,22 @@ pub fn evaluate(
         len if len % 2 == 1 => Some(ratios[len / 2]),
         len => Some(0.5 * (ratios[len / 2 - 1] + ratios[len / 2])),
     };
+    let by_target_beside = ["nothing", "bar", "slab", "block"]
+        .into_iter()
+        .map(|beside| {
+            let of: Vec<&ScenarioResult> = results
+                .iter()
+                .filter(|r| r.target_beside.as_deref().unwrap_or("nothing") == beside)
+                .collect();
+            TargetBeside {
+                beside: beside.to_owned(),
+                scenarios: of.len(),
+                successes: of.iter().filter(|r| r.success).count(),
+                collision_free: of.iter().filter(|r| r.collision_free).count(),
+            }
+        })
+        .filter(|b| b.scenarios > 0)
+        .collect();
     Ok(EvalReport {
         decision: options.decision,
         guard_margin_m: options.guard_margin_m,
@@ -356,6 +408,7 @@ pub fn evaluate(
         } else {
             0
         },
+        by_target_beside,
         scenarios: results,
     })
 }
@@ -430,6 +483,15 @@ mod tests {
         assert_eq!(arriving.scenarios[0].status, "Success");
         assert_eq!(arriving.scenarios[0].steps, 1);
         assert!(arriving.scenarios[0].final_distance_m <= 0.05);
+        assert_eq!(
+            arriving.by_target_beside,
+            [TargetBeside {
+                beside: "nothing".into(),
+                scenarios: 1,
+                successes: 1,
+                collision_free: 1,
+            }]
+        );
         // Not with a rule that does not remember what it took.
         let options = EvalOptions {
             decision: DecisionRule::Argmax,
@@ -473,6 +535,8 @@ mod tests {
         };
         let argmax = run(DecisionRule::Argmax);
         assert_eq!(argmax.status, "StepLimit");
+        // The block's far face is 0.175 m short of the target.
+        assert_eq!(argmax.target_beside.as_deref(), Some("block"));
         assert!(argmax.collisions > 80, "argmax pushes on: {argmax:?}");
         let untried = run(DecisionRule::Untried);
         // After each refusal it takes the next most probable action (forward and left, then

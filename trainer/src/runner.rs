@@ -178,6 +178,9 @@ pub fn train_stage(
         env_config,
         run.threads,
     )?;
+    if run.failure_resample_probability > 0.0 {
+        envs.set_failure_memory(run.failure_memory_per_env, run.failure_resample_probability);
+    }
     let random_init = init_policy(&config.architecture(), &mut init_rng);
     let mut ppo = Ppo::new(
         inputs.init.cloned().unwrap_or(random_init),
@@ -223,6 +226,10 @@ pub fn train_stage(
             schedule.restore(state.stage, &state.window)?;
             envs.set_stage(state.stage);
             envs.set_env_stages(&state.env_stages)?;
+        }
+        // A run continued with re-sampling newly turned on starts with empty memories.
+        if let (true, Some(failures)) = (run.failure_resample_probability > 0.0, &extras.failures) {
+            envs.restore_failures(failures)?;
         }
         (iteration, env_steps, elapsed_before) = (c.iteration, c.env_steps, c.elapsed_s);
         if inputs.record.is_some() && trajectories_path.exists() {
@@ -380,6 +387,7 @@ pub fn train_stage(
                     window: s.window(),
                     env_stages: envs.env_stages(),
                 }),
+                failures: (run.failure_resample_probability > 0.0).then(|| envs.failure_snapshot()),
             };
             Checkpoint {
                 kind: opts.kind.clone(),

@@ -10,6 +10,7 @@ use rand_chacha::ChaCha8Rng;
 use wheelleg_runtime::action::{Action, DIMS};
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
 use wheelleg_sim::env::{Env, EnvConfig, Observation, Status};
+use wheelleg_sim::failure_memory::FailureMemory;
 use wheelleg_sim::generate::{generate_staged, SceneKind, StartYaw};
 use wheelleg_sim::scenario::Scenario;
 
@@ -40,6 +41,9 @@ pub struct EnvSlot {
     episodes_started: u64,
     /// Start stage the current scene was drawn at.
     stage: f32,
+    /// Scenes this environment failed, offered again (Algorithm 2; off unless
+    /// [`VecEnv::with_failure_memory`]).
+    failures: FailureMemory,
 }
 
 /// What one environment's step returned.
@@ -128,6 +132,7 @@ impl EnvSlot {
             actions: Vec::new(),
             episodes_started,
             stage,
+            failures: FailureMemory::new(0, 0.0),
         })
     }
 
@@ -168,6 +173,9 @@ impl EnvSlot {
             collisions: self.env.collisions(),
             stage: self.stage,
         };
+        if !episode.success {
+            self.failures.record_failure(self.scenario.clone());
+        }
         let success = (episode.success && episode.collisions == 0).then(|| {
             Box::new(SolvedEpisode {
                 scenario: self.scenario.clone(),
@@ -192,7 +200,12 @@ impl EnvSlot {
         // Generated scenes are valid by construction; retry on the (unexpected) invalid one.
         loop {
             self.episodes_started += 1;
-            let scenario = new_scene(scenes, &mut self.scene_rng, index, self.episodes_started);
+            // An empty memory draws nothing from the generator, so a run without failure
+            // re-sampling sees exactly the scenes it did before the memory existed.
+            let scenario = match self.failures.take(&mut self.scene_rng) {
+                Some(failed) => failed,
+                None => new_scene(scenes, &mut self.scene_rng, index, self.episodes_started),
+            };
             if let Ok(env) = Env::new(&scenario, config) {
                 self.env = env;
                 self.stage = scenes.stage;
@@ -262,6 +275,46 @@ impl VecEnv {
             config,
             threads: threads.max(1),
         })
+    }
+
+    /// Turns on Algorithm 2's re-sampling of failed scenes: each environment remembers up to
+    /// `per_env` scenes it failed and starts an episode on one of them with `probability`
+    /// (`wheelleg_sim::failure_memory`). What is already remembered is kept, up to `per_env`.
+    pub fn set_failure_memory(&mut self, per_env: usize, probability: f64) {
+        for slot in &mut self.slots {
+            let kept: Vec<Scenario> = slot.failures.scenes().cloned().collect();
+            slot.failures = FailureMemory::new(per_env, probability);
+            slot.failures.restore(kept);
+        }
+    }
+
+    /// Each environment's remembered failed scenes as one scenario-file JSON (checkpoints).
+    pub fn failure_snapshot(&self) -> Vec<String> {
+        self.slots
+            .iter()
+            .map(|s| {
+                let scenes: Vec<Scenario> = s.failures.scenes().cloned().collect();
+                wheelleg_sim::scenario_file::to_json(&scenes)
+            })
+            .collect()
+    }
+
+    /// Restores what [`Self::failure_snapshot`] saved (after [`Self::set_failure_memory`]).
+    pub fn restore_failures(&mut self, snapshot: &[String]) -> Result<(), String> {
+        if snapshot.len() != self.slots.len() {
+            return Err(format!(
+                "checkpoint has failure memories of {} environments, config has {}",
+                snapshot.len(),
+                self.slots.len()
+            ));
+        }
+        for (i, (slot, json)) in self.slots.iter_mut().zip(snapshot).enumerate() {
+            let scenes =
+                wheelleg_sim::scenario_file::parse(json, &wheelleg_runtime::robot::WHEELLEG)
+                    .map_err(|e| format!("checkpoint env {i} failure memory: {e}"))?;
+            slot.failures.restore(scenes);
+        }
+        Ok(())
     }
 
     /// Start stage of the scenes drawn from now on.
@@ -411,6 +464,8 @@ impl VecEnv {
             // none); a staged run sets it afterwards with `set_env_stages`.
             let mut restored =
                 EnvSlot::start(scenario, self.config, rng, snap.episodes_started, 1.0)?;
+            // The memory is restored separately (`restore_failures`); keep its settings.
+            restored.failures = slot.failures.clone();
             for &a in &snap.actions {
                 let action = Action::from_index(a as usize)
                     .ok_or_else(|| format!("checkpoint env {i}: bad action {a}"))?;
@@ -446,16 +501,39 @@ mod tests {
     use wheelleg_sim::generate::Behaviour;
 
     fn run(threads: usize, steps: usize, restore_at: Option<usize>) -> (Vec<f32>, Vec<f32>) {
+        run_with(threads, steps, restore_at, None)
+    }
+
+    /// Steps 5 envs with fixed pseudo-random choices; `failures`: (memory per env,
+    /// re-sampling probability). Returns every reward and the last states.
+    fn run_with(
+        threads: usize,
+        steps: usize,
+        restore_at: Option<usize>,
+        failures: Option<(usize, f64)>,
+    ) -> (Vec<f32>, Vec<f32>) {
         let kind = SceneKind::Behaviour(Behaviour::Around);
         let n = 5;
-        let mut v = VecEnv::new(kind, n, 9, EnvConfig::default(), threads).unwrap();
+        let config = EnvConfig {
+            max_steps: 20,
+            ..EnvConfig::default()
+        };
+        let fresh = || {
+            let mut v = VecEnv::new(kind, n, 9, config, threads).unwrap();
+            if let Some((per_env, probability)) = failures {
+                v.set_failure_memory(per_env, probability);
+            }
+            v
+        };
+        let mut v = fresh();
         let (mut h, mut s) = (vec![0.0; n * HEIGHT_MAP_CELLS], vec![0.0; n * STATE_LEN]);
         let mut rewards = Vec::new();
         for t in 0..steps {
             if restore_at == Some(t) {
-                let snap = v.snapshot();
-                v = VecEnv::new(kind, n, 9, EnvConfig::default(), threads).unwrap();
+                let (snap, memory) = (v.snapshot(), v.failure_snapshot());
+                v = fresh();
                 v.restore(9, &snap).unwrap();
+                v.restore_failures(&memory).unwrap();
             }
             let choices: Vec<u8> = (0..n * DIMS).map(|k| ((k * 7 + t * 3) % 3) as u8).collect();
             rewards.extend(v.step(&choices, &mut h, &mut s).iter().map(|r| r.reward));
@@ -468,5 +546,49 @@ mod tests {
         let one = run(1, 150, None);
         assert_eq!(one, run(2, 150, None));
         assert_eq!(one, run(2, 150, Some(77)));
+        let resampled = run_with(1, 150, None, Some((4, 0.5)));
+        assert_eq!(resampled, run_with(2, 150, Some(77), Some((4, 0.5))));
+        assert_ne!(resampled, one, "failed scenes did come back");
+        assert_eq!(
+            one,
+            run_with(1, 150, None, Some((4, 0.0))),
+            "never re-sampling changes nothing"
+        );
+    }
+
+    #[test]
+    fn failed_scenes_come_back_and_solved_ones_do_not() {
+        let kind = SceneKind::Behaviour(Behaviour::Straight);
+        let n = 3;
+        let config = EnvConfig {
+            max_steps: 3,
+            ..EnvConfig::default()
+        };
+        let mut v = VecEnv::new(kind, n, 4, config, 1).unwrap();
+        v.set_failure_memory(2, 1.0);
+        let first: Vec<String> = v.slots.iter().map(|s| s.scenario.name.clone()).collect();
+        let (mut h, mut s) = (vec![0.0; n * HEIGHT_MAP_CELLS], vec![0.0; n * STATE_LEN]);
+        // Idle for 3 steps: every episode runs out of steps, and the memory offers the same
+        // scene again with probability 1.
+        let idle: Vec<u8> = vec![1; n * DIMS];
+        for _ in 0..3 {
+            v.step(&idle, &mut h, &mut s);
+        }
+        let again: Vec<String> = v.slots.iter().map(|s| s.scenario.name.clone()).collect();
+        assert_eq!(first, again);
+        assert!(v
+            .failure_snapshot()
+            .iter()
+            .all(|json| json.contains("\"scenarios\": []")));
+        // Without the memory the next scenes are fresh ones.
+        let mut plain = VecEnv::new(kind, n, 4, config, 1).unwrap();
+        for _ in 0..3 {
+            plain.step(&idle, &mut h, &mut s);
+        }
+        assert!(plain
+            .slots
+            .iter()
+            .zip(&first)
+            .all(|(slot, name)| slot.scenario.name != *name));
     }
 }
