@@ -107,16 +107,7 @@ impl Arrival {
 #[allow(clippy::unwrap_used, clippy::indexing_slicing)]
 mod tests {
     use super::*;
-
-    /// Forward clearly best on every step; everything else idle.
-    fn forward_logits() -> [f32; DIMS * CHOICES] {
-        let mut logits = [0.0f32; DIMS * CHOICES];
-        logits[2] = 3.0;
-        for h in 1..DIMS {
-            logits[h * CHOICES + 1] = 3.0;
-        }
-        logits
-    }
+    use crate::decision::tests::forward_logits;
 
     #[test]
     fn a_target_behind_and_left_is_reached_by_moving_back_and_left() {

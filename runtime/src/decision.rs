@@ -294,7 +294,7 @@ fn joint_score<L: Copy + Into<f32>>(logits: &[L; DIMS * CHOICES], index: usize) 
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::action::Step;
 
@@ -314,7 +314,7 @@ mod tests {
     }
 
     /// Move x: forward clearly best, then idle; other heads: idle clearly best.
-    fn forward_logits() -> [f32; DIMS * CHOICES] {
+    pub(crate) fn forward_logits() -> [f32; DIMS * CHOICES] {
         let mut logits = [0.0f32; DIMS * CHOICES];
         logits[0] = -5.0;
         logits[1] = 1.0;

@@ -450,6 +450,16 @@ mod tests {
         }
     }
 
+    /// [`Fixated`] on `scenario` alone, without the planner.
+    fn fixated_on(scenario: &Scenario, options: EvalOptions) -> Result<EvalReport, String> {
+        let options = EvalOptions {
+            planner_expansions: 0,
+            ..options
+        };
+        let mut rng = ChaCha8Rng::seed_from_u64(0);
+        evaluate(&Fixated, std::slice::from_ref(scenario), &options, &mut rng)
+    }
+
     #[test]
     fn arrival_takes_the_one_step_the_policy_would_not() {
         // The target 6 cm to the robot's right: one step right arrives; the policy only ever
@@ -461,17 +471,12 @@ mod tests {
             obstacles: vec![],
         };
         let run = |arrival| {
-            let options = EvalOptions {
-                planner_expansions: 0,
-                arrival,
-                ..EvalOptions::default()
-            };
-            let mut rng = ChaCha8Rng::seed_from_u64(0);
-            evaluate(
-                &Fixated,
-                std::slice::from_ref(&scenario),
-                &options,
-                &mut rng,
+            fixated_on(
+                &scenario,
+                EvalOptions {
+                    arrival,
+                    ..EvalOptions::default()
+                },
             )
             .unwrap()
         };
@@ -493,13 +498,12 @@ mod tests {
             }]
         );
         // Not with a rule that does not remember what it took.
-        let options = EvalOptions {
+        let argmax = EvalOptions {
             decision: DecisionRule::Argmax,
             arrival: true,
             ..EvalOptions::default()
         };
-        let mut rng = ChaCha8Rng::seed_from_u64(0);
-        assert!(evaluate(&Fixated, &[scenario], &options, &mut rng).is_err());
+        assert!(fixated_on(&scenario, argmax).is_err());
     }
 
     #[test]
@@ -517,17 +521,12 @@ mod tests {
             )],
         };
         let run = |decision| {
-            let options = EvalOptions {
-                decision,
-                planner_expansions: 0,
-                ..EvalOptions::default()
-            };
-            let mut rng = ChaCha8Rng::seed_from_u64(0);
-            evaluate(
-                &Fixated,
-                std::slice::from_ref(&scenario),
-                &options,
-                &mut rng,
+            fixated_on(
+                &scenario,
+                EvalOptions {
+                    decision,
+                    ..EvalOptions::default()
+                },
             )
             .unwrap()
             .scenarios
