@@ -65,6 +65,22 @@ fn generate_plan_and_render_a_scenario_file() {
         serde_json::from_slice::<serde_json::Value>(&out.stdout).unwrap()
     };
     let planned = eval(&[]);
+    // Every scenario is in the split by what stands beside its target, exactly once.
+    let split = planned["by_target_beside"].as_array().unwrap();
+    let counted: u64 = split.iter().map(|b| b["scenarios"].as_u64().unwrap()).sum();
+    assert_eq!(
+        counted as usize,
+        planned["scenarios"].as_array().unwrap().len()
+    );
+    // The robot's stack: the guard and the arrival rule.
+    let stack = eval(&["--guard", "--arrival"]);
+    assert_eq!(stack["arrival"], true, "{stack}");
+    assert!(stack["guard_margin_m"].is_number(), "{stack}");
+    let table = wheelleg(&["eval", "--policy", policy, "--scenarios", file_arg]);
+    assert!(table.status.success(), "{}", text(&table.stderr));
+    let table = text(&table.stdout);
+    assert!(table.contains("beside the target"), "{table}");
+    assert!(table.contains("  nothing"), "{table}");
     let cached = eval(&["--planner-results", plan_file.to_str().unwrap()]);
     assert!(planned["steps_vs_shortest"].is_number(), "{planned}");
     assert_eq!(planned["steps_vs_shortest"], cached["steps_vs_shortest"]);

@@ -125,23 +125,27 @@ pub fn run(args: Args) -> CliResult {
         return Ok(());
     }
     outln!(
-        "{:<28} {:>8} {:>9} {:>6} {:>10} {:>8}",
+        "{:<28} {:>8} {:>9} {:>6} {:>10} {:>8} {:>7} {:>8}",
         "scenario",
         "success",
         "coll-free",
         "steps",
         "collisions",
-        "planner"
+        "planner",
+        "end m",
+        "beside"
     );
     for r in &report.scenarios {
         outln!(
-            "{:<28} {:>8} {:>9} {:>6} {:>10} {:>8}",
+            "{:<28} {:>8} {:>9} {:>6} {:>10} {:>8} {:>7.3} {:>8}",
             r.name,
             if r.success { "yes" } else { "no" },
             if r.collision_free { "yes" } else { "no" },
             r.steps,
             r.collisions,
-            r.planner_steps.map_or("-".to_string(), |s| s.to_string())
+            r.planner_steps.map_or("-".to_string(), |s| s.to_string()),
+            r.final_distance_m,
+            r.target_beside.as_deref().unwrap_or("-")
         );
     }
     let opt =
