@@ -75,22 +75,21 @@ impl Arrival {
         })
     }
 
-    /// Whether the arrival level applies at observation `key`: nothing has been taken here
-    /// yet. A second decision at the same observation means the arriving move was refused
-    /// by the world (it would have ended the mission otherwise); then the other ways, or the
-    /// same move with another turn or leg change, most likely meet the same obstacle, so the
-    /// policy decides alone.
+    /// Whether the arrival level applies at observation `key`: some action reaches the target
+    /// and nothing has been taken here yet. A second decision at the same observation means
+    /// the arriving step was refused by the world (it would have ended the mission
+    /// otherwise); the other arriving actions, the same move with another turn or leg change,
+    /// most likely meet the same obstacle, so from then on the policy decides alone.
     pub fn applies<const STATES: usize>(
         &self,
         decider: &Decider<STATES>,
         key: ObservationKey,
     ) -> bool {
-        decider.taken_count(key) == 0
+        decider.taken_count(key) == 0 && self.within_one_step()
     }
 
-    /// The decider's choice with arrival first, without a guard: where [`Self::applies`] and
-    /// some action reaches the target, the most probable such action; else
-    /// [`Decider::choose`]. [`Checked::level`] is
+    /// The decider's choice with arrival first, without a guard: where [`Self::applies`], the
+    /// most probable action that reaches the target; else [`Decider::choose`]. [`Checked::level`] is
     /// `Some(0)` for an arriving action and `None` for the plain choice.
     pub fn choose<const STATES: usize, L: Copy + Into<f32>>(
         &self,
@@ -98,7 +97,7 @@ impl Arrival {
         key: ObservationKey,
         logits: &[L; DIMS * CHOICES],
     ) -> Checked {
-        let levels = usize::from(self.applies(decider, key) && self.within_one_step());
+        let levels = usize::from(self.applies(decider, key));
         decider.choose_checked(key, logits, levels, |_, action| self.reached_by(action))
     }
 }

@@ -149,7 +149,7 @@ impl CollisionGuard {
         legs: LegConfig,
         arrival: Option<&Arrival>,
     ) -> Checked {
-        let arrival = arrival.filter(|a| a.applies(decider, key) && a.within_one_step());
+        let arrival = arrival.filter(|a| a.applies(decider, key));
         let first = usize::from(arrival.is_some());
         // Levels numbered as if arrival were always asked: 0 arrival, 1 strict, 2 lenient.
         let skipped = 1 - first;
@@ -568,30 +568,24 @@ mod tests {
             logits[head * CHOICES + 1] = 2.0;
         }
         logits[2 * CHOICES + 2] = 3.0;
-        let key = ObservationKey(7);
-        let clear = flat();
-        let checked = guard.choose(
-            &mut Decider::<4>::new(),
-            key,
-            &logits,
-            HeightMapRef::Metres(&clear),
-            default_legs(),
-            Some(&arrival),
-        );
+        let choose_on = |map: &[f32; HEIGHT_MAP_CELLS]| {
+            guard.choose(
+                &mut Decider::<4>::new(),
+                ObservationKey(7),
+                &logits,
+                HeightMapRef::Metres(map),
+                default_legs(),
+                Some(&arrival),
+            )
+        };
+        let checked = choose_on(&flat());
         assert!(arrival.reached_by(checked.action), "{checked:?}");
         assert_eq!(checked.action.move_x, Step::Plus);
         assert_eq!(checked.level, Some(0), "the guard's strict level passed it");
         // A wall just beyond the wheels: every arriving step is refused, so the policy's turn.
         let mut walled = flat();
         block(&mut walled, (0.31, 0.8), (-0.8, 0.8), 0.5);
-        let checked = guard.choose(
-            &mut Decider::<4>::new(),
-            key,
-            &logits,
-            HeightMapRef::Metres(&walled),
-            default_legs(),
-            Some(&arrival),
-        );
+        let checked = choose_on(&walled);
         assert!(!arrival.reached_by(checked.action), "{checked:?}");
         assert_eq!(checked.action.yaw, Step::Plus);
         assert_eq!(checked.level, Some(0));

@@ -24,6 +24,12 @@ impl FailureMemory {
         }
     }
 
+    /// Whether it remembers anything at all (capacity above 0): callers skip copying a failed
+    /// scene for a memory that would drop it.
+    pub fn is_on(&self) -> bool {
+        self.capacity > 0
+    }
+
     /// Remembers a scene the policy failed.
     pub fn record_failure(&mut self, scenario: Scenario) {
         if self.capacity == 0 {
@@ -118,6 +124,7 @@ mod tests {
         never.record_failure(scenes(1).remove(0));
         assert!(never.take(&mut rng).is_none());
         let mut none = FailureMemory::new(0, 1.0);
+        assert!(!none.is_on() && never.is_on());
         none.record_failure(scenes(1).remove(0));
         assert!(none.is_empty());
         assert!(none.take(&mut rng).is_none());

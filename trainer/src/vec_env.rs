@@ -41,8 +41,8 @@ pub struct EnvSlot {
     episodes_started: u64,
     /// Start stage the current scene was drawn at.
     stage: f32,
-    /// Scenes this environment failed, offered again (Algorithm 2; off unless
-    /// [`VecEnv::with_failure_memory`]).
+    /// Scenes of the task as specified (stage 1) this environment failed, offered again
+    /// (Algorithm 2; off unless [`VecEnv::set_failure_memory`]).
     failures: FailureMemory,
 }
 
@@ -173,7 +173,10 @@ impl EnvSlot {
             collisions: self.env.collisions(),
             stage: self.stage,
         };
-        if !episode.success {
+        // Only scenes of the task as specified come back: a staged start replayed at another
+        // stage would be counted at the wrong stage, and its success stored as a stage-1
+        // trajectory (the shortcut `SolvedEpisode::stage` keeps out of the batch).
+        if !episode.success && self.stage >= 1.0 && self.failures.is_on() {
             self.failures.record_failure(self.scenario.clone());
         }
         let success = (episode.success && episode.collisions == 0).then(|| {
@@ -202,13 +205,16 @@ impl EnvSlot {
             self.episodes_started += 1;
             // An empty memory draws nothing from the generator, so a run without failure
             // re-sampling sees exactly the scenes it did before the memory existed.
-            let scenario = match self.failures.take(&mut self.scene_rng) {
-                Some(failed) => failed,
-                None => new_scene(scenes, &mut self.scene_rng, index, self.episodes_started),
+            let (scenario, stage) = match self.failures.take(&mut self.scene_rng) {
+                Some(failed) => (failed, 1.0),
+                None => (
+                    new_scene(scenes, &mut self.scene_rng, index, self.episodes_started),
+                    scenes.stage,
+                ),
             };
             if let Ok(env) = Env::new(&scenario, config) {
                 self.env = env;
-                self.stage = scenes.stage;
+                self.stage = stage;
                 self.scenario = scenario;
                 self.episode_return = 0.0;
                 self.actions.clear();
@@ -557,7 +563,7 @@ mod tests {
     }
 
     #[test]
-    fn failed_scenes_come_back_and_solved_ones_do_not() {
+    fn failed_scenes_come_back_and_staged_ones_do_not() {
         let kind = SceneKind::Behaviour(Behaviour::Straight);
         let n = 3;
         let config = EnvConfig {
@@ -580,6 +586,22 @@ mod tests {
             .failure_snapshot()
             .iter()
             .all(|json| json.contains("\"scenarios\": []")));
+        // Scenes drawn at a start stage below 1 are not the task; their failures are not kept.
+        let mut staged = VecEnv::with_stage(kind, StartYaw::Any, 0.5, n, 4, config, 1).unwrap();
+        staged.set_failure_memory(2, 1.0);
+        let staged_first: Vec<String> = staged
+            .slots
+            .iter()
+            .map(|s| s.scenario.name.clone())
+            .collect();
+        for _ in 0..3 {
+            staged.step(&idle, &mut h, &mut s);
+        }
+        assert!(staged
+            .slots
+            .iter()
+            .zip(&staged_first)
+            .all(|(slot, name)| slot.scenario.name != *name && slot.stage == 0.5));
         // Without the memory the next scenes are fresh ones.
         let mut plain = VecEnv::new(kind, n, 4, config, 1).unwrap();
         for _ in 0..3 {
