@@ -218,6 +218,14 @@ pub struct CurriculumConfig {
     pub start_stage_success_rate: f32,
     /// `run.start_stage_window` of those secondaries.
     pub start_stage_window: usize,
+    /// Complex training scenes the planner solves for the trajectory batch, as sources beside
+    /// the secondaries' successes (beyond the paper; 0, the default, plans none). See
+    /// `crate::trajectory::demonstrations`.
+    pub planner_demonstrations: usize,
+    /// Expansion budget per search of each demonstration scene.
+    pub planner_demo_expansions: usize,
+    /// Plan only demonstration scenes whose target lies beside an obstacle.
+    pub planner_demo_target_beside_only: bool,
 }
 
 impl Default for CurriculumConfig {
@@ -242,6 +250,9 @@ impl Default for CurriculumConfig {
             start_stage_step: 0.1,
             start_stage_success_rate: 0.5,
             start_stage_window: 3,
+            planner_demonstrations: 0,
+            planner_demo_expansions: 2_000,
+            planner_demo_target_beside_only: false,
         }
     }
 }
@@ -470,6 +481,11 @@ impl TrainConfig {
         check(
             c.start_stage_window >= 1,
             "curriculum.start_stage_window must be at least 1",
+        )?;
+        check(
+            c.planner_demonstrations == 0 || c.planner_demo_expansions >= 1,
+            "curriculum.planner_demo_expansions must be at least 1 when planner_demonstrations \
+             is set",
         )?;
         Ok(())
     }

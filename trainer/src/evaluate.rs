@@ -67,7 +67,7 @@ pub struct TargetBeside {
 }
 
 /// The kind of the obstacle nearest `scenario`'s target, if within [`BESIDE_TARGET_M`].
-fn target_beside(scenario: &Scenario) -> Option<&'static str> {
+pub fn target_beside(scenario: &Scenario) -> Option<&'static str> {
     scenario
         .obstacles
         .iter()

@@ -18,15 +18,17 @@
 //!   is collision-free and part of a success (undone actions are never stored).
 //! - `replay_balance = "behaviour"`: draw a behaviour uniformly, then one of its
 //!   trajectories, so each behaviour gets an equal share however many successes it stored.
+//!   Planner demonstrations ([`crate::trajectory::demonstrations`]) count as one more
+//!   behaviour.
 
 use crate::ppo::Ppo;
 use crate::storage::{Batch, RolloutStorage};
 use crate::trajectory::batch_file::TrajectoryBatch;
+use crate::trajectory::Origin;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 use wheelleg_runtime::action::DIMS;
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
-use wheelleg_sim::generate::Behaviour;
 
 /// How replayed trajectories are drawn from the batch.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -35,7 +37,8 @@ pub enum ReplayBalance {
     /// Uniformly over all stored trajectories (the paper).
     #[default]
     Trajectory,
-    /// A behaviour uniformly, then one of its trajectories uniformly.
+    /// A behaviour (the planner's demonstrations are one) uniformly, then one of its
+    /// trajectories uniformly.
     Behaviour,
 }
 
@@ -66,7 +69,7 @@ pub fn replay_samples(
     let env_config = batch.env_config();
     let by_behaviour = match options.balance {
         ReplayBalance::Trajectory => None,
-        ReplayBalance::Behaviour => Some(scene_ranges_by_behaviour(batch)),
+        ReplayBalance::Behaviour => Some(scene_ranges_by_origin(batch)),
     };
     while out.len() < steps {
         let index = match &by_behaviour {
@@ -130,14 +133,14 @@ fn truncate(batch: &Batch, n: usize) -> Batch {
     }
 }
 
-/// Per behaviour present in `batch`: its sources' scene ranges (first scene, count).
-fn scene_ranges_by_behaviour(batch: &TrajectoryBatch) -> Vec<Vec<(usize, usize)>> {
-    let mut groups: Vec<(Behaviour, Vec<(usize, usize)>)> = Vec::new();
+/// Per origin present in `batch`: its sources' scene ranges (first scene, count).
+fn scene_ranges_by_origin(batch: &TrajectoryBatch) -> Vec<Vec<(usize, usize)>> {
+    let mut groups: Vec<(Origin, Vec<(usize, usize)>)> = Vec::new();
     for source in batch.sources().iter().filter(|s| s.scenes > 0) {
         let range = (source.first_scene as usize, source.scenes as usize);
-        match groups.iter_mut().find(|(b, _)| *b == source.behaviour) {
+        match groups.iter_mut().find(|(o, _)| *o == source.origin) {
             Some((_, ranges)) => ranges.push(range),
-            None => groups.push((source.behaviour, vec![range])),
+            None => groups.push((source.origin, vec![range])),
         }
     }
     groups.into_iter().map(|(_, ranges)| ranges).collect()

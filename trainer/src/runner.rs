@@ -15,7 +15,7 @@ use crate::replay::{replay_samples, ReplayOptions};
 use crate::storage::RolloutStorage;
 use crate::trajectory::batch_file::{partial_path, TrajectoryBatch};
 use crate::trajectory::randomize::{randomize_batch_with, RandomizeConfig};
-use crate::trajectory::Trajectory;
+use crate::trajectory::{Origin, Trajectory};
 use crate::vec_env::{EpisodeStats, SolvedEpisode, VecEnv};
 use indicatif::{ProgressBar, ProgressStyle};
 use rand::SeedableRng;
@@ -296,7 +296,11 @@ pub fn train_stage(
                     if stage < 1.0 {
                         continue;
                     }
-                    solved.push_back(Trajectory::new(scenario, actions, behaviour));
+                    solved.push_back(Trajectory::new(
+                        scenario,
+                        actions,
+                        Origin::Secondary(behaviour),
+                    ));
                     if solved.len() > inputs.keep_trajectories {
                         solved.pop_front();
                     }

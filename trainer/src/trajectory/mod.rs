@@ -13,12 +13,15 @@
 //!   actions still succeed without a collision; [`randomize::randomize_batch`] writes the batch.
 //! - [`batch_file`]: the batch file (magic, version, CRC-32 per chunk, resumable) and the
 //!   in-memory [`batch_file::TrajectoryBatch`] the trainer samples from.
+//! - [`demonstrations`]: the planner's plans of complex training scenes, stored as sources
+//!   beside the secondaries' (beyond the paper; off unless configured).
 //! - [`relevance`]: the paper's relevance test: remove each obstacle, roll the greedy policy,
 //!   measure how far its trajectory moves, and draw it.
 //!
 //! The design and the measured figures are in docs/curriculum.md.
 
 pub mod batch_file;
+pub mod demonstrations;
 pub mod randomize;
 pub mod relevance;
 pub mod sweep;
@@ -37,8 +40,51 @@ pub struct Trajectory {
     pub scenario: Scenario,
     /// The actions, in order.
     pub actions: Vec<Action>,
-    /// The behaviour (secondary policy) that produced it; randomized copies keep their source's.
-    pub behaviour: Behaviour,
+    /// What produced it; randomized copies keep their source's.
+    pub origin: Origin,
+}
+
+/// What produced a stored trajectory.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Origin {
+    /// A secondary policy's success in its behaviour's simple scene (the paper).
+    Secondary(Behaviour),
+    /// The planner's plan of a complex training scene (beyond the paper: [`demonstrations`]).
+    Planner,
+}
+
+impl Origin {
+    /// Every origin, in file-code order: the five behaviours, then the planner.
+    pub const ALL: [Origin; 6] = [
+        Origin::Secondary(Behaviour::Straight),
+        Origin::Secondary(Behaviour::Around),
+        Origin::Secondary(Behaviour::LiftOver),
+        Origin::Secondary(Behaviour::SpreadOver),
+        Origin::Secondary(Behaviour::Squeeze),
+        Origin::Planner,
+    ];
+
+    /// The origin's code in files: its index in [`Origin::ALL`] (a behaviour's code is its
+    /// index in [`Behaviour::ALL`], as in files written before planner demonstrations).
+    pub fn code(self) -> u8 {
+        Origin::ALL
+            .iter()
+            .position(|&o| o == self)
+            .unwrap_or_default() as u8
+    }
+
+    /// The origin with file code `code`, `None` for an unknown code.
+    pub fn from_code(code: u8) -> Option<Origin> {
+        Origin::ALL.get(code as usize).copied()
+    }
+
+    /// Name in logs and reports: the behaviour's name, or "planner".
+    pub fn name(self) -> &'static str {
+        match self {
+            Origin::Secondary(b) => b.name(),
+            Origin::Planner => "planner",
+        }
+    }
 }
 
 /// Why a trajectory could not be replayed at all (as opposed to replaying and failing, which
@@ -142,11 +188,11 @@ pub struct ReplayStep {
 
 impl Trajectory {
     /// A trajectory of `actions` in `scenario`.
-    pub fn new(scenario: Scenario, actions: Vec<Action>, behaviour: Behaviour) -> Self {
+    pub fn new(scenario: Scenario, actions: Vec<Action>, origin: Origin) -> Self {
         Trajectory {
             scenario,
             actions,
-            behaviour,
+            origin,
         }
     }
 
@@ -226,20 +272,7 @@ impl Trajectory {
         Ok(Trajectory {
             scenario: self.scenario.clone(),
             actions: kept,
-            behaviour: self.behaviour,
+            origin: self.origin,
         })
     }
-}
-
-/// The behaviour's code in files: its index in [`Behaviour::ALL`].
-pub fn behaviour_code(behaviour: Behaviour) -> u8 {
-    Behaviour::ALL
-        .iter()
-        .position(|&b| b == behaviour)
-        .unwrap_or_default() as u8
-}
-
-/// The behaviour with file code `code`, `None` for an unknown code.
-pub fn behaviour_from_code(code: u8) -> Option<Behaviour> {
-    Behaviour::ALL.get(code as usize).copied()
 }

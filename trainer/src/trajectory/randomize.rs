@@ -118,7 +118,7 @@ fn fingerprint(sources: &[Trajectory]) -> u64 {
     for t in sources {
         let s = &t.scenario;
         h = fnv1a(s.name.as_bytes(), h);
-        h = fnv1a(&[super::behaviour_code(t.behaviour)], h);
+        h = fnv1a(&[t.origin.code()], h);
         for v in [
             s.start.position.x,
             s.start.position.y,
@@ -275,7 +275,7 @@ fn replays_clean(source: &Trajectory, obstacles: Vec<Obstacle>, env: EnvConfig) 
             obstacles,
         },
         actions: source.actions.clone(),
-        behaviour: source.behaviour,
+        origin: source.origin,
     };
     candidate
         .replay(env)
@@ -362,8 +362,8 @@ pub struct Stats {
     pub kept: u64,
     /// Original scenes stored (with `include_original`).
     pub originals: u64,
-    /// Kept / tried per behaviour, in [`wheelleg_sim::generate::Behaviour::ALL`] order.
-    pub by_behaviour: [(u64, u64); 5],
+    /// Kept / tried per origin, in [`super::Origin::ALL`] order.
+    pub by_origin: [(u64, u64); super::Origin::ALL.len()],
     /// Source index the generation resumed at (0 for a fresh one).
     pub resumed_at_source: u64,
     /// Bytes of a half-written chunk cut off the partial file on resume.
@@ -395,7 +395,8 @@ impl Stats {
         self.tried += record.tried as u64;
         self.kept += randomized;
         self.originals += u64::from(record.original_included);
-        let b = &mut self.by_behaviour[record.behaviour.min(4) as usize];
+        let last = super::Origin::ALL.len() - 1;
+        let b = &mut self.by_origin[(record.behaviour as usize).min(last)];
         b.0 += randomized;
         b.1 += record.tried as u64;
     }
