@@ -226,6 +226,10 @@ pub struct CurriculumConfig {
     pub planner_demo_expansions: usize,
     /// Plan only demonstration scenes whose target lies beside an obstacle.
     pub planner_demo_target_beside_only: bool,
+    /// Share of the replayed trajectories drawn from the planner's demonstrations (0: drawn
+    /// like any other origin). May change on `--resume`: it only decides which stored
+    /// trajectories are replayed next.
+    pub replay_planner_share: f32,
 }
 
 impl Default for CurriculumConfig {
@@ -253,6 +257,7 @@ impl Default for CurriculumConfig {
             planner_demonstrations: 0,
             planner_demo_expansions: 2_000,
             planner_demo_target_beside_only: false,
+            replay_planner_share: 0.0,
         }
     }
 }
@@ -481,6 +486,10 @@ impl TrainConfig {
         check(
             c.start_stage_window >= 1,
             "curriculum.start_stage_window must be at least 1",
+        )?;
+        check(
+            (0.0..=1.0).contains(&c.replay_planner_share),
+            "curriculum.replay_planner_share must be in [0, 1]",
         )?;
         check(
             c.planner_demonstrations == 0 || c.planner_demo_expansions >= 1,

@@ -370,6 +370,7 @@ pub fn run_primary(config: &TrainConfig, opts: &CurriculumOptions) -> Result<Run
                 steps: config.curriculum.replay_steps_per_iteration,
                 imitation_coef: config.curriculum.replay_imitation_coef,
                 balance: config.curriculum.replay_balance,
+                planner_share: config.curriculum.replay_planner_share,
             },
             // Read from the curriculum section directly, so a resume must keep them.
             resume_keeps: &[

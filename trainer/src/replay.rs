@@ -51,6 +51,9 @@ pub struct ReplayOptions {
     pub imitation_coef: f32,
     /// How trajectories are drawn.
     pub balance: ReplayBalance,
+    /// Share of the drawn trajectories taken from the planner's demonstrations, when the
+    /// batch holds any (0: they are drawn like every other origin).
+    pub planner_share: f32,
 }
 
 /// Draws whole trajectories from `batch` until `options.steps` samples are gathered (the last
@@ -67,15 +70,9 @@ pub fn replay_samples(
         return Ok(out);
     }
     let env_config = batch.env_config();
-    let by_behaviour = match options.balance {
-        ReplayBalance::Trajectory => None,
-        ReplayBalance::Behaviour => Some(scene_ranges_by_origin(batch)),
-    };
+    let draw = TrajectoryDraw::new(scene_ranges_by_origin(batch), batch.len(), options);
     while out.len() < steps {
-        let index = match &by_behaviour {
-            None => rng.random_range(0..batch.len()),
-            Some(groups) => draw_balanced(groups, rng),
-        };
+        let index = draw.next(rng);
         let trajectory = batch
             .trajectory(index)
             .ok_or_else(|| format!("trajectory batch has no trajectory {index}"))?;
@@ -133,8 +130,66 @@ fn truncate(batch: &Batch, n: usize) -> Batch {
     }
 }
 
+/// Which stored trajectory to replay next, by [`ReplayOptions::balance`] and
+/// [`ReplayOptions::planner_share`].
+struct TrajectoryDraw {
+    /// The planner's scene ranges, when a share of them is set and the batch holds some.
+    planner: Option<Vec<(usize, usize)>>,
+    planner_share: f32,
+    /// Scene ranges of every other origin (all origins without a planner share).
+    groups: Vec<Vec<(usize, usize)>>,
+    /// `groups` flattened into one.
+    others: Vec<(usize, usize)>,
+    balance: ReplayBalance,
+    len: usize,
+}
+
+impl TrajectoryDraw {
+    fn new(
+        by_origin: Vec<(Origin, Vec<(usize, usize)>)>,
+        len: usize,
+        options: &ReplayOptions,
+    ) -> Self {
+        let share = options.planner_share;
+        let mut planner = None;
+        let mut groups = Vec::new();
+        for (origin, ranges) in by_origin {
+            if share > 0.0 && origin == Origin::Planner {
+                planner = Some(ranges);
+            } else {
+                groups.push(ranges);
+            }
+        }
+        TrajectoryDraw {
+            planner_share: if planner.is_some() { share } else { 0.0 },
+            planner,
+            others: groups.concat(),
+            groups,
+            balance: options.balance,
+            len,
+        }
+    }
+
+    fn next(&self, rng: &mut impl Rng) -> usize {
+        // Drawn only when a share is set, so runs without one replay exactly as before.
+        let from_planner = self.planner_share > 0.0 && rng.random::<f32>() < self.planner_share;
+        match &self.planner {
+            Some(ranges) if from_planner || self.others.is_empty() => {
+                draw_balanced(std::slice::from_ref(ranges), rng)
+            }
+            _ => match self.balance {
+                ReplayBalance::Behaviour => draw_balanced(&self.groups, rng),
+                ReplayBalance::Trajectory if self.planner.is_none() => {
+                    rng.random_range(0..self.len)
+                }
+                ReplayBalance::Trajectory => draw_balanced(std::slice::from_ref(&self.others), rng),
+            },
+        }
+    }
+}
+
 /// Per origin present in `batch`: its sources' scene ranges (first scene, count).
-fn scene_ranges_by_origin(batch: &TrajectoryBatch) -> Vec<Vec<(usize, usize)>> {
+fn scene_ranges_by_origin(batch: &TrajectoryBatch) -> Vec<(Origin, Vec<(usize, usize)>)> {
     let mut groups: Vec<(Origin, Vec<(usize, usize)>)> = Vec::new();
     for source in batch.sources().iter().filter(|s| s.scenes > 0) {
         let range = (source.first_scene as usize, source.scenes as usize);
@@ -143,7 +198,7 @@ fn scene_ranges_by_origin(batch: &TrajectoryBatch) -> Vec<Vec<(usize, usize)>> {
             None => groups.push((source.origin, vec![range])),
         }
     }
-    groups.into_iter().map(|(_, ranges)| ranges).collect()
+    groups
 }
 
 /// A behaviour uniformly, then a scene uniformly among that behaviour's scenes.
@@ -166,6 +221,44 @@ mod tests {
     use super::*;
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
+    use wheelleg_sim::generate::Behaviour;
+
+    #[test]
+    fn a_planner_share_draws_that_share_from_the_demonstrations() {
+        // Scenes 0..900 from two behaviours, 900..1000 from the planner.
+        let by_origin = vec![
+            (Origin::Secondary(Behaviour::Straight), vec![(0, 600)]),
+            (Origin::Secondary(Behaviour::LiftOver), vec![(600, 300)]),
+            (Origin::Planner, vec![(900, 100)]),
+        ];
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        for (share, balance, expected) in [
+            (0.5, ReplayBalance::Behaviour, 0.5),
+            (0.5, ReplayBalance::Trajectory, 0.5),
+            // Without a share the planner is one more group, or one more trajectory source.
+            (0.0, ReplayBalance::Behaviour, 1.0 / 3.0),
+            (0.0, ReplayBalance::Trajectory, 0.1),
+        ] {
+            let options = ReplayOptions {
+                steps: 1,
+                imitation_coef: 0.0,
+                balance,
+                planner_share: share,
+            };
+            let draw = TrajectoryDraw::new(by_origin.clone(), 1000, &options);
+            let draws = 20_000;
+            let planned = (0..draws).filter(|_| draw.next(&mut rng) >= 900).count();
+            let got = planned as f32 / draws as f32;
+            assert!((got - expected).abs() < 0.02, "{share} {balance:?}: {got}");
+        }
+        // A share with no demonstrations in the batch draws as if none were asked for.
+        let options = ReplayOptions {
+            planner_share: 0.9,
+            ..ReplayOptions::default()
+        };
+        let draw = TrajectoryDraw::new(by_origin[..2].to_vec(), 900, &options);
+        assert!((0..1000).all(|_| draw.next(&mut rng) < 900));
+    }
 
     #[test]
     fn balanced_draws_give_each_behaviour_an_equal_share() {
