@@ -237,6 +237,10 @@ pub fn train_stage(
             solved.extend((0..stored.len()).filter_map(|i| stored.trajectory(i)));
         }
         truncate_metrics(&metrics_path, iteration)?;
+        // A resume may change the budget and the other resumable keys: the folder's config
+        // then says what the run now is, as the checkpoint does.
+        crate::export::write_atomic(&opts.out.join("config.toml"), config.to_toml().as_bytes())
+            .map_err(|e| format!("cannot write config.toml: {e}"))?;
     } else {
         if ckpt_path.exists() {
             return Err(format!(

@@ -157,6 +157,13 @@ fn a_resumed_run_matches_an_uninterrupted_one() {
         e.contains("curriculum.replay_imitation_coef: 0.0 -> 0.5"),
         "{e}"
     );
+    // A larger budget is a resumable change, and the folder's config.toml then shows it.
+    let mut longer = config.clone();
+    longer.run.total_env_steps = 2000;
+    let c = train(&longer, &opts(split.clone(), true, None)).unwrap();
+    assert_eq!(Checkpoint::load(&c.checkpoint).unwrap().env_steps, 2000);
+    let stored = std::fs::read_to_string(split.join("config.toml")).unwrap();
+    assert_eq!(TrainConfig::from_toml(&stored).unwrap(), longer);
     let _ = std::fs::remove_dir_all(&whole);
     let _ = std::fs::remove_dir_all(&split);
 }
