@@ -73,7 +73,8 @@ struct PlanRecord {
     /// Scene index.
     index: usize,
     /// "shortest", "solved" (weighted search), "budget", "unsolvable", "skipped" (nothing
-    /// beside the target) or "no_replay" (the plan did not replay cleanly).
+    /// beside the target), "invalid" (the scene does not start an episode) or "no_replay"
+    /// (the plan did not replay cleanly).
     outcome: String,
     /// Joint action indices of a kept plan.
     actions: Vec<u8>,
@@ -94,7 +95,8 @@ pub struct DemoStats {
     pub budget: usize,
     /// Scenes proven unsolvable.
     pub unsolvable: usize,
-    /// Plans that did not replay cleanly (none expected: the planner replays its plans).
+    /// Plans that did not replay cleanly, or scenes that start no episode (none expected:
+    /// the generator validates its scenes and the planner replays its plans).
     pub not_replayed: usize,
     /// Scenes already planned by an earlier run.
     pub resumed: usize,
@@ -157,7 +159,7 @@ pub fn plan_demonstrations(
             "skipped" => stats.skipped += 1,
             "budget" => stats.budget += 1,
             "unsolvable" => stats.unsolvable += 1,
-            "no_replay" => stats.not_replayed += 1,
+            "no_replay" | "invalid" => stats.not_replayed += 1,
             "shortest" | "solved" => {
                 stats.kept += 1;
                 stats.shortest += usize::from(record.outcome == "shortest");
@@ -207,7 +209,7 @@ fn plan_scene(scene: &Scenario, index: usize, config: &DemoConfig, env: EnvConfi
         return record("skipped", Vec::new());
     }
     let Ok(start) = Env::new(scene, env) else {
-        return record("unsolvable", Vec::new());
+        return record("invalid", Vec::new());
     };
     let planner = PlannerConfig {
         max_expansions: config.max_expansions,
