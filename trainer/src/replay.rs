@@ -133,9 +133,9 @@ fn truncate(batch: &Batch, n: usize) -> Batch {
 /// Which stored trajectory to replay next, by [`ReplayOptions::balance`] and
 /// [`ReplayOptions::planner_share`].
 struct TrajectoryDraw {
-    /// The planner's scene ranges, when a share of them is set and the batch holds some.
-    planner: Option<Vec<(usize, usize)>>,
-    planner_share: f32,
+    /// The share and scene ranges of the planner's demonstrations, when a share is set and
+    /// the batch holds some.
+    planner: Option<(f32, Vec<(usize, usize)>)>,
     /// Scene ranges of every other origin (all origins without a planner share).
     groups: Vec<Vec<(usize, usize)>>,
     /// `groups` flattened into one.
@@ -155,13 +155,12 @@ impl TrajectoryDraw {
         let mut groups = Vec::new();
         for (origin, ranges) in by_origin {
             if share > 0.0 && origin == Origin::Planner {
-                planner = Some(ranges);
+                planner = Some((share, ranges));
             } else {
                 groups.push(ranges);
             }
         }
         TrajectoryDraw {
-            planner_share: if planner.is_some() { share } else { 0.0 },
             planner,
             others: groups.concat(),
             groups,
@@ -171,19 +170,16 @@ impl TrajectoryDraw {
     }
 
     fn next(&self, rng: &mut impl Rng) -> usize {
-        // Drawn only when a share is set, so runs without one replay exactly as before.
-        let from_planner = self.planner_share > 0.0 && rng.random::<f32>() < self.planner_share;
-        match &self.planner {
-            Some(ranges) if from_planner || self.others.is_empty() => {
-                draw_balanced(std::slice::from_ref(ranges), rng)
+        if let Some((share, ranges)) = &self.planner {
+            // Drawn only with a share, so runs without one replay exactly as before.
+            if self.others.is_empty() || rng.random::<f32>() < *share {
+                return draw_balanced(std::slice::from_ref(ranges), rng);
             }
-            _ => match self.balance {
-                ReplayBalance::Behaviour => draw_balanced(&self.groups, rng),
-                ReplayBalance::Trajectory if self.planner.is_none() => {
-                    rng.random_range(0..self.len)
-                }
-                ReplayBalance::Trajectory => draw_balanced(std::slice::from_ref(&self.others), rng),
-            },
+        }
+        match self.balance {
+            ReplayBalance::Behaviour => draw_balanced(&self.groups, rng),
+            ReplayBalance::Trajectory if self.planner.is_none() => rng.random_range(0..self.len),
+            ReplayBalance::Trajectory => draw_balanced(std::slice::from_ref(&self.others), rng),
         }
     }
 }

@@ -24,9 +24,9 @@ use super::{Origin, Trajectory};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
-use std::fs::{self, File, OpenOptions};
+use std::fs::{self, OpenOptions};
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 use wheelleg_runtime::action::Action;
@@ -67,15 +67,33 @@ impl DemoConfig {
     }
 }
 
+/// What planning one scene gave.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+enum SceneOutcome {
+    /// Exact search: a proven shortest plan, kept.
+    Shortest,
+    /// Weighted search: a plan, not proven shortest, kept.
+    Solved,
+    /// Both searches ran out of budget.
+    Budget,
+    /// Proven unsolvable.
+    Unsolvable,
+    /// Nothing beside the target (with `target_beside_only`): not planned.
+    Skipped,
+    /// The scene starts no episode.
+    Invalid,
+    /// The plan did not replay cleanly.
+    NoReplay,
+}
+
 /// One scene's outcome, a line of the log.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 struct PlanRecord {
     /// Scene index.
     index: usize,
-    /// "shortest", "solved" (weighted search), "budget", "unsolvable", "skipped" (nothing
-    /// beside the target), "invalid" (the scene does not start an episode) or "no_replay"
-    /// (the plan did not replay cleanly).
-    outcome: String,
+    /// What planning gave.
+    outcome: SceneOutcome,
     /// Joint action indices of a kept plan.
     actions: Vec<u8>,
 }
@@ -155,18 +173,17 @@ pub fn plan_demonstrations(
     let mut kept = Vec::new();
     for (record, scene) in records.iter().zip(scenes) {
         stats.scenes += 1;
-        match record.outcome.as_str() {
-            "skipped" => stats.skipped += 1,
-            "budget" => stats.budget += 1,
-            "unsolvable" => stats.unsolvable += 1,
-            "no_replay" | "invalid" => stats.not_replayed += 1,
-            "shortest" | "solved" => {
+        match record.outcome {
+            SceneOutcome::Skipped => stats.skipped += 1,
+            SceneOutcome::Budget => stats.budget += 1,
+            SceneOutcome::Unsolvable => stats.unsolvable += 1,
+            SceneOutcome::NoReplay | SceneOutcome::Invalid => stats.not_replayed += 1,
+            SceneOutcome::Shortest | SceneOutcome::Solved => {
                 stats.kept += 1;
-                stats.shortest += usize::from(record.outcome == "shortest");
+                stats.shortest += usize::from(record.outcome == SceneOutcome::Shortest);
                 let actions = decode_actions(&record.actions, record.index, &path)?;
                 kept.push(Trajectory::new(scene, actions, Origin::Planner));
             }
-            _ => {}
         }
     }
     Ok((kept, stats))
@@ -200,16 +217,16 @@ fn plan_chunk(
 
 /// One scene's outcome.
 fn plan_scene(scene: &Scenario, index: usize, config: &DemoConfig, env: EnvConfig) -> PlanRecord {
-    let record = |outcome: &str, actions: Vec<u8>| PlanRecord {
+    let record = |outcome: SceneOutcome, actions: Vec<u8>| PlanRecord {
         index,
-        outcome: outcome.into(),
+        outcome,
         actions,
     };
     if config.target_beside_only && crate::evaluate::target_beside(scene).is_none() {
-        return record("skipped", Vec::new());
+        return record(SceneOutcome::Skipped, Vec::new());
     }
     let Ok(start) = Env::new(scene, env) else {
-        return record("invalid", Vec::new());
+        return record(SceneOutcome::Invalid, Vec::new());
     };
     let planner = PlannerConfig {
         max_expansions: config.max_expansions,
@@ -224,13 +241,18 @@ fn plan_scene(scene: &Scenario, index: usize, config: &DemoConfig, env: EnvConfi
                 r.status == Status::Success && r.invalid_actions == 0 && r.collisions == 0
             });
             if !clean {
-                return record("no_replay", Vec::new());
+                return record(SceneOutcome::NoReplay, Vec::new());
             }
             let codes = actions.iter().map(|a| a.index() as u8).collect();
-            record(if *shortest { "shortest" } else { "solved" }, codes)
+            let outcome = if *shortest {
+                SceneOutcome::Shortest
+            } else {
+                SceneOutcome::Solved
+            };
+            record(outcome, codes)
         }
-        PlanOutcome::Unsolvable => record("unsolvable", Vec::new()),
-        PlanOutcome::BudgetExceeded => record("budget", Vec::new()),
+        PlanOutcome::Unsolvable => record(SceneOutcome::Unsolvable, Vec::new()),
+        PlanOutcome::BudgetExceeded => record(SceneOutcome::Budget, Vec::new()),
     }
 }
 
@@ -253,7 +275,8 @@ fn decode_actions(codes: &[u8], index: usize, path: &Path) -> Result<Vec<Action>
 fn read_log(path: &Path, config: &DemoConfig) -> Result<Vec<PlanRecord>, String> {
     let header = serde_json::to_string(config).map_err(|e| e.to_string())?;
     if !path.exists() {
-        write_atomic(path, format!("{header}\n").as_bytes())?;
+        crate::export::write_atomic(path, format!("{header}\n").as_bytes())
+            .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
         return Ok(Vec::new());
     }
     let text =
@@ -303,19 +326,10 @@ fn read_log(path: &Path, config: &DemoConfig) -> Result<Vec<PlanRecord>, String>
     Ok(records)
 }
 
-fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), String> {
-    let tmp: PathBuf = path.with_extension("jsonl.tmp");
-    let mut file =
-        File::create(&tmp).map_err(|e| format!("cannot create {}: {e}", tmp.display()))?;
-    file.write_all(bytes)
-        .and_then(|()| file.sync_data())
-        .map_err(|e| format!("cannot write {}: {e}", tmp.display()))?;
-    fs::rename(&tmp, path).map_err(|e| format!("cannot rename to {}: {e}", path.display()))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::path::PathBuf;
 
     fn temp_dir(name: &str) -> PathBuf {
         let dir = std::env::temp_dir().join(format!("wheelleg-demo-{name}-{}", std::process::id()));
