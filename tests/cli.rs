@@ -76,6 +76,26 @@ fn generate_plan_and_render_a_scenario_file() {
     let stack = eval(&["--guard", "--arrival"]);
     assert_eq!(stack["arrival"], true, "{stack}");
     assert!(stack["guard_margin_m"].is_number(), "{stack}");
+    assert_eq!(stack["guard_cell_m"].as_f64(), Some(0.05), "{stack}");
+    // The guard on a finer map than the policy's.
+    let fine = eval(&["--guard", "--guard-map", "fine", "--arrival"]);
+    assert_eq!(fine["guard_cell_m"].as_f64(), Some(0.01), "{fine}");
+    let bad = wheelleg(&[
+        "eval",
+        "--policy",
+        policy,
+        "--scenarios",
+        file_arg,
+        "--guard",
+        "--guard-map",
+        "coarse",
+    ]);
+    assert!(!bad.status.success());
+    assert!(
+        text(&bad.stderr).contains("--guard-map"),
+        "{}",
+        text(&bad.stderr)
+    );
     let table = wheelleg(&["eval", "--policy", policy, "--scenarios", file_arg]);
     assert!(table.status.success(), "{}", text(&table.stderr));
     let table = text(&table.stdout);

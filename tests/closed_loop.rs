@@ -22,6 +22,7 @@ use wheelleg_runtime::guard::{CollisionGuard, DEFAULT_MARGIN_M};
 use wheelleg_runtime::robot::{LegId, WHEELLEG};
 use wheelleg_sim::env::{Env, InvalidAction, Observation, Status};
 use wheelleg_sim::generate::{generate, Behaviour, SceneKind};
+use wheelleg_sim::height_map::MapGrid;
 use wheelleg_sim::planner::PlannerConfig;
 use wheelleg_sim::scenario::Scenario;
 use wheelleg_trainer::network_f32::{Architecture, NetworkF32};
@@ -547,15 +548,17 @@ fn the_collision_guard_spares_collisions_and_arrival_adds_successes() {
         .map(|i| generate(SceneKind::Complex, &mut rng, format!("held-out-{i}")))
         .collect();
     // (successes, collision-free successes, collisions) over the scenes.
-    let run = |guarded: bool, arrival: bool| {
+    let run = |guarded: bool, arrival: bool, fine_map: bool| {
         let mut tally = (0, 0, 0);
         for scene in &scenes {
             let mut env = Env::new(scene, Default::default()).unwrap();
             let driver = PolicyDriver::from_bytes(&bytes, "weights/policy.wlw").unwrap();
-            let driver = if guarded {
-                driver.with_guard(CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M))
-            } else {
-                driver
+            let driver = match (guarded, fine_map) {
+                (false, _) => driver,
+                (true, false) => driver.with_guard(CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M)),
+                (true, true) => driver
+                    .with_guard(CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M))
+                    .with_guard_map(MapGrid::GUARD_FINE),
             };
             let mut driver = if arrival {
                 driver.with_arrival(env.config().success_radius_m)
@@ -570,10 +573,20 @@ fn the_collision_guard_spares_collisions_and_arrival_adds_successes() {
         }
         tally
     };
-    let (alone, guarded, arriving) = (run(false, false), run(true, false), run(true, true));
+    let (alone, guarded, arriving) = (
+        run(false, false, false),
+        run(true, false, false),
+        run(true, true, false),
+    );
+    let fine = run(true, true, true);
     eprintln!(
-        "policy alone {alone:?}, guarded {guarded:?}, guarded with arrival {arriving:?} \
-         (successes, collision-free, collisions)"
+        "policy alone {alone:?}, guarded {guarded:?}, guarded with arrival {arriving:?}, \
+         on the 1 cm map {fine:?} (successes, collision-free, collisions)"
+    );
+    // On a 1 cm map the guard sees nearly every collision the 5 cm map hides.
+    assert!(
+        fine.2 * 3 <= arriving.2 && fine.1 > arriving.1,
+        "5 cm map {arriving:?}, 1 cm map {fine:?}"
     );
     // The arrival rule ends an episode as soon as one step can (an episode changes course only
     // if the world refuses that step, which the guard makes rare): it loses no success.

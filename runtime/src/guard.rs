@@ -9,11 +9,14 @@
 //!
 //! The model, and why it is only an estimate:
 //! - each map cell with a height `h > 0` is a column: the cell's square (side
-//!   [`HEIGHT_MAP_CELL_M`], aligned with the map) from the ground up to `h`. The map samples each
-//!   cell at its centre, so an obstacle's true edge lies up to half a cell beyond or short of
-//!   the square's edge. The guard's `margin_m` grows (or, negative, shrinks) every square by
-//!   that much on each side: half a cell covers everything the map may have missed, minus half
-//!   a cell leaves only the sample points, where an obstacle certainly is;
+//!   [`HEIGHT_MAP_CELL_M`] on the policy's map, aligned with the map) from the ground up to `h`.
+//!   The map samples each cell at its centre, so an obstacle's true edge lies up to half a cell
+//!   beyond or short of the square's edge. The guard's `margin_m` grows (or, negative, shrinks)
+//!   every square by that much on each side: half a cell covers everything the map may have
+//!   missed, minus half a cell leaves only the sample points, where an obstacle certainly is.
+//!   The guard can read a finer map than the policy's ([`GridMap`]): a robot's elevation
+//!   mapping keeps one anyway, and at 1 cm cells the default margin covers all the sampling can
+//!   hide while the straddles still fit (docs/results.md, "A finer map for the guard");
 //! - the robot is the simulator's 13 parts: the body box, per leg a thigh and a shank capsule
 //!   in the leg plane and a wheel (a cylinder with its axle along body y);
 //! - the step is the path [`crate::motion::StepMotion`] drives: a straight line and a steady
@@ -33,9 +36,7 @@ use crate::arrival::Arrival;
 use crate::decision::{Checked, Decider, ObservationKey};
 use crate::leg::LegConfig;
 use crate::motion::{target_config, BaseDisplacement};
-use crate::observation::{
-    cell_centre_in_robot_m, HEIGHT_MAP_CELLS, HEIGHT_MAP_CELL_M, HEIGHT_MAP_SIDE,
-};
+use crate::observation::{HEIGHT_MAP_CELLS, HEIGHT_MAP_CELL_M, HEIGHT_MAP_SIDE};
 use crate::robot::{LegId, RobotGeometry};
 use nalgebra::{Point2, Point3};
 
@@ -49,13 +50,16 @@ pub const POSE_FRACTIONS: [f32; 4] = [0.25, 0.5, 0.75, 1.0];
 /// under it. docs/results.md measures the margins from -25 mm to 25 mm.
 pub const DEFAULT_MARGIN_M: f32 = 0.005;
 
-/// A height map the guard reads: the runtime's integer millimetres or the host's metres.
+/// A height map the guard reads: the policy's map (the runtime's integer millimetres or the
+/// host's metres), or a square map of another resolution.
 #[derive(Clone, Copy, Debug)]
 pub enum HeightMapRef<'a> {
-    /// Heights in millimetres, the policy's integer inputs.
+    /// The policy's map, heights in millimetres (its integer inputs).
     Millimetres(&'a [i16; HEIGHT_MAP_CELLS]),
-    /// Heights in metres.
+    /// The policy's map, heights in metres.
     Metres(&'a [f32; HEIGHT_MAP_CELLS]),
+    /// A robot-centred square map of any size and resolution, heights in metres.
+    Grid(GridMap<'a>),
 }
 
 impl HeightMapRef<'_> {
@@ -65,7 +69,98 @@ impl HeightMapRef<'_> {
                 cells.get(index).map_or(0.0, |&mm| f32::from(mm) * 1.0e-3)
             }
             HeightMapRef::Metres(cells) => cells.get(index).copied().unwrap_or(0.0),
+            HeightMapRef::Grid(grid) => grid.heights_m.get(index).copied().unwrap_or(0.0),
         }
+    }
+
+    /// Cells per side.
+    fn side(&self) -> usize {
+        match self {
+            HeightMapRef::Grid(grid) => grid.side,
+            _ => HEIGHT_MAP_SIDE,
+        }
+    }
+
+    /// Side of a cell.
+    fn cell_m(&self) -> f32 {
+        match self {
+            HeightMapRef::Grid(grid) => grid.cell_m,
+            _ => HEIGHT_MAP_CELL_M,
+        }
+    }
+
+    /// Robot-frame (x forward, y left) centre of cell (`row`, `col`), laid out as the policy's
+    /// map ([`crate::observation::cell_centre_in_robot_m`]): row 0 ahead, column 0 left, the robot at the centre.
+    fn cell_centre_m(&self, row: usize, col: usize) -> (f32, f32) {
+        let half = 0.5 * (self.side() as f32 - 1.0);
+        let cell_m = self.cell_m();
+        ((half - row as f32) * cell_m, (half - col as f32) * cell_m)
+    }
+}
+
+/// A robot-centred, robot-aligned square height map of any size and resolution, in metres,
+/// laid out as the policy's map (row-major, row 0 ahead, column 0 left, the robot at the
+/// centre): what the guard reads when the robot keeps a finer map than the policy's.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GridMap<'a> {
+    heights_m: &'a [f32],
+    side: usize,
+    cell_m: f32,
+}
+
+/// Why a [`GridMap`] cannot be made.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GridMapError {
+    /// The heights are not `side * side` cells.
+    WrongLength {
+        /// `side * side` (`usize::MAX` when that overflows).
+        expected: usize,
+        /// Cells given.
+        found: usize,
+    },
+    /// The cell side is not a positive finite length.
+    BadCellSize,
+}
+
+impl core::fmt::Display for GridMapError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            GridMapError::WrongLength { expected, found } => {
+                write!(f, "grid map has {found} cells, its side needs {expected}")
+            }
+            GridMapError::BadCellSize => write!(f, "grid map cell size must be positive"),
+        }
+    }
+}
+
+impl<'a> GridMap<'a> {
+    /// `side` x `side` cells of `cell_m`, row-major in `heights_m`.
+    pub fn new(heights_m: &'a [f32], side: usize, cell_m: f32) -> Result<Self, GridMapError> {
+        let expected = side.saturating_mul(side);
+        if heights_m.len() != expected || side == 0 {
+            return Err(GridMapError::WrongLength {
+                expected,
+                found: heights_m.len(),
+            });
+        }
+        if !(cell_m.is_finite() && cell_m > 0.0) {
+            return Err(GridMapError::BadCellSize);
+        }
+        Ok(GridMap {
+            heights_m,
+            side,
+            cell_m,
+        })
+    }
+
+    /// Cells per side.
+    pub fn side(&self) -> usize {
+        self.side
+    }
+
+    /// Side of a cell.
+    pub fn cell_m(&self) -> f32 {
+        self.cell_m
     }
 }
 
@@ -91,10 +186,12 @@ pub struct CollisionGuard {
 
 impl CollisionGuard {
     /// A guard for `geometry` that grows every column's square by `margin_m` on each side
-    /// (clamped to at least minus half a cell, the bare sample point; non-finite counts as 0).
+    /// (a square shrinks at most to its bare sample point; non-finite counts as 0).
     /// Heights are not padded: they are measured
     /// to the millimetre, not sampled.
     pub fn new(geometry: RobotGeometry, margin_m: f32) -> CollisionGuard {
+        // At least minus half the policy's cell: the bound of every earlier version. A finer
+        // map's squares are floored at their sample point where they are used.
         let margin_m = if margin_m.is_finite() {
             margin_m.max(-0.5 * HEIGHT_MAP_CELL_M)
         } else {
@@ -106,8 +203,7 @@ impl CollisionGuard {
         // The farthest any part gets from the centre, plus one step of travel and the growth.
         let reach_m = libm::hypotf(half_length_m, half_track_m.max(0.5 * geometry.body_width_m))
             + crate::action::MOVE_STEP_M * core::f32::consts::SQRT_2
-            + margin_m.max(0.0)
-            + HEIGHT_MAP_CELL_M;
+            + margin_m.max(0.0);
         CollisionGuard {
             geometry,
             margin_m,
@@ -251,10 +347,10 @@ impl CollisionGuard {
             };
             let parts = Parts::place(&self.geometry, legs_t).ok_or(Refusal::Unreachable)?;
             let inverse = base.isometry_at(t).inverse();
-            for row in self.cells_within_reach() {
-                for col in self.cells_within_reach() {
-                    let (x_m, y_m) = cell_centre_in_robot_m(row, col);
-                    let height_m = heights.height_m(row * HEIGHT_MAP_SIDE + col);
+            for row in self.cells_within_reach(&heights) {
+                for col in self.cells_within_reach(&heights) {
+                    let (x_m, y_m) = heights.cell_centre_m(row, col);
+                    let height_m = heights.height_m(row * heights.side() + col);
                     if height_m.is_nan() || height_m <= 0.0 {
                         continue;
                     }
@@ -262,7 +358,7 @@ impl CollisionGuard {
                     let column = Column {
                         x_m: centre.x,
                         y_m: centre.y,
-                        half_m: 0.5 * HEIGHT_MAP_CELL_M + self.margin_m,
+                        half_m: (0.5 * heights.cell_m() + self.margin_m).max(0.0),
                         height_m,
                     };
                     if !parts.may_touch(&column) {
@@ -280,12 +376,14 @@ impl CollisionGuard {
 
     /// The rows (or columns: the map is square and centred) whose cells lie within the
     /// robot's reach of its centre along that axis.
-    fn cells_within_reach(&self) -> core::ops::Range<usize> {
-        let half = 0.5 * (HEIGHT_MAP_SIDE as f32 - 1.0);
-        let cells = self.reach_m / HEIGHT_MAP_CELL_M;
+    fn cells_within_reach(&self, heights: &HeightMapRef<'_>) -> core::ops::Range<usize> {
+        let side = heights.side() as f32;
+        let half = 0.5 * (side - 1.0);
+        // One cell more: a column's square reaches half a cell past its centre.
+        let cells = self.reach_m / heights.cell_m() + 1.0;
         // Saturating casts: a huge reach covers the whole map, never more.
         let first = libm::ceilf(half - cells).max(0.0) as usize;
-        let last = libm::floorf(half + cells).min(HEIGHT_MAP_SIDE as f32 - 1.0) as usize;
+        let last = libm::floorf(half + cells).min(side - 1.0) as usize;
         first..last + 1
     }
 }
@@ -443,6 +541,7 @@ fn segment_crosses_rect(a: (f32, f32), b: (f32, f32), lo: (f32, f32), hi: (f32, 
 mod tests {
     use super::*;
     use crate::action::Step;
+    use crate::observation::cell_centre_in_robot_m;
     use crate::robot::WHEELLEG;
 
     fn flat() -> [f32; HEIGHT_MAP_CELLS] {
@@ -471,6 +570,54 @@ mod tests {
                 if cx >= x.0 && cx <= x.1 && cy >= y.0 && cy <= y.1 {
                     map[row * HEIGHT_MAP_SIDE + col] = height_m;
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn a_grid_map_is_checked_for_its_size_and_cell() {
+        let cells = [0.0f32; 16];
+        assert_eq!(
+            GridMap::new(&cells, 5, 0.01),
+            Err(GridMapError::WrongLength {
+                expected: 25,
+                found: 16
+            })
+        );
+        assert_eq!(
+            GridMap::new(&[], 0, 0.01),
+            Err(GridMapError::WrongLength {
+                expected: 0,
+                found: 0
+            })
+        );
+        assert_eq!(
+            GridMap::new(&cells, 4, f32::NAN),
+            Err(GridMapError::BadCellSize)
+        );
+        assert_eq!(GridMap::new(&cells, 4, 0.0), Err(GridMapError::BadCellSize));
+        let grid = GridMap::new(&cells, 4, 0.01).unwrap();
+        assert_eq!((grid.side(), grid.cell_m()), (4, 0.01));
+    }
+
+    #[test]
+    fn a_grid_map_of_the_policy_layout_gets_the_policy_maps_verdicts() {
+        // The same cells read through either door: every action, on a map with a wall, a
+        // slab and a bar around the robot.
+        let mut map = flat();
+        block(&mut map, (0.3, 0.8), (0.2, 0.8), 0.4);
+        block(&mut map, (-0.4, -0.1), (-0.25, 0.25), 0.05);
+        block(&mut map, (0.05, 0.25), (-0.5, -0.42), 0.15);
+        let grid = GridMap::new(&map, HEIGHT_MAP_SIDE, HEIGHT_MAP_CELL_M).unwrap();
+        for margin_m in [-0.01, 0.0, DEFAULT_MARGIN_M, 0.02] {
+            let guard = CollisionGuard::new(WHEELLEG, margin_m);
+            for index in 0..crate::action::COUNT {
+                let action = Action::from_index(index).unwrap();
+                assert_eq!(
+                    guard.check(HeightMapRef::Grid(grid), default_legs(), action),
+                    guard.check(HeightMapRef::Metres(&map), default_legs(), action),
+                    "{action:?} at margin {margin_m}"
+                );
             }
         }
     }

@@ -625,6 +625,19 @@ impl Env {
         let target = self.state.world_to_robot(self.target);
         out.state = [legs.clearance_m, legs.track_m, target.x, target.y];
     }
+
+    /// The height map around the robot on another layout than the policy's (`grid`, for
+    /// example [`height_map::MapGrid::GUARD_FINE`] for the collision guard) into `out`, which
+    /// must hold `grid.cells()` heights.
+    pub fn observe_grid(&self, grid: height_map::MapGrid, out: &mut [f32]) {
+        height_map::render_grid(
+            self.obstacles.boxes(),
+            self.state.position,
+            self.state.yaw_rad(),
+            grid,
+            out,
+        );
+    }
 }
 
 /// A pose of the clearance proof ([`Env::prove_way_clear`]): where along the step it is, and

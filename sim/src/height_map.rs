@@ -14,12 +14,43 @@ use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, HEIGHT_MAP_CELL_M, HEIGHT_
 /// Heights of the map's cells in metres, row-major (row 0 ahead, column 0 left).
 pub type HeightMap = [f32; HEIGHT_MAP_CELLS];
 
-const HALF_CELLS: f32 = 0.5 * (HEIGHT_MAP_SIDE as f32 - 1.0);
-/// Distance from the map centre to its farthest cell centre: obstacles farther away are skipped.
-const REACH_M: f32 = HALF_CELLS * HEIGHT_MAP_CELL_M * core::f32::consts::SQRT_2;
+/// The layout of a robot-centred square map: cells per side and the side of a cell.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MapGrid {
+    /// Cells per side.
+    pub side: usize,
+    /// Side of a cell.
+    pub cell_m: f32,
+}
 
-/// World position of the centre of cell (`row`, `col`) for a robot at `position` with heading
-/// (cos, sin) = `heading`. The renderer uses exactly this arithmetic, so tests can too.
+impl MapGrid {
+    /// The policy's map: 32 x 32 cells of 0.05 m.
+    pub const POLICY: MapGrid = MapGrid {
+        side: HEIGHT_MAP_SIDE,
+        cell_m: HEIGHT_MAP_CELL_M,
+    };
+
+    /// A finer map for the collision guard: 128 x 128 cells of 0.01 m (1.28 m square, past
+    /// the robot's reach over a step in every direction). At 1 cm the guard's default margin
+    /// covers the half cell the sampling may hide.
+    pub const GUARD_FINE: MapGrid = MapGrid {
+        side: 128,
+        cell_m: 0.01,
+    };
+
+    /// Cells in the map.
+    pub const fn cells(self) -> usize {
+        self.side * self.side
+    }
+
+    fn half_cells(self) -> f32 {
+        0.5 * (self.side as f32 - 1.0)
+    }
+}
+
+/// World position of the centre of cell (`row`, `col`) of the policy's map for a robot at
+/// `position` with heading (cos, sin) = `heading`. The renderer uses exactly this arithmetic,
+/// so tests can too.
 #[inline]
 pub fn cell_centre_world(
     position: Point2<f32>,
@@ -27,19 +58,25 @@ pub fn cell_centre_world(
     row: usize,
     col: usize,
 ) -> Point2<f32> {
-    let (bx, by, sx, sy) = row_line(position, heading, row);
+    let (bx, by, sx, sy) = row_line(MapGrid::POLICY, position, heading, row);
     Point2::new(bx - col as f32 * sx, by - col as f32 * sy)
 }
 
 /// The world line of a map row: cell `col` is at `(bx - col * sx, by - col * sy)`.
 #[inline]
-fn row_line(position: Point2<f32>, (cos, sin): (f32, f32), row: usize) -> (f32, f32, f32, f32) {
-    let ahead_m = (HALF_CELLS - row as f32) * HEIGHT_MAP_CELL_M;
-    let left_m = HALF_CELLS * HEIGHT_MAP_CELL_M;
+fn row_line(
+    grid: MapGrid,
+    position: Point2<f32>,
+    (cos, sin): (f32, f32),
+    row: usize,
+) -> (f32, f32, f32, f32) {
+    let half = grid.half_cells();
+    let ahead_m = (half - row as f32) * grid.cell_m;
+    let left_m = half * grid.cell_m;
     // Robot frame (ahead, left) to world: ahead along (cos, sin), left along (-sin, cos).
     let bx = position.x + ahead_m * cos - left_m * sin;
     let by = position.y + ahead_m * sin + left_m * cos;
-    (bx, by, -HEIGHT_MAP_CELL_M * sin, HEIGHT_MAP_CELL_M * cos)
+    (bx, by, -grid.cell_m * sin, grid.cell_m * cos)
 }
 
 /// The smallest step along a row, per column, whose column span [`column_span`] computes
@@ -95,10 +132,30 @@ fn floor_index(x: f32, last: usize) -> Option<usize> {
 
 /// Renders the height map of `boxes` seen from `position` with heading `yaw_rad` into `out`.
 pub fn render(boxes: &[GroundBox], position: Point2<f32>, yaw_rad: f32, out: &mut HeightMap) {
+    render_grid(boxes, position, yaw_rad, MapGrid::POLICY, out);
+}
+
+/// [`render`] on a map of any layout `grid` (a finer one for the collision guard). `out` must
+/// hold `grid.cells()` heights; a shorter one is left all zero.
+#[inline(always)]
+pub fn render_grid(
+    boxes: &[GroundBox],
+    position: Point2<f32>,
+    yaw_rad: f32,
+    grid: MapGrid,
+    out: &mut [f32],
+) {
     out.fill(0.0);
+    if grid.side == 0 || out.len() < grid.cells() {
+        return;
+    }
+    let half_cells = grid.half_cells();
+    // Distance from the map centre to its farthest cell centre: obstacles farther away are
+    // skipped.
+    let reach_m = half_cells * grid.cell_m * core::f32::consts::SQRT_2;
     let (sin, cos) = yaw_rad.sin_cos();
     // Every row steps along the same line direction: its inverses once per map.
-    let (_, _, sx, sy) = row_line(position, (cos, sin), 0);
+    let (_, _, sx, sy) = row_line(grid, position, (cos, sin), 0);
     // A step this small (the heading within 0.01 degrees of an axis) makes the span a poor
     // guess: the rounding of the cell centres (about 1e-7 m) moves a boundary crossing by that
     // over the step, beyond the renderer's one column of slack (at 270 degrees, 0.05 m times
@@ -107,10 +164,10 @@ pub fn render(boxes: &[GroundBox], position: Point2<f32>, yaw_rad: f32, out: &mu
     let inverse = |step: f32| (step.abs() >= MIN_STEP_M).then(|| 1.0 / step);
     let (inverse_sx, inverse_sy) = (inverse(sx), inverse(sy));
     for b in boxes {
-        if b.min_x_m > position.x + REACH_M
-            || b.max_x_m < position.x - REACH_M
-            || b.min_y_m > position.y + REACH_M
-            || b.max_y_m < position.y - REACH_M
+        if b.min_x_m > position.x + reach_m
+            || b.max_x_m < position.x - reach_m
+            || b.min_y_m > position.y + reach_m
+            || b.max_y_m < position.y - reach_m
         {
             continue;
         }
@@ -128,27 +185,27 @@ pub fn render(boxes: &[GroundBox], position: Point2<f32>, yaw_rad: f32, out: &mu
             ahead_min = ahead_min.min(ahead);
             ahead_max = ahead_max.max(ahead);
         }
-        const LAST: usize = HEIGHT_MAP_SIDE - 1;
+        let last_index = grid.side - 1;
         let (Some(row_first), Some(row_last)) = (
-            ceil_index(HALF_CELLS - ahead_max / HEIGHT_MAP_CELL_M - 1.0, LAST),
-            floor_index(HALF_CELLS - ahead_min / HEIGHT_MAP_CELL_M + 1.0, LAST),
+            ceil_index(half_cells - ahead_max / grid.cell_m - 1.0, last_index),
+            floor_index(half_cells - ahead_min / grid.cell_m + 1.0, last_index),
         ) else {
             continue;
         };
         for row in row_first..=row_last {
-            let (bx, by, sx, sy) = row_line(position, (cos, sin), row);
+            let (bx, by, sx, sy) = row_line(grid, position, (cos, sin), row);
             let (xa, xb) = column_span(bx, sx, inverse_sx, b.min_x_m, b.max_x_m);
             let (ya, yb) = column_span(by, sy, inverse_sy, b.min_y_m, b.max_y_m);
             let (Some(first), Some(last)) = (
-                ceil_index(xa.max(ya) - 1.0, LAST),
-                floor_index(xb.min(yb) + 1.0, LAST),
+                ceil_index(xa.max(ya) - 1.0, last_index),
+                floor_index(xb.min(yb) + 1.0, last_index),
             ) else {
                 continue;
             };
             if first > last {
                 continue;
             }
-            let cells = &mut out[row * HEIGHT_MAP_SIDE + first..=row * HEIGHT_MAP_SIDE + last];
+            let cells = &mut out[row * grid.side + first..=row * grid.side + last];
             for (col, cell) in (first..=last).zip(cells) {
                 let x = bx - col as f32 * sx;
                 let y = by - col as f32 * sy;
@@ -180,6 +237,52 @@ pub fn render_naive(boxes: &[GroundBox], position: Point2<f32>, yaw_rad: f32, ou
 mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
+
+    #[test]
+    fn a_finer_grid_is_the_point_sample_at_its_own_cell_centres() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        let grid = MapGrid::GUARD_FINE;
+        let mut fast = vec![0.0; grid.cells()];
+        for case in 0..200 {
+            let boxes: Vec<GroundBox> = (0..rng.random_range(1..8))
+                .map(|_| {
+                    let (x, y) = (rng.random_range(-0.7..0.7), rng.random_range(-0.7..0.7));
+                    let (hx, hy) = (rng.random_range(0.02..0.3), rng.random_range(0.02..0.3));
+                    GroundBox {
+                        min_x_m: x - hx,
+                        max_x_m: x + hx,
+                        min_y_m: y - hy,
+                        max_y_m: y + hy,
+                        height_m: rng.random_range(0.01..0.5),
+                    }
+                })
+                .collect();
+            let position = Point2::new(rng.random_range(-0.2..0.2), rng.random_range(-0.2..0.2));
+            let yaw_rad: f32 = rng.random_range(-4.0..4.0);
+            render_grid(&boxes, position, yaw_rad, grid, &mut fast);
+            let (sin, cos) = yaw_rad.sin_cos();
+            for row in 0..grid.side {
+                let (bx, by, sx, sy) = row_line(grid, position, (cos, sin), row);
+                for col in 0..grid.side {
+                    let (x, y) = (bx - col as f32 * sx, by - col as f32 * sy);
+                    let naive = boxes
+                        .iter()
+                        .filter(|b| b.contains(x, y))
+                        .map(|b| b.height_m)
+                        .fold(0.0, f32::max);
+                    assert_eq!(
+                        fast[row * grid.side + col],
+                        naive,
+                        "case {case} {row} {col}"
+                    );
+                }
+            }
+        }
+        // Too short an output is left empty, not overrun.
+        let mut short = vec![1.0; 10];
+        render_grid(&[], Point2::origin(), 0.0, grid, &mut short);
+        assert!(short.iter().all(|&h| h == 0.0));
+    }
 
     #[test]
     fn the_scanline_renderer_is_the_naive_one_on_many_scenes() {

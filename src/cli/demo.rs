@@ -23,6 +23,7 @@ use wheelleg_runtime::guard::{CollisionGuard, DEFAULT_MARGIN_M};
 use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::env::{Env, Status};
 use wheelleg_sim::generate::{generate, SceneKind};
+use wheelleg_sim::height_map::MapGrid;
 use wheelleg_sim::planner::PlannerConfig;
 use wheelleg_sim::render::top_view;
 use wheelleg_sim::scenario::Scenario;
@@ -77,6 +78,11 @@ pub struct Args {
     #[arg(long, value_name = "MARGIN_M", default_value_t = DEFAULT_MARGIN_M,
           allow_negative_numbers = true)]
     guard_margin: f32,
+    /// The map the guard reads: `fine` (a 1 cm map of the robot's surroundings, as a robot's
+    /// elevation mapping keeps; the default) or `policy` (the policy's own 5 cm map, for a
+    /// robot that has no finer one). docs/results.md, "A finer map for the guard".
+    #[arg(long, value_name = "MAP", default_value = "fine")]
+    guard_map: String,
     /// Send the policy's actions unchecked (the policy alone, as `wheelleg eval` measures it
     /// without `--guard`).
     #[arg(long)]
@@ -238,7 +244,14 @@ pub fn run(args: Args) -> CliResult {
             if args.no_guard {
                 Box::new(driver)
             } else {
-                Box::new(driver.with_guard(CollisionGuard::new(WHEELLEG, args.guard_margin)))
+                let driver = driver.with_guard(CollisionGuard::new(WHEELLEG, args.guard_margin));
+                match args.guard_map.as_str() {
+                    "fine" => Box::new(driver.with_guard_map(MapGrid::GUARD_FINE)),
+                    "policy" => Box::new(driver),
+                    other => {
+                        return Err(format!("--guard-map: {other:?} is not fine or policy").into())
+                    }
+                }
             }
         }
         None => Box::new(

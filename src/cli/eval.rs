@@ -1,5 +1,5 @@
 //! `wheelleg eval --policy CKPT|WEIGHTS (--scenarios FILE | --generated N --kind K) --seed S [--json]
-//! [--stochastic | --argmax | --guard [MARGIN_M] --arrival] [--planner-expansions N | --planner-results PLAN.json]`.
+//! [--stochastic | --argmax | --guard [MARGIN_M] [--guard-map policy|fine] --arrival] [--planner-expansions N | --planner-results PLAN.json]`.
 
 use super::CliResult;
 use rand::SeedableRng;
@@ -7,7 +7,8 @@ use rand_chacha::ChaCha8Rng;
 use std::path::PathBuf;
 use wheelleg_runtime::model::format::MAGIC;
 use wheelleg_runtime::robot::WHEELLEG;
-use wheelleg_sim::generate::{generate_many, SceneKind};
+use wheelleg_sim::generate::generate_many;
+use wheelleg_sim::height_map::MapGrid;
 use wheelleg_trainer::batch_policy::FloatPolicy;
 use wheelleg_trainer::evaluate::{evaluate, DecisionRule, EvalOptions};
 use wheelleg_trainer::network::BackendKind;
@@ -26,7 +27,7 @@ pub struct Args {
     /// Evaluate on this many generated scenes (needs --kind).
     #[arg(long, requires = "kind")]
     generated: Option<usize>,
-    /// Kind of generated scenes: straight, around, lift, spread, squeeze, complex.
+    /// Kind of generated scenes: straight, around, lift, spread, squeeze, astride, complex.
     #[arg(long)]
     kind: Option<String>,
     /// Seed of scene generation and stochastic actions (use seeds not used in training).
@@ -56,6 +57,11 @@ pub struct Args {
     #[arg(long, value_name = "MARGIN_M", num_args = 0..=1, allow_negative_numbers = true,
           default_missing_value = "0.005", conflicts_with_all = ["stochastic", "argmax"])]
     guard: Option<f32>,
+    /// The map the guard reads: `policy` (the policy's own 5 cm map) or `fine` (a 1 cm map
+    /// of the robot's surroundings, as a robot's elevation mapping keeps; docs/results.md, "A
+    /// finer map for the guard").
+    #[arg(long, value_name = "MAP", default_value = "policy", requires = "guard")]
+    guard_map: String,
     /// Whenever some action ends within the success radius of the target, take the policy's
     /// most probable such action (after the guard, if on), as a robot running the runtime's
     /// arrival rule does. Only with the default decision rule.
@@ -68,11 +74,7 @@ pub fn run(args: Args) -> CliResult {
     let scenarios = match (&args.scenarios, args.generated, &args.kind) {
         (Some(file), _, _) => wheelleg_sim::scenario_file::load(file, &WHEELLEG)?,
         (None, Some(n), Some(kind)) => {
-            let kind = SceneKind::from_name(kind).ok_or_else(|| {
-                format!(
-                    "unknown --kind {kind:?} (straight, around, lift, spread, squeeze, complex)"
-                )
-            })?;
+            let kind = super::generate::parse_kind(kind).map_err(|e| format!("--kind: {e}"))?;
             generate_many(kind, &mut ChaCha8Rng::seed_from_u64(args.seed), n)
         }
         _ => return Err("give --scenarios FILE or --generated N --kind K".into()),
@@ -102,6 +104,11 @@ pub fn run(args: Args) -> CliResult {
         planner_expansions: args.planner_expansions,
         known_shortest,
         guard_margin_m: args.guard,
+        guard_grid: match args.guard_map.as_str() {
+            "policy" => None,
+            "fine" => Some(MapGrid::GUARD_FINE),
+            other => return Err(format!("--guard-map: {other:?} is not policy or fine").into()),
+        },
         arrival: args.arrival,
         ..EvalOptions::default()
     };
@@ -166,7 +173,8 @@ pub fn run(args: Args) -> CliResult {
         report
             .guard_margin_m
             .map_or("off (the policy alone)".to_string(), |m| format!(
-                "on, map columns grown by {m} m"
+                "on, map columns grown by {m} m, {} m cells",
+                report.guard_cell_m.unwrap_or(f32::NAN)
             ))
     );
     outln!(

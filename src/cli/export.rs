@@ -4,7 +4,6 @@
 
 use super::CliResult;
 use std::path::PathBuf;
-use wheelleg_sim::generate::SceneKind;
 use wheelleg_trainer::checkpoint::Checkpoint;
 use wheelleg_trainer::export::{card_path, export_policy, write_atomic, ExportOptions};
 use wheelleg_trainer::network::BackendKind;
@@ -36,7 +35,7 @@ pub struct Args {
     /// argmax the robot acts on) or `all-logits`.
     #[arg(long, default_value = "contenders")]
     action_range: String,
-    /// Scenes of the rollouts: straight, around, lift, spread, squeeze, complex.
+    /// Scenes of the rollouts: straight, around, lift, spread, squeeze, astride, complex.
     #[arg(long, default_value = "complex")]
     kind: String,
     /// Quantization-aware fine-tuning steps before quantizing (0: plain post-training
@@ -93,12 +92,7 @@ fn parse_range(text: &str) -> Result<RangeMethod, String> {
 
 /// Runs `export`.
 pub fn run(args: Args) -> CliResult {
-    let kind = SceneKind::from_name(&args.kind).ok_or_else(|| {
-        format!(
-            "unknown --kind {:?} (straight, around, lift, spread, squeeze, complex)",
-            args.kind
-        )
-    })?;
+    let kind = super::generate::parse_kind(&args.kind).map_err(|e| format!("--kind: {e}"))?;
     if args.calibration == 0 || args.holdout == 0 {
         return Err("--calibration and --holdout must be at least 1".into());
     }

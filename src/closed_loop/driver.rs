@@ -9,11 +9,12 @@ use std::fmt;
 use wheelleg_runtime::action::Action;
 use wheelleg_runtime::arrival::Arrival;
 use wheelleg_runtime::decision::{Decider, ObservationKey};
-use wheelleg_runtime::guard::{CollisionGuard, HeightMapRef};
+use wheelleg_runtime::guard::{CollisionGuard, GridMap, HeightMapRef};
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::model::DefaultPolicy;
 use wheelleg_runtime::observation::{HEIGHT_MAP_SIDE, STATE_LEN};
 use wheelleg_sim::env::{Env, Observation};
+use wheelleg_sim::height_map::MapGrid;
 use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig};
 
 /// A decision maker of the closed loop.
@@ -105,6 +106,8 @@ pub struct PolicyDriver<'a> {
     decider: Decider,
     /// Checks each action against the height map first, when set.
     guard: Option<CollisionGuard>,
+    /// The map the guard reads when it is not the policy's: its layout and its cells.
+    guard_map: Option<(MapGrid, Vec<f32>)>,
     /// Takes an action that reaches the target within this radius when one does, when set.
     arrival_radius_m: Option<f32>,
 }
@@ -120,6 +123,7 @@ impl<'a> PolicyDriver<'a> {
             observation: Observation::default(),
             decider: Decider::new(),
             guard: None,
+            guard_map: None,
             arrival_radius_m: None,
         })
     }
@@ -128,6 +132,14 @@ impl<'a> PolicyDriver<'a> {
     /// policy's most probable action that the guard passes is taken.
     pub fn with_guard(mut self, guard: CollisionGuard) -> PolicyDriver<'a> {
         self.guard = Some(guard);
+        self
+    }
+
+    /// Lets the guard read a map of layout `grid` (for example the 1 cm
+    /// `MapGrid::GUARD_FINE`, as a robot's elevation mapping keeps) instead of the policy's
+    /// 5 cm map; the policy still sees its own.
+    pub fn with_guard_map(mut self, grid: MapGrid) -> PolicyDriver<'a> {
+        self.guard_map = Some((grid, vec![0.0; grid.cells()]));
         self
     }
 
@@ -146,8 +158,12 @@ impl Driver for PolicyDriver<'_> {
             self.label,
             self.policy.kernel(),
             self.guard.map_or(String::new(), |g| format!(
-                ", collision guard (columns grown by {} m)",
-                g.margin_m()
+                ", collision guard (columns grown by {} m, {} m cells)",
+                g.margin_m(),
+                self.guard_map.as_ref().map_or(
+                    wheelleg_runtime::observation::HEIGHT_MAP_CELL_M,
+                    |(grid, _)| { grid.cell_m }
+                )
             )),
             self.arrival_radius_m
                 .map_or(String::new(), |r| format!(", arrival within {r} m"))
@@ -183,11 +199,21 @@ impl Driver for PolicyDriver<'_> {
             clearance_m: state_mm[0] as f32 * 1.0e-3,
             track_m: state_mm[1] as f32 * 1.0e-3,
         };
+        let map = match &mut self.guard_map {
+            None => HeightMapRef::Millimetres(cells),
+            Some((grid, heights_m)) => {
+                env.observe_grid(*grid, heights_m);
+                HeightMapRef::Grid(
+                    GridMap::new(heights_m, grid.side, grid.cell_m)
+                        .map_err(|e| DriverError(format!("guard map: {e}")))?,
+                )
+            }
+        };
         let checked = guard.choose(
             &mut self.decider,
             key,
             &outputs.action_logits,
-            HeightMapRef::Millimetres(cells),
+            map,
             legs,
             arrival.as_ref(),
         );

@@ -6,6 +6,7 @@
 
 use crate::replay::ReplayBalance;
 use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
 use std::path::Path;
 
 /// PPO's hyperparameters (the reusable core: the curriculum uses the same ones).
@@ -179,6 +180,10 @@ pub struct CurriculumConfig {
     pub secondary_steps_per_iteration: usize,
     /// Environment steps of each secondary policy.
     pub secondary_env_steps: u64,
+    /// Environment steps of the named secondaries, instead of `secondary_env_steps` (a
+    /// behaviour that learns slower gets more without retraining the others; extending it on
+    /// `--resume` continues that secondary alone). Default none.
+    pub secondary_env_steps_by_behaviour: BTreeMap<String, u64>,
     /// Latest successful, collision-free trajectories kept per secondary policy.
     pub keep_trajectories: usize,
     /// Randomized scenes tried per stored trajectory (the paper: 1,000).
@@ -240,6 +245,7 @@ impl Default for CurriculumConfig {
                 .to_vec(),
             secondary_steps_per_iteration: 3_000,
             secondary_env_steps: 300_000,
+            secondary_env_steps_by_behaviour: BTreeMap::new(),
             keep_trajectories: 1_000,
             randomizations: 1_000,
             replay_steps_per_iteration: 2_000,
@@ -357,7 +363,7 @@ impl TrainConfig {
         let check = |ok: bool, what: &str| if ok { Ok(()) } else { Err(what.to_string()) };
         check(
             wheelleg_sim::generate::SceneKind::from_name(&r.scene_kind).is_some(),
-            "run.scene_kind must be one of straight, around, lift, spread, squeeze, complex",
+            "run.scene_kind must be one of straight, around, lift, spread, squeeze, astride, complex",
         )?;
         check(r.num_envs >= 1, "run.num_envs must be at least 1")?;
         check(
@@ -438,7 +444,7 @@ impl TrainConfig {
                         .is_some_and(|k| k != wheelleg_sim::generate::SceneKind::Complex)
                 }),
             "curriculum.behaviours must start with straight and name behaviours (straight, \
-             around, lift, spread, squeeze)",
+             around, lift, spread, squeeze, astride)",
         )?;
         check(
             c.secondary_steps_per_iteration >= r.num_envs,
@@ -463,6 +469,13 @@ impl TrainConfig {
         check(
             c.secondary_start_yaw_within_deg.is_finite() && c.secondary_start_yaw_within_deg >= 0.0,
             "curriculum.secondary_start_yaw_within_deg must be a non-negative number of degrees",
+        )?;
+        check(
+            c.secondary_env_steps_by_behaviour
+                .keys()
+                .all(|b| c.behaviours.contains(b)),
+            "curriculum.secondary_env_steps_by_behaviour must name behaviours of \
+             curriculum.behaviours",
         )?;
         check(
             c.start_stage_behaviours
@@ -564,6 +577,11 @@ mod tests {
         let e = TrainConfig::from_toml("[curriculum]\nstart_stage_behaviours = [\"straight\"]\n")
             .unwrap_err();
         assert!(e.contains("curriculum.start_stage_behaviours"), "{e}");
+        let budgets = "[curriculum.secondary_env_steps_by_behaviour]\n";
+        let c = TrainConfig::from_toml(&format!("{budgets}lift = 5000\n")).unwrap();
+        assert_eq!(c.curriculum.secondary_env_steps_by_behaviour["lift"], 5000);
+        let e = TrainConfig::from_toml(&format!("{budgets}astride = 5000\n")).unwrap_err();
+        assert!(e.contains("secondary_env_steps_by_behaviour"), "{e}");
         let e = TrainConfig::from_toml("[run]\ninvalid_reward = 0.5\n").unwrap_err();
         assert!(e.contains("run.invalid_reward"), "{e}");
         let e = TrainConfig::from_toml("[curriculum]\nreplay_imitation_coef = -1.0\n").unwrap_err();

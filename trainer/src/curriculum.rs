@@ -112,7 +112,12 @@ pub fn run_secondary(config: &TrainConfig, opts: &CurriculumOptions) -> Result<(
         let mut stage = config.clone();
         stage.run.scene_kind = behaviour.name().to_string();
         stage.run.steps_per_iteration = config.curriculum.secondary_steps_per_iteration;
-        stage.run.total_env_steps = config.curriculum.secondary_env_steps;
+        stage.run.total_env_steps = config
+            .curriculum
+            .secondary_env_steps_by_behaviour
+            .get(behaviour.name())
+            .copied()
+            .unwrap_or(config.curriculum.secondary_env_steps);
         if straight.is_some() {
             stage.ppo.entropy_coef = config.curriculum.secondary_entropy_coef;
             stage.run.start_yaw_within_deg = config.curriculum.secondary_start_yaw_within_deg;

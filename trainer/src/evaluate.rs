@@ -15,11 +15,12 @@ use std::collections::HashMap;
 use wheelleg_runtime::action::{Action, CHOICES, DIMS};
 use wheelleg_runtime::arrival::Arrival;
 use wheelleg_runtime::decision::{Decider, ObservationKey};
-use wheelleg_runtime::guard::{CollisionGuard, HeightMapRef};
+use wheelleg_runtime::guard::{CollisionGuard, GridMap, HeightMapRef};
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
 use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::env::{Env, EnvConfig, Observation, Status};
+use wheelleg_sim::height_map::MapGrid;
 use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig};
 use wheelleg_sim::scenario::Scenario;
 
@@ -85,6 +86,9 @@ pub struct EvalReport {
     /// Margin of the look-ahead collision guard, when one checked the actions
     /// (`wheelleg_runtime::guard`); none: the policy alone.
     pub guard_margin_m: Option<f32>,
+    /// Cell side of the map the guard read, when one checked the actions: the policy's
+    /// 0.05 m, or a finer map's.
+    pub guard_cell_m: Option<f32>,
     /// Whether an action that reaches the target was taken first whenever one did
     /// (`wheelleg_runtime::arrival`).
     pub arrival: bool,
@@ -140,6 +144,10 @@ pub struct EvalOptions {
     /// (`wheelleg_runtime::guard::CollisionGuard` with this margin), as a robot running the
     /// guard does; only with [`DecisionRule::Untried`]. None: the policy alone.
     pub guard_margin_m: Option<f32>,
+    /// The map the guard reads: none, the policy's own; a layout, a map of it rendered from
+    /// the scene at every step (a robot that keeps a finer elevation map than the policy's
+    /// input, docs/results.md "A finer map for the guard").
+    pub guard_grid: Option<MapGrid>,
     /// Take the policy's most probable action that reaches the target whenever one does
     /// (`wheelleg_runtime::arrival`, at the episode's success radius); only with
     /// [`DecisionRule::Untried`].
@@ -181,6 +189,7 @@ impl Default for EvalOptions {
             env_config: EnvConfig::default(),
             known_shortest: None,
             guard_margin_m: None,
+            guard_grid: None,
             arrival: false,
         }
     }
@@ -217,6 +226,7 @@ pub fn run_episodes(
             ))
         }
     };
+    let mut guard_cells = vec![0.0; options.guard_grid.map_or(0, MapGrid::cells)];
     loop {
         let running: Vec<usize> = (0..envs.len())
             .filter(|&i| !envs[i].status().is_done())
@@ -259,6 +269,16 @@ pub fn run_episodes(
                             let cells: &[f32; HEIGHT_MAP_CELLS] = cells
                                 .try_into()
                                 .map_err(|_| "height map of the wrong size".to_string())?;
+                            let map = match options.guard_grid {
+                                None => HeightMapRef::Metres(cells),
+                                Some(grid) => {
+                                    envs[i].observe_grid(grid, &mut guard_cells);
+                                    HeightMapRef::Grid(
+                                        GridMap::new(&guard_cells, grid.side, grid.cell_m)
+                                            .map_err(|e| format!("guard map: {e}"))?,
+                                    )
+                                }
+                            };
                             let legs = LegConfig {
                                 clearance_m: states[k * STATE_LEN],
                                 track_m: states[k * STATE_LEN + 1],
@@ -268,7 +288,7 @@ pub fn run_episodes(
                                     &mut deciders[i],
                                     keys[i],
                                     &logits,
-                                    HeightMapRef::Metres(cells),
+                                    map,
                                     legs,
                                     arrival.as_ref(),
                                 )
@@ -395,6 +415,13 @@ pub fn evaluate(
     Ok(EvalReport {
         decision: options.decision,
         guard_margin_m: options.guard_margin_m,
+        guard_cell_m: options.guard_margin_m.map(|_| {
+            options
+                .guard_grid
+                .map_or(wheelleg_runtime::observation::HEIGHT_MAP_CELL_M, |g| {
+                    g.cell_m
+                })
+        }),
         arrival: options.arrival,
         success_rate: successes.len() as f32 / n,
         collision_free_rate: results.iter().filter(|r| r.collision_free).count() as f32 / n,

@@ -103,3 +103,44 @@ fn the_primary_stage_names_the_missing_batch() {
         "{e}"
     );
 }
+
+#[test]
+fn a_behaviour_given_its_own_budget_is_continued_alone() {
+    let out = std::env::temp_dir().join(format!("wheelleg-budget-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    let mut config = tiny_config();
+    let opts = CurriculumOptions {
+        out: out.clone(),
+        seed: 3,
+        progress: false,
+    };
+    let env_steps = |behaviour| {
+        Checkpoint::load(&secondary_dir(&out, behaviour).join(CHECKPOINT_FILE))
+            .unwrap()
+            .env_steps
+    };
+    wheelleg_trainer::curriculum::run_secondary(&config, &opts).unwrap();
+    assert_eq!(env_steps(Behaviour::LiftOver), 10_000);
+    // Lift gets a larger budget of its own: run again, only lift trains on.
+    config
+        .curriculum
+        .secondary_env_steps_by_behaviour
+        .insert("lift".into(), 13_000);
+    config.validate().unwrap();
+    let straight_before = read_metrics(&secondary_dir(&out, Behaviour::Straight)).unwrap();
+    wheelleg_trainer::curriculum::run_secondary(&config, &opts).unwrap();
+    assert_eq!(env_steps(Behaviour::Straight), 10_000);
+    assert_eq!(env_steps(Behaviour::LiftOver), 13_000);
+    assert_eq!(
+        read_metrics(&secondary_dir(&out, Behaviour::Straight)).unwrap(),
+        straight_before
+    );
+    // A budget for a behaviour the run does not train is refused, naming the key.
+    config
+        .curriculum
+        .secondary_env_steps_by_behaviour
+        .insert("squeeze".into(), 1);
+    let e = config.validate().unwrap_err();
+    assert!(e.contains("secondary_env_steps_by_behaviour"), "{e}");
+    let _ = std::fs::remove_dir_all(&out);
+}

@@ -54,18 +54,21 @@ pub enum Origin {
 }
 
 impl Origin {
-    /// Every origin, in file-code order: the five behaviours, then the planner.
-    pub const ALL: [Origin; 6] = [
+    /// Every origin, in file-code order: the paper's five behaviours, the planner, then the
+    /// behaviours added after it (so that the codes of older files keep their meaning).
+    pub const ALL: [Origin; 7] = [
         Origin::Secondary(Behaviour::Straight),
         Origin::Secondary(Behaviour::Around),
         Origin::Secondary(Behaviour::LiftOver),
         Origin::Secondary(Behaviour::SpreadOver),
         Origin::Secondary(Behaviour::Squeeze),
         Origin::Planner,
+        Origin::Secondary(Behaviour::Astride),
     ];
 
-    /// The origin's code in files: its index in [`Origin::ALL`] (a behaviour's code is its
-    /// index in [`Behaviour::ALL`], as in files written before planner demonstrations).
+    /// The origin's code in files: its index in [`Origin::ALL`] (for the paper's five
+    /// behaviours their index in [`Behaviour::ALL`], as in files written before planner
+    /// demonstrations).
     pub fn code(self) -> u8 {
         Origin::ALL
             .iter()
