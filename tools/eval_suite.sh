@@ -3,9 +3,11 @@
 # path, ratio to the planner's shortest) and 200 held-out scenes of each leg behaviour
 # (success / collision-free), the figures of docs/results.md.
 #
-#   tools/eval_suite.sh [--stochastic|--argmax|--guard|--guard-arrival] CKPT_OR_WLW...
+#   tools/eval_suite.sh [--stochastic|--argmax|--guard|--guard-arrival|--guard-fine-arrival] CKPT_OR_WLW...
 #
-# --guard-arrival: the collision guard and the arrival rule, as `wheelleg demo` runs by default.
+# --guard-arrival: the collision guard (on the policy's 5 cm map) and the arrival rule.
+# --guard-fine-arrival: the guard on the 1 cm map and the arrival rule, as `wheelleg demo` runs
+# by default.
 #
 # WHEELLEG names the binary (default: target/release/wheelleg). Seeds: the committed held-out
 # complex set (generator seed 1,000,000) and generated behaviour scenes at seed 1,000,000, never
@@ -20,8 +22,11 @@ if [[ "${1:-}" == --stochastic || "${1:-}" == --argmax || "${1:-}" == --guard ]]
 elif [[ "${1:-}" == --guard-arrival ]]; then
     rule=(--guard --arrival)
     shift
+elif [[ "${1:-}" == --guard-fine-arrival ]]; then
+    rule=(--guard --guard-map fine --arrival)
+    shift
 fi
-[[ $# -gt 0 ]] || { echo "usage: $0 [--stochastic|--argmax|--guard|--guard-arrival] POLICY..." >&2; exit 2; }
+[[ $# -gt 0 ]] || { echo "usage: $0 [--stochastic|--argmax|--guard|--guard-arrival|--guard-fine-arrival] POLICY..." >&2; exit 2; }
 heldout=eval/heldout-complex-s1000000.json
 plan=eval/heldout-complex-s1000000.plan.json
 summary() {

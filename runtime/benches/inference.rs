@@ -19,7 +19,7 @@ use criterion::{black_box, criterion_group, criterion_main, Criterion};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use wheelleg_runtime::action::Action;
-use wheelleg_runtime::guard::{CollisionGuard, HeightMapRef, DEFAULT_MARGIN_M};
+use wheelleg_runtime::guard::{CollisionGuard, GridMap, HeightMapRef, DEFAULT_MARGIN_M};
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::model::{DefaultPolicy, Kernel, Scratch};
 use wheelleg_runtime::observation::HEIGHT_MAP_CELLS;
@@ -135,6 +135,34 @@ fn bench_decision(c: &mut Criterion) {
         b.iter(|| {
             guard.check(
                 HeightMapRef::Millimetres(black_box(&map)),
+                black_box(legs),
+                black_box(Action::IDLE),
+            )
+        })
+    });
+    // The same scene on a 1 cm map (128 x 128): each 5 cm cell becomes 5 x 5 fine ones.
+    const FINE_SIDE: usize = 128;
+    let mut fine = vec![0.0f32; FINE_SIDE * FINE_SIDE];
+    // Cell centres line up: coarse (row, col) centre at (15.5 - row) * 0.05, fine at
+    // (63.5 - r) * 0.01, so fine r = 5 * row - 14 .. 5 * row - 10.
+    for (index, &mm) in map.iter().enumerate() {
+        let (row, col) = (index / 32, index % 32);
+        for r in (5 * row).saturating_sub(14)..(5 * row).saturating_sub(9) {
+            for c in (5 * col).saturating_sub(14)..(5 * col).saturating_sub(9) {
+                if let Some(cell) = fine.get_mut(r * FINE_SIDE + c) {
+                    *cell = f32::from(mm) * 1.0e-3;
+                }
+            }
+        }
+    }
+    let fine_map = GridMap::new(&fine, FINE_SIDE, 0.01).unwrap();
+    assert!(guard
+        .check(HeightMapRef::Grid(fine_map), legs, Action::IDLE)
+        .is_ok());
+    group.bench_function("guard_check_one_clear_action_1cm_map", |b| {
+        b.iter(|| {
+            guard.check(
+                HeightMapRef::Grid(black_box(fine_map)),
                 black_box(legs),
                 black_box(Action::IDLE),
             )
