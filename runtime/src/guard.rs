@@ -249,9 +249,6 @@ impl CollisionGuard {
         let first = usize::from(arrival.is_some());
         // Levels numbered as if arrival were always asked: 0 arrival, 1 strict, 2 lenient.
         let skipped = 1 - first;
-        // The current pose's overlap, which the lenient level compares every candidate with:
-        // found once, when that level is first asked, not once per candidate.
-        let mut here: Option<Result<f32, Refusal>> = None;
         let mut checked =
             decider.choose_checked(key, logits, first + Self::LEVELS, |level, action| {
                 match level + skipped {
@@ -260,14 +257,7 @@ impl CollisionGuard {
                             && self.check(heights, legs, action).is_ok()
                     }
                     1 => self.check(heights, legs, action).is_ok(),
-                    2 => {
-                        let here_m = *here.get_or_insert_with(|| {
-                            self.deepest_overlap_m(heights, legs, Action::IDLE, None)
-                        });
-                        here_m
-                            .and_then(|here_m| self.no_deeper_than(heights, legs, action, here_m))
-                            .is_ok()
-                    }
+                    2 => self.check_no_deeper(heights, legs, action).is_ok(),
                     _ => false,
                 }
             });
@@ -288,7 +278,7 @@ impl CollisionGuard {
         legs: LegConfig,
         action: Action,
     ) -> Result<(), Refusal> {
-        match self.deepest_overlap_m(heights, legs, action, Some(0.0))? {
+        match self.deepest_overlap_m(heights, legs, action, Some(0.0), None)? {
             overlap_m if overlap_m >= 0.0 => Err(Refusal::Collision),
             _ => Ok(()),
         }
@@ -296,43 +286,42 @@ impl CollisionGuard {
 
     /// The lenient check, for when [`CollisionGuard::check`] refuses everything: the robot
     /// already overlaps a column where it stands (the grown columns claim more than is there),
-    /// so any action whose step overlaps no deeper than the current pose does passes, and one
-    /// that goes deeper is refused.
+    /// so an action passes if its step goes no deeper into any column than the current pose
+    /// is, column by column: a column the robot does not overlap now must stay clear. (A
+    /// check of the deepest overlap alone let a step into a new column pass as long as it went
+    /// no deeper than the old one: on the 1 cm map, where a robot within 10 mm of an obstacle
+    /// overlaps its grown columns, that was a collision.)
     pub fn check_no_deeper(
         &self,
         heights: HeightMapRef<'_>,
         legs: LegConfig,
         action: Action,
     ) -> Result<(), Refusal> {
-        let here_m = self.deepest_overlap_m(heights, legs, Action::IDLE, None)?;
-        self.no_deeper_than(heights, legs, action, here_m)
-    }
-
-    /// [`Self::check_no_deeper`] with the current pose's overlap `here_m` already known.
-    fn no_deeper_than(
-        &self,
-        heights: HeightMapRef<'_>,
-        legs: LegConfig,
-        action: Action,
-        here_m: f32,
-    ) -> Result<(), Refusal> {
-        let allowed_m = here_m.max(0.0) + OVERLAP_TOLERANCE_M;
-        match self.deepest_overlap_m(heights, legs, action, Some(allowed_m))? {
-            overlap_m if overlap_m >= allowed_m => Err(Refusal::Collision),
+        let here = Parts::place(&self.geometry, legs).ok_or(Refusal::Unreachable)?;
+        match self.deepest_overlap_m(
+            heights,
+            legs,
+            action,
+            Some(OVERLAP_TOLERANCE_M),
+            Some(&here),
+        )? {
+            excess_m if excess_m >= OVERLAP_TOLERANCE_M => Err(Refusal::Collision),
             _ => Ok(()),
         }
     }
 
     /// The deepest overlap of any part with any column over the step's checked poses (0:
     /// touching; negative: no overlap, and then not exact, as columns that cannot reach the
-    /// robot are skipped), stopping early once it reaches `stop_m`. `IDLE` gives
-    /// the current pose.
+    /// robot are skipped), stopping early once it reaches `stop_m`. Given the robot's parts
+    /// `here` at its current pose, each column's overlap counts only past that pose's overlap
+    /// with the same column (when positive).
     fn deepest_overlap_m(
         &self,
         heights: HeightMapRef<'_>,
         legs: LegConfig,
         action: Action,
         stop_m: Option<f32>,
+        here: Option<&Parts>,
     ) -> Result<f32, Refusal> {
         let target = target_config(legs, action);
         if !self.geometry.is_reachable(target) {
@@ -364,7 +353,14 @@ impl CollisionGuard {
                     if !parts.may_touch(&column) {
                         continue;
                     }
-                    deepest_m = deepest_m.max(parts.overlap_m(&column));
+                    let mut overlap_m = parts.overlap_m(&column);
+                    if let Some(here) = here {
+                        let now = Column { x_m, y_m, ..column };
+                        if here.may_touch(&now) {
+                            overlap_m -= here.overlap_m(&now).max(0.0);
+                        }
+                    }
+                    deepest_m = deepest_m.max(overlap_m);
                     if stop_m.is_some_and(|stop_m| deepest_m >= stop_m) {
                         return Ok(deepest_m);
                     }
@@ -388,7 +384,7 @@ impl CollisionGuard {
     }
 }
 
-/// Overlap the lenient check forgives on top of the current pose's: rounding between poses.
+/// Overlap the lenient check forgives on top of the current pose's, per column: rounding.
 const OVERLAP_TOLERANCE_M: f32 = 1.0e-4;
 
 /// A column of the height map in the frame of the robot at the checked pose: a square from the
@@ -649,6 +645,60 @@ mod tests {
         );
         assert_eq!(guard.check(map_ref, default_legs(), backward), Ok(()));
         assert_eq!(guard.check(map_ref, default_legs(), Action::IDLE), Ok(()));
+    }
+
+    /// A 1 cm, 128 x 128 map with tall walls over robot-frame x >= `front_m` and y >= `left_m`.
+    fn walls_1cm(front_m: f32, left_m: f32) -> [f32; 128 * 128] {
+        let mut map = [0.0; 128 * 128];
+        for row in 0..128 {
+            for col in 0..128 {
+                let (x, y) = ((63.5 - row as f32) * 0.01, (63.5 - col as f32) * 0.01);
+                if x >= front_m || y >= left_m {
+                    map[row * 128 + col] = 0.4;
+                }
+            }
+        }
+        map
+    }
+
+    #[test]
+    fn the_lenient_check_forgives_an_overlap_where_the_robot_stands_but_no_new_contact() {
+        let guard = CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M);
+        let legs = default_legs();
+        let overlap = |map: &[f32], action| {
+            let grid = HeightMapRef::Grid(GridMap::new(map, 128, 0.01).unwrap());
+            guard
+                .deepest_overlap_m(grid, legs, action, None, None)
+                .unwrap()
+        };
+        // A wall on the left that the standing robot overlaps (the grown columns claim more
+        // than is there) by a few millimetres, and one ahead that a forward step enters less
+        // deeply than that.
+        let far_m = 0.63;
+        let left_m = (0..150)
+            .map(|i| 0.4 - 0.002 * i as f32)
+            .find(|&y| overlap(&walls_1cm(far_m, y), Action::IDLE) > 0.008)
+            .expect("a left wall the robot overlaps");
+        let here_m = overlap(&walls_1cm(far_m, left_m), Action::IDLE);
+        let front_m = (0..100)
+            .map(|i| 0.5 - 0.002 * i as f32)
+            .find(|&x| overlap(&walls_1cm(x, 1.0), forward()) > 0.001)
+            .expect("a front wall a forward step enters");
+        let map = walls_1cm(front_m, left_m);
+        let grid = HeightMapRef::Grid(GridMap::new(&map, 128, 0.01).unwrap());
+        assert!(overlap(&walls_1cm(front_m, 1.0), forward()) < here_m);
+        // Strict: everything that keeps the wall on the left overlapped is refused.
+        assert_eq!(guard.check(grid, legs, forward()), Err(Refusal::Collision));
+        // Lenient: standing still is forgiven, a step into the wall ahead is not, although
+        // it goes less deep than the robot already overlaps the left wall.
+        assert_eq!(guard.check_no_deeper(grid, legs, Action::IDLE), Ok(()));
+        assert_eq!(
+            guard.check_no_deeper(grid, legs, forward()),
+            Err(Refusal::Collision)
+        );
+        let mut away = Action::IDLE;
+        away.set(crate::action::Dim::MoveY, Step::Minus);
+        assert_eq!(guard.check_no_deeper(grid, legs, away), Ok(()));
     }
 
     #[test]
