@@ -38,7 +38,7 @@ use crate::leg::LegConfig;
 use crate::motion::{target_config, BaseDisplacement};
 use crate::observation::{HEIGHT_MAP_CELLS, HEIGHT_MAP_CELL_M, HEIGHT_MAP_SIDE};
 use crate::robot::{LegId, RobotGeometry};
-use nalgebra::{Point2, Point3};
+use nalgebra::{Isometry2, Point2, Point3};
 
 /// Where along the step (0 = start, 1 = end) the robot's pose is checked.
 pub const POSE_FRACTIONS: [f32; 4] = [0.25, 0.5, 0.75, 1.0];
@@ -278,7 +278,21 @@ impl CollisionGuard {
         legs: LegConfig,
         action: Action,
     ) -> Result<(), Refusal> {
-        match self.deepest_overlap_m(heights, legs, action, Some(0.0), None)? {
+        self.check_from(heights, &Isometry2::identity(), legs, action)
+    }
+
+    /// [`Self::check`] of `action` taken from the pose `from` (in the frame of the robot that
+    /// measured `heights`) with leg configuration `legs`: a step of a plan ahead, judged on the
+    /// map measured now. Parts beyond the map's edge meet nothing: the caller keeps plans
+    /// within the map.
+    pub fn check_from(
+        &self,
+        heights: HeightMapRef<'_>,
+        from: &Isometry2<f32>,
+        legs: LegConfig,
+        action: Action,
+    ) -> Result<(), Refusal> {
+        match self.deepest_overlap_m(heights, legs, action, Some(0.0), None, from)? {
             overlap_m if overlap_m >= 0.0 => Err(Refusal::Collision),
             _ => Ok(()),
         }
@@ -304,6 +318,7 @@ impl CollisionGuard {
             action,
             Some(OVERLAP_TOLERANCE_M),
             Some(&here),
+            &Isometry2::identity(),
         )? {
             excess_m if excess_m >= OVERLAP_TOLERANCE_M => Err(Refusal::Collision),
             _ => Ok(()),
@@ -322,6 +337,7 @@ impl CollisionGuard {
         action: Action,
         stop_m: Option<f32>,
         here: Option<&Parts>,
+        from: &Isometry2<f32>,
     ) -> Result<f32, Refusal> {
         let target = target_config(legs, action);
         if !self.geometry.is_reachable(target) {
@@ -335,9 +351,10 @@ impl CollisionGuard {
                 track_m: legs.track_m + t * (target.track_m - legs.track_m),
             };
             let parts = Parts::place(&self.geometry, legs_t).ok_or(Refusal::Unreachable)?;
-            let inverse = base.isometry_at(t).inverse();
-            for row in self.cells_within_reach(&heights) {
-                for col in self.cells_within_reach(&heights) {
+            let inverse = (from * base.isometry_at(t)).inverse();
+            let (x0_m, y0_m) = (from.translation.x, from.translation.y);
+            for row in self.cells_within_reach(&heights, x0_m) {
+                for col in self.cells_within_reach(&heights, y0_m) {
                     let (x_m, y_m) = heights.cell_centre_m(row, col);
                     let height_m = heights.height_m(row * heights.side() + col);
                     if height_m.is_nan() || height_m <= 0.0 {
@@ -371,10 +388,16 @@ impl CollisionGuard {
     }
 
     /// The rows (or columns: the map is square and centred) whose cells lie within the
-    /// robot's reach of its centre along that axis.
-    fn cells_within_reach(&self, heights: &HeightMapRef<'_>) -> core::ops::Range<usize> {
+    /// robot's reach of `centre_m` along that axis (x for rows, y for columns; 0 for the
+    /// robot that measured the map).
+    fn cells_within_reach(
+        &self,
+        heights: &HeightMapRef<'_>,
+        centre_m: f32,
+    ) -> core::ops::Range<usize> {
         let side = heights.side() as f32;
-        let half = 0.5 * (side - 1.0);
+        // Rows count down from +x, columns from +y: the centre's index.
+        let half = 0.5 * (side - 1.0) - centre_m / heights.cell_m();
         // One cell more: a column's square reaches half a cell past its centre.
         let cells = self.reach_m / heights.cell_m() + 1.0;
         // Saturating casts: a huge reach covers the whole map, never more.
@@ -668,7 +691,7 @@ mod tests {
         let overlap = |map: &[f32], action| {
             let grid = HeightMapRef::Grid(GridMap::new(map, 128, 0.01).unwrap());
             guard
-                .deepest_overlap_m(grid, legs, action, None, None)
+                .deepest_overlap_m(grid, legs, action, None, None, &Isometry2::identity())
                 .unwrap()
         };
         // A wall on the left that the standing robot overlaps (the grown columns claim more
@@ -699,6 +722,35 @@ mod tests {
         let mut away = Action::IDLE;
         away.set(crate::action::Dim::MoveY, Step::Minus);
         assert_eq!(guard.check_no_deeper(grid, legs, away), Ok(()));
+    }
+
+    #[test]
+    fn a_step_ahead_in_a_plan_is_judged_from_where_it_starts() {
+        let guard = CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M);
+        // A wall a few steps ahead: clear from here, hit from 0.15 m further on, and from a
+        // pose turned round at that place a step backwards (towards the wall) hits it too.
+        let map = walls_1cm(0.45, 1.0);
+        let grid = HeightMapRef::Grid(GridMap::new(&map, 128, 0.01).unwrap());
+        let legs = default_legs();
+        assert_eq!(guard.check(grid, legs, forward()), Ok(()));
+        let on = Isometry2::new(nalgebra::Vector2::new(0.15, 0.0), 0.0);
+        assert_eq!(
+            guard.check_from(grid, &on, legs, forward()),
+            Err(Refusal::Collision)
+        );
+        let turned = Isometry2::new(nalgebra::Vector2::new(0.15, 0.0), core::f32::consts::PI);
+        let mut backward = Action::IDLE;
+        backward.set(crate::action::Dim::MoveX, Step::Minus);
+        assert_eq!(
+            guard.check_from(grid, &turned, legs, backward),
+            Err(Refusal::Collision)
+        );
+        assert_eq!(guard.check_from(grid, &turned, legs, forward()), Ok(()));
+        // The identity is the plain check.
+        assert_eq!(
+            guard.check_from(grid, &Isometry2::identity(), legs, forward()),
+            guard.check(grid, legs, forward())
+        );
     }
 
     #[test]
