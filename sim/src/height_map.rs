@@ -238,6 +238,21 @@ mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
 
+    /// A box of the given centre and half sizes, of a random height.
+    fn random_height_box(
+        rng: &mut rand_chacha::ChaCha8Rng,
+        (x, y): (f32, f32),
+        (hx, hy): (f32, f32),
+    ) -> GroundBox {
+        GroundBox {
+            min_x_m: x - hx,
+            max_x_m: x + hx,
+            min_y_m: y - hy,
+            max_y_m: y + hy,
+            height_m: rng.random_range(0.01..0.5),
+        }
+    }
+
     #[test]
     fn a_finer_grid_is_the_point_sample_at_its_own_cell_centres() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
@@ -246,15 +261,9 @@ mod tests {
         for case in 0..200 {
             let boxes: Vec<GroundBox> = (0..rng.random_range(1..8))
                 .map(|_| {
-                    let (x, y) = (rng.random_range(-0.7..0.7), rng.random_range(-0.7..0.7));
-                    let (hx, hy) = (rng.random_range(0.02..0.3), rng.random_range(0.02..0.3));
-                    GroundBox {
-                        min_x_m: x - hx,
-                        max_x_m: x + hx,
-                        min_y_m: y - hy,
-                        max_y_m: y + hy,
-                        height_m: rng.random_range(0.01..0.5),
-                    }
+                    let centre = (rng.random_range(-0.7..0.7), rng.random_range(-0.7..0.7));
+                    let half = (rng.random_range(0.02..0.3), rng.random_range(0.02..0.3));
+                    random_height_box(&mut rng, centre, half)
                 })
                 .collect();
             let position = Point2::new(rng.random_range(-0.2..0.2), rng.random_range(-0.2..0.2));
@@ -303,18 +312,12 @@ mod tests {
                         2 => (0.1, 0.1),
                         _ => (rng.random_range(0.001..0.3), rng.random_range(0.001..0.3)),
                     };
-                    let (hx, hy) = if rng.random_bool(0.5) {
+                    let half = if rng.random_bool(0.5) {
                         (hx, hy)
                     } else {
                         (hy, hx)
                     };
-                    GroundBox {
-                        min_x_m: x - hx,
-                        max_x_m: x + hx,
-                        min_y_m: y - hy,
-                        max_y_m: y + hy,
-                        height_m: rng.random_range(0.01..0.5),
-                    }
+                    random_height_box(&mut rng, (x, y), half)
                 })
                 .collect();
             // On and off the 5 cm lattice, yaws on and off the 5 degree lattice.
