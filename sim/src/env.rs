@@ -628,7 +628,7 @@ impl Env {
 
     /// The height map around the robot on another layout than the policy's (`grid`, for
     /// example [`height_map::MapGrid::GUARD_FINE`] for the collision guard) into `out`, which
-    /// must hold `grid.cells()` heights.
+    /// must hold `grid.cells()` heights. [`GuardMap`] keeps such a map with its buffer.
     pub fn observe_grid(&self, grid: height_map::MapGrid, out: &mut [f32]) {
         height_map::render_grid(
             self.obstacles.boxes(),
@@ -833,4 +833,44 @@ fn horizontal_reach_m(geometry: &RobotGeometry) -> f32 {
         .hip_x_m
         .hypot(geometry.hip_y_m + geometry.thigh_m + geometry.link_radius_m);
     body.max(wheel).max(knee) + 0.01
+}
+
+/// A map of another layout than the policy's, rendered around the robot for the collision
+/// guard (`wheelleg_runtime::guard`), with the buffer it is rendered into: what the evaluation
+/// and the robot's driver both read when the guard runs on a finer map.
+#[derive(Clone, Debug)]
+pub struct GuardMap {
+    grid: height_map::MapGrid,
+    heights_m: Vec<f32>,
+}
+
+impl GuardMap {
+    /// An empty map of layout `grid`.
+    pub fn new(grid: height_map::MapGrid) -> GuardMap {
+        GuardMap {
+            grid,
+            heights_m: vec![0.0; grid.cells()],
+        }
+    }
+
+    /// Its layout.
+    pub fn grid(&self) -> height_map::MapGrid {
+        self.grid
+    }
+
+    /// Renders the map around `env`'s robot, as the guard reads it; an error names a layout
+    /// the guard cannot read (no cells, or a cell that is not a positive length).
+    pub fn observe(
+        &mut self,
+        env: &Env,
+    ) -> Result<wheelleg_runtime::guard::HeightMapRef<'_>, wheelleg_runtime::guard::GridMapError>
+    {
+        env.observe_grid(self.grid, &mut self.heights_m);
+        let grid = wheelleg_runtime::guard::GridMap::new(
+            &self.heights_m,
+            self.grid.side,
+            self.grid.cell_m,
+        )?;
+        Ok(wheelleg_runtime::guard::HeightMapRef::Grid(grid))
+    }
 }

@@ -23,7 +23,6 @@ use wheelleg_runtime::guard::{CollisionGuard, DEFAULT_MARGIN_M};
 use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::env::{Env, Status};
 use wheelleg_sim::generate::{generate, SceneKind};
-use wheelleg_sim::height_map::MapGrid;
 use wheelleg_sim::planner::PlannerConfig;
 use wheelleg_sim::render::top_view;
 use wheelleg_sim::scenario::Scenario;
@@ -82,7 +81,7 @@ pub struct Args {
     /// elevation mapping keeps; the default) or `policy` (the policy's own 5 cm map, for a
     /// robot that has no finer one). docs/results.md, "A finer map for the guard".
     #[arg(long, value_name = "MAP", default_value = "fine")]
-    guard_map: String,
+    guard_map: super::GuardMapArg,
     /// Send the policy's actions unchecked (the policy alone, as `wheelleg eval` measures it
     /// without `--guard`).
     #[arg(long)]
@@ -245,12 +244,9 @@ pub fn run(args: Args) -> CliResult {
                 Box::new(driver)
             } else {
                 let driver = driver.with_guard(CollisionGuard::new(WHEELLEG, args.guard_margin));
-                match args.guard_map.as_str() {
-                    "fine" => Box::new(driver.with_guard_map(MapGrid::GUARD_FINE)),
-                    "policy" => Box::new(driver),
-                    other => {
-                        return Err(format!("--guard-map: {other:?} is not fine or policy").into())
-                    }
+                match args.guard_map.grid() {
+                    Some(grid) => Box::new(driver.with_guard_map(grid)),
+                    None => Box::new(driver),
                 }
             }
         }

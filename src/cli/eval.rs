@@ -8,7 +8,6 @@ use std::path::PathBuf;
 use wheelleg_runtime::model::format::MAGIC;
 use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::generate::generate_many;
-use wheelleg_sim::height_map::MapGrid;
 use wheelleg_trainer::batch_policy::FloatPolicy;
 use wheelleg_trainer::evaluate::{evaluate, DecisionRule, EvalOptions};
 use wheelleg_trainer::network::BackendKind;
@@ -61,7 +60,7 @@ pub struct Args {
     /// of the robot's surroundings, as a robot's elevation mapping keeps; docs/results.md, "A
     /// finer map for the guard").
     #[arg(long, value_name = "MAP", default_value = "policy", requires = "guard")]
-    guard_map: String,
+    guard_map: super::GuardMapArg,
     /// Whenever some action ends within the success radius of the target, take the policy's
     /// most probable such action (after the guard, if on), as a robot running the runtime's
     /// arrival rule does. Only with the default decision rule.
@@ -104,11 +103,7 @@ pub fn run(args: Args) -> CliResult {
         planner_expansions: args.planner_expansions,
         known_shortest,
         guard_margin_m: args.guard,
-        guard_grid: match args.guard_map.as_str() {
-            "policy" => None,
-            "fine" => Some(MapGrid::GUARD_FINE),
-            other => return Err(format!("--guard-map: {other:?} is not policy or fine").into()),
-        },
+        guard_grid: args.guard_map.grid(),
         arrival: args.arrival,
         ..EvalOptions::default()
     };

@@ -9,11 +9,11 @@ use std::fmt;
 use wheelleg_runtime::action::Action;
 use wheelleg_runtime::arrival::Arrival;
 use wheelleg_runtime::decision::{Decider, ObservationKey};
-use wheelleg_runtime::guard::{CollisionGuard, GridMap, HeightMapRef};
+use wheelleg_runtime::guard::{CollisionGuard, HeightMapRef};
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::model::DefaultPolicy;
 use wheelleg_runtime::observation::{HEIGHT_MAP_SIDE, STATE_LEN};
-use wheelleg_sim::env::{Env, Observation};
+use wheelleg_sim::env::{Env, GuardMap, Observation};
 use wheelleg_sim::height_map::MapGrid;
 use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig};
 
@@ -107,7 +107,7 @@ pub struct PolicyDriver<'a> {
     /// Checks each action against the height map first, when set.
     guard: Option<CollisionGuard>,
     /// The map the guard reads when it is not the policy's: its layout and its cells.
-    guard_map: Option<(MapGrid, Vec<f32>)>,
+    guard_map: Option<GuardMap>,
     /// Takes an action that reaches the target within this radius when one does, when set.
     arrival_radius_m: Option<f32>,
 }
@@ -139,7 +139,7 @@ impl<'a> PolicyDriver<'a> {
     /// `MapGrid::GUARD_FINE`, as a robot's elevation mapping keeps) instead of the policy's
     /// 5 cm map; the policy still sees its own.
     pub fn with_guard_map(mut self, grid: MapGrid) -> PolicyDriver<'a> {
-        self.guard_map = Some((grid, vec![0.0; grid.cells()]));
+        self.guard_map = Some(GuardMap::new(grid));
         self
     }
 
@@ -160,10 +160,11 @@ impl Driver for PolicyDriver<'_> {
             self.guard.map_or(String::new(), |g| format!(
                 ", collision guard (columns grown by {} m, {} m cells)",
                 g.margin_m(),
-                self.guard_map.as_ref().map_or(
-                    wheelleg_runtime::observation::HEIGHT_MAP_CELL_M,
-                    |(grid, _)| { grid.cell_m }
-                )
+                self.guard_map
+                    .as_ref()
+                    .map_or(wheelleg_runtime::observation::HEIGHT_MAP_CELL_M, |m| m
+                        .grid()
+                        .cell_m)
             )),
             self.arrival_radius_m
                 .map_or(String::new(), |r| format!(", arrival within {r} m"))
@@ -201,13 +202,9 @@ impl Driver for PolicyDriver<'_> {
         };
         let map = match &mut self.guard_map {
             None => HeightMapRef::Millimetres(cells),
-            Some((grid, heights_m)) => {
-                env.observe_grid(*grid, heights_m);
-                HeightMapRef::Grid(
-                    GridMap::new(heights_m, grid.side, grid.cell_m)
-                        .map_err(|e| DriverError(format!("guard map: {e}")))?,
-                )
-            }
+            Some(guard_map) => guard_map
+                .observe(env)
+                .map_err(|e| DriverError(format!("guard map: {e}")))?,
         };
         let checked = guard.choose(
             &mut self.decider,

@@ -15,11 +15,11 @@ use std::collections::HashMap;
 use wheelleg_runtime::action::{Action, CHOICES, DIMS};
 use wheelleg_runtime::arrival::Arrival;
 use wheelleg_runtime::decision::{Decider, ObservationKey};
-use wheelleg_runtime::guard::{CollisionGuard, GridMap, HeightMapRef};
+use wheelleg_runtime::guard::{CollisionGuard, HeightMapRef};
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
 use wheelleg_runtime::robot::WHEELLEG;
-use wheelleg_sim::env::{Env, EnvConfig, Observation, Status};
+use wheelleg_sim::env::{Env, EnvConfig, GuardMap, Observation, Status};
 use wheelleg_sim::height_map::MapGrid;
 use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig};
 use wheelleg_sim::scenario::Scenario;
@@ -226,7 +226,7 @@ pub fn run_episodes(
             ))
         }
     };
-    let mut guard_cells = vec![0.0; options.guard_grid.map_or(0, MapGrid::cells)];
+    let mut guard_map = options.guard_grid.map(GuardMap::new);
     loop {
         let running: Vec<usize> = (0..envs.len())
             .filter(|&i| !envs[i].status().is_done())
@@ -269,15 +269,11 @@ pub fn run_episodes(
                             let cells: &[f32; HEIGHT_MAP_CELLS] = cells
                                 .try_into()
                                 .map_err(|_| "height map of the wrong size".to_string())?;
-                            let map = match options.guard_grid {
+                            let map = match &mut guard_map {
                                 None => HeightMapRef::Metres(cells),
-                                Some(grid) => {
-                                    envs[i].observe_grid(grid, &mut guard_cells);
-                                    HeightMapRef::Grid(
-                                        GridMap::new(&guard_cells, grid.side, grid.cell_m)
-                                            .map_err(|e| format!("guard map: {e}"))?,
-                                    )
-                                }
+                                Some(guard_map) => guard_map
+                                    .observe(&envs[i])
+                                    .map_err(|e| format!("guard map: {e}"))?,
                             };
                             let legs = LegConfig {
                                 clearance_m: states[k * STATE_LEN],
