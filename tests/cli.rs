@@ -80,6 +80,24 @@ fn generate_plan_and_render_a_scenario_file() {
     // The guard on a finer map than the policy's.
     let fine = eval(&["--guard", "--guard-map", "fine", "--arrival"]);
     assert_eq!(fine["guard_cell_m"].as_f64(), Some(0.01), "{fine}");
+    // And the search for the last metres: reported, and never worse on scenes the stack
+    // already solves (it only runs after 10 decisions near the target).
+    let searched = eval(&[
+        "--guard",
+        "--guard-map",
+        "fine",
+        "--arrival",
+        "--last-metres",
+    ]);
+    assert!(
+        searched["last_metres"]["searches"].is_number(),
+        "{searched}"
+    );
+    assert!(
+        searched["success_rate"].as_f64() >= fine["success_rate"].as_f64(),
+        "{searched}"
+    );
+    assert!(fine["last_metres"].is_null(), "{fine}");
     let bad = wheelleg(&[
         "eval",
         "--policy",

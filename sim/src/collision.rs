@@ -420,7 +420,12 @@ pub struct ObstacleSet {
 impl ObstacleSet {
     /// Prepares a scene's obstacles.
     pub fn new(obstacles: &[Obstacle]) -> Self {
-        let boxes: Vec<GroundBox> = obstacles.iter().map(Obstacle::ground_box).collect();
+        ObstacleSet::from_boxes(obstacles.iter().map(Obstacle::ground_box).collect())
+    }
+
+    /// Prepares boxes that are not the generator's obstacles: what the robot perceives of a
+    /// scene ([`crate::local_plan`]), which need not be of the three kinds.
+    pub fn from_boxes(boxes: Vec<GroundBox>) -> Self {
         ObstacleSet {
             aabbs: boxes
                 .iter()

@@ -626,6 +626,25 @@ impl Env {
         out.state = [legs.clearance_m, legs.track_m, target.x, target.y];
     }
 
+    /// The height map around the robot aligned with the world's axes, not the robot's (an
+    /// elevation map kept in the odometry frame, as a local planner reads it:
+    /// [`crate::local_plan`]), on layout `grid` into `out` (`grid.cells()` heights): row 0
+    /// towards world +x, column 0 towards world +y, the robot at the centre.
+    pub fn observe_world_aligned(&self, grid: height_map::MapGrid, out: &mut [f32]) {
+        height_map::render_grid(self.obstacles.boxes(), self.state.position, 0.0, grid, out);
+    }
+
+    /// This episode as it stands (robot, target, steps, rules) in a world of other obstacles:
+    /// what the robot perceives of the scene, for a search that may only use that
+    /// ([`crate::local_plan`]).
+    pub fn seen_as(&self, obstacles: ObstacleSet) -> Env {
+        Env {
+            obstacles,
+            parts_here: None,
+            ..self.clone()
+        }
+    }
+
     /// The height map around the robot on another layout than the policy's (`grid`, for
     /// example [`height_map::MapGrid::GUARD_FINE`] for the collision guard) into `out`, which
     /// must hold `grid.cells()` heights. [`GuardMap`] keeps such a map with its buffer.

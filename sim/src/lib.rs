@@ -11,6 +11,7 @@
 //! - [`generate`]: scene generators for the five behaviours and for complex scenes, and the
 //!   memory of failed scenes ([`failure_memory`]).
 //! - [`planner`]: exact shortest-path search over the action set.
+//! - [`local_plan`]: that search on the robot's own map, for the last metres.
 //! - [`render`]: PNG pictures of scenes and height maps.
 //!
 //! The robot's geometry and kinematics come from `wheelleg-runtime`, the crate that runs on the
@@ -21,6 +22,7 @@ pub mod env;
 pub mod failure_memory;
 pub mod generate;
 pub mod height_map;
+pub mod local_plan;
 pub mod obstacle;
 pub mod planner;
 pub mod render;

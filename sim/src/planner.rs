@@ -948,7 +948,12 @@ impl LegHint {
                 .into_iter()
                 .find(|(kind, _)| kind.size_m().2 == b.height_m)?;
                 let (clearance, track) = passing_legs(behaviour);
-                let along_x = (b.max_x_m - b.min_x_m - kind.size_m().0).abs() < 1.0e-3;
+                // The side nearer the kind's length: exact for the generator's boxes, and
+                // still right for a perceived one, grown and cut to map cells
+                // ([`crate::local_plan`]).
+                let length_m = kind.size_m().0;
+                let along_x = (b.max_x_m - b.min_x_m - length_m).abs()
+                    <= (b.max_y_m - b.min_y_m - length_m).abs();
                 let along_yaw_steps = if along_x { 0 } else { YAW_STEPS_PER_TURN / 4 };
                 let (row, col) = (clearance - lattice.clearance0, track - lattice.track0);
                 let leg_steps = (0..LEG_ROWS * LEG_COLS)

@@ -1,5 +1,6 @@
 //! `wheelleg eval --policy CKPT|WEIGHTS (--scenarios FILE | --generated N --kind K) --seed S [--json]
-//! [--stochastic | --argmax | --guard [MARGIN_M] [--guard-map policy|fine] --arrival] [--planner-expansions N | --planner-results PLAN.json]`.
+//! [--stochastic | --argmax | --guard [MARGIN_M] [--guard-map policy|fine] --arrival
+//! --last-metres [EXPANSIONS]] [--planner-expansions N | --planner-results PLAN.json]`.
 
 use super::CliResult;
 use rand::SeedableRng;
@@ -8,6 +9,7 @@ use std::path::PathBuf;
 use wheelleg_runtime::model::format::MAGIC;
 use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::generate::generate_many;
+use wheelleg_sim::local_plan::{LastMetresConfig, LocalPlannerConfig};
 use wheelleg_trainer::batch_policy::FloatPolicy;
 use wheelleg_trainer::evaluate::{evaluate, DecisionRule, EvalOptions};
 use wheelleg_trainer::network::BackendKind;
@@ -66,6 +68,14 @@ pub struct Args {
     /// arrival rule does. Only with the default decision rule.
     #[arg(long, conflicts_with_all = ["stochastic", "argmax"])]
     arrival: bool,
+    /// Once the policy has spent 10 decisions within 0.5 m of the target, search the way there
+    /// on the robot's own map (a 2.56 m elevation map of 1 cm cells around it) with the
+    /// planner, at most EXPANSIONS nodes (default 1000), and take the plan found; once more
+    /// after 10 more such decisions if none is found (docs/results.md, "A search for the last
+    /// metres").
+    #[arg(long, value_name = "EXPANSIONS", num_args = 0..=1, default_missing_value = "1000",
+          conflicts_with_all = ["stochastic", "argmax"])]
+    last_metres: Option<usize>,
 }
 
 /// Runs `eval`.
@@ -105,6 +115,13 @@ pub fn run(args: Args) -> CliResult {
         guard_margin_m: args.guard,
         guard_grid: args.guard_map.grid(),
         arrival: args.arrival,
+        last_metres: args.last_metres.map(|max_expansions| LastMetresConfig {
+            planner: LocalPlannerConfig {
+                max_expansions,
+                ..LocalPlannerConfig::default()
+            },
+            ..LastMetresConfig::default()
+        }),
         ..EvalOptions::default()
     };
     let mut rng = ChaCha8Rng::seed_from_u64(args.seed);
@@ -179,6 +196,13 @@ pub fn run(args: Args) -> CliResult {
         } else {
             "off"
         }
+    );
+    outln!(
+        "last metres          {}",
+        report.last_metres.map_or("off".to_string(), |l| format!(
+            "searched on the robot's map in {} episodes: {} searches, {} plans",
+            l.episodes_searched, l.searches, l.plans
+        ))
     );
     outln!("success rate         {:.1}%", 100.0 * report.success_rate);
     outln!(

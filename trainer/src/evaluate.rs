@@ -21,6 +21,7 @@ use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
 use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::env::{Env, EnvConfig, GuardMap, Observation, Status};
 use wheelleg_sim::height_map::MapGrid;
+use wheelleg_sim::local_plan::{LastMetres, LastMetresConfig};
 use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig};
 use wheelleg_sim::scenario::Scenario;
 
@@ -47,6 +48,21 @@ pub struct ScenarioResult {
     /// The kind of obstacle nearest the target, if one is within [`BESIDE_TARGET_M`]:
     /// whether the robot must end its way beside, over or astride something.
     pub target_beside: Option<String>,
+    /// Searches of the last metres run (0 without them).
+    pub local_searches: u32,
+    /// Of them, those that found a plan.
+    pub local_plans: u32,
+}
+
+/// A finished episode and what the last-metres search did in it.
+#[derive(Clone, Debug)]
+pub struct FinishedEpisode {
+    /// The episode at its end.
+    pub env: Env,
+    /// Searches of the last metres run.
+    pub local_searches: u32,
+    /// Of them, those that found a plan.
+    pub local_plans: u32,
 }
 
 /// How near an obstacle's footprint must come to the target for the target to count as beside
@@ -92,6 +108,9 @@ pub struct EvalReport {
     /// Whether an action that reaches the target was taken first whenever one did
     /// (`wheelleg_runtime::arrival`).
     pub arrival: bool,
+    /// Whether the last metres were searched on the robot's map
+    /// (`wheelleg_sim::local_plan`), and if so how often and with what luck.
+    pub last_metres: Option<LastMetresReport>,
     /// Fraction of scenarios reached.
     pub success_rate: f32,
     /// Fraction reached without collision.
@@ -110,6 +129,17 @@ pub struct EvalReport {
     pub by_target_beside: Vec<TargetBeside>,
     /// Per scenario.
     pub scenarios: Vec<ScenarioResult>,
+}
+
+/// What the last-metres search did over an evaluation.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct LastMetresReport {
+    /// Episodes in which it ran.
+    pub episodes_searched: usize,
+    /// Searches run.
+    pub searches: u32,
+    /// Of them, those that found a plan.
+    pub plans: u32,
 }
 
 /// How the policy's five heads become one action.
@@ -152,6 +182,9 @@ pub struct EvalOptions {
     /// (`wheelleg_runtime::arrival`, at the episode's success radius); only with
     /// [`DecisionRule::Untried`].
     pub arrival: bool,
+    /// Search the robot's own map for the last metres when the policy lingers near the
+    /// target (`wheelleg_sim::local_plan`), and take the plan found; none: the policy alone.
+    pub last_metres: Option<LastMetresConfig>,
 }
 
 #[derive(Deserialize)]
@@ -191,6 +224,7 @@ impl Default for EvalOptions {
             guard_margin_m: None,
             guard_grid: None,
             arrival: false,
+            last_metres: None,
         }
     }
 }
@@ -203,7 +237,7 @@ pub fn run_episodes(
     options: &EvalOptions,
     rng: &mut impl Rng,
     on_observation: &mut dyn FnMut(&Observation),
-) -> Result<Vec<Env>, String> {
+) -> Result<Vec<FinishedEpisode>, String> {
     let mut envs = scenarios
         .iter()
         .map(|s| Env::new(s, options.env_config).map_err(|e| format!("scenario {}: {e:?}", s.name)))
@@ -227,7 +261,28 @@ pub fn run_episodes(
         }
     };
     let mut guard_map = options.guard_grid.map(GuardMap::new);
+    let mut last_metres: Vec<Option<LastMetres>> = envs
+        .iter()
+        .map(|_| options.last_metres.map(LastMetres::new))
+        .collect();
     loop {
+        // Episodes following a local plan step without the policy.
+        for (env, last_metres) in envs.iter_mut().zip(&mut last_metres) {
+            let Some(last_metres) = last_metres else {
+                continue;
+            };
+            while !env.status().is_done() {
+                let Some(action) = last_metres.next_action(env) else {
+                    break;
+                };
+                let outcome = env
+                    .step(action)
+                    .map_err(|_| "stepped a finished episode".to_string())?;
+                if outcome.invalid.is_some() {
+                    last_metres.abandon();
+                }
+            }
+        }
         let running: Vec<usize> = (0..envs.len())
             .filter(|&i| !envs[i].status().is_done())
             .collect();
@@ -298,7 +353,15 @@ pub fn run_episodes(
                 .map_err(|_| "stepped a finished episode".to_string())?;
         }
     }
-    Ok(envs)
+    Ok(envs
+        .into_iter()
+        .zip(last_metres)
+        .map(|(env, last_metres)| FinishedEpisode {
+            env,
+            local_searches: last_metres.as_ref().map_or(0, LastMetres::searches),
+            local_plans: last_metres.as_ref().map_or(0, LastMetres::plans),
+        })
+        .collect())
 }
 
 fn from_choices(choices: [u8; DIMS]) -> Action {
@@ -333,13 +396,14 @@ pub fn evaluate(
     options: &EvalOptions,
     rng: &mut impl Rng,
 ) -> Result<EvalReport, String> {
-    let envs = run_episodes(policy, scenarios, options, rng, &mut |_| {})?;
+    let episodes = run_episodes(policy, scenarios, options, rng, &mut |_| {})?;
     let planner = PlannerConfig {
         max_expansions: options.planner_expansions,
         ..PlannerConfig::default()
     };
     let mut results = Vec::with_capacity(scenarios.len());
-    for (s, env) in scenarios.iter().zip(&envs) {
+    for (s, episode) in scenarios.iter().zip(&episodes) {
+        let env = &episode.env;
         let success = env.status() == Status::Success;
         let planner_steps = if let Some(known) = &options.known_shortest {
             *known
@@ -365,6 +429,8 @@ pub fn evaluate(
             planner_steps,
             final_distance_m: env.distance_to_target_m(),
             target_beside: target_beside(s).map(str::to_owned),
+            local_searches: episode.local_searches,
+            local_plans: episode.local_plans,
         });
     }
     let n = results.len().max(1) as f32;
@@ -419,6 +485,11 @@ pub fn evaluate(
                 })
         }),
         arrival: options.arrival,
+        last_metres: options.last_metres.map(|_| LastMetresReport {
+            episodes_searched: results.iter().filter(|r| r.local_searches > 0).count(),
+            searches: results.iter().map(|r| r.local_searches).sum(),
+            plans: results.iter().map(|r| r.local_plans).sum(),
+        }),
         success_rate: successes.len() as f32 / n,
         collision_free_rate: results.iter().filter(|r| r.collision_free).count() as f32 / n,
         mean_steps,
