@@ -98,6 +98,32 @@ fn generate_plan_and_render_a_scenario_file() {
         "{searched}"
     );
     assert!(fine["last_metres"].is_null(), "{fine}");
+    // The look-ahead: reported, and no episode of these open scenes is longer for it (its
+    // rollouts keep the rule's own action unless another arrives strictly sooner).
+    let looked = eval(&["--guard", "--guard-map", "fine", "--arrival", "--lookahead"]);
+    assert_eq!(looked["lookahead"]["candidates"], 8, "{looked}");
+    assert!(
+        looked["lookahead"]["decisions"].as_u64() > Some(0),
+        "{looked}"
+    );
+    assert!(fine["lookahead"].is_null(), "{fine}");
+    let steps = |report: &serde_json::Value| -> Vec<(bool, u64)> {
+        report["scenarios"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|s| {
+                (
+                    s["success"].as_bool().unwrap(),
+                    s["steps"].as_u64().unwrap(),
+                )
+            })
+            .collect()
+    };
+    for (with, without) in steps(&looked).into_iter().zip(steps(&fine)) {
+        assert!(with.0 >= without.0, "{looked}");
+        assert!(!without.0 || with.1 <= without.1, "{looked}");
+    }
     let bad = wheelleg(&[
         "eval",
         "--policy",

@@ -156,21 +156,58 @@ impl LocalPlan {
     }
 }
 
-/// The local search with the buffer its map is rendered into.
+/// The scene as the robot's map shows it: the map rendered around the robot, merged into
+/// boxes and grown by a margin ([`boxes_from_map`]), in an episode otherwise as it stands
+/// ([`Env::seen_as`]). What a search or a look-ahead may use instead of the simulator's exact
+/// world. Keeps its map's buffer between calls.
+#[derive(Clone, Debug)]
+pub struct PerceivedScene {
+    grid: MapGrid,
+    margin_m: f32,
+    heights_m: Vec<f32>,
+}
+
+impl PerceivedScene {
+    /// Perception on layout `grid` with every box grown by `margin_m` on each side.
+    pub fn new(grid: MapGrid, margin_m: f32) -> PerceivedScene {
+        // The buffer is made at the first call: most episodes never perceive, and an
+        // evaluation keeps one per episode.
+        PerceivedScene {
+            grid,
+            margin_m,
+            heights_m: Vec::new(),
+        }
+    }
+
+    /// `env` as its robot's map shows it from where it stands, and how many boxes the map
+    /// was merged into.
+    pub fn of(&mut self, env: &Env) -> (Env, usize) {
+        self.heights_m.resize(self.grid.cells(), 0.0);
+        env.observe_world_aligned(self.grid, &mut self.heights_m);
+        let boxes = boxes_from_map(
+            &self.heights_m,
+            self.grid,
+            env.state().position,
+            self.margin_m,
+        );
+        let count = boxes.len();
+        (env.seen_as(ObstacleSet::from_boxes(boxes)), count)
+    }
+}
+
+/// The local search with the map it reads.
 #[derive(Clone, Debug)]
 pub struct LocalPlanner {
     config: LocalPlannerConfig,
-    heights_m: Vec<f32>,
+    perception: PerceivedScene,
 }
 
 impl LocalPlanner {
     /// A search with `config`.
     pub fn new(config: LocalPlannerConfig) -> LocalPlanner {
-        // The buffer is made at the first search: most episodes never search, and an
-        // evaluation keeps one planner per episode.
         LocalPlanner {
             config,
-            heights_m: Vec::new(),
+            perception: PerceivedScene::new(config.grid, config.margin_m),
         }
     }
 
@@ -181,16 +218,7 @@ impl LocalPlanner {
 
     /// Searches from where `env`'s robot stands, in the scene as its map shows it.
     pub fn plan(&mut self, env: &Env) -> LocalPlan {
-        self.heights_m.resize(self.config.grid.cells(), 0.0);
-        env.observe_world_aligned(self.config.grid, &mut self.heights_m);
-        let boxes = boxes_from_map(
-            &self.heights_m,
-            self.config.grid,
-            env.state().position,
-            self.config.margin_m,
-        );
-        let count = boxes.len();
-        let perceived = env.seen_as(ObstacleSet::from_boxes(boxes));
+        let (perceived, count) = self.perception.of(env);
         let found = plan(
             &perceived,
             &PlannerConfig {
@@ -290,6 +318,25 @@ impl LastMetres {
                 self.near_decisions += 1;
                 None
             }
+        }
+    }
+
+    /// Searches now, wherever the robot stands, if searches are left: for a caller that
+    /// knows the policy is stuck (no candidate of the look-ahead arrives). Returns whether a
+    /// plan was found; its actions then come from [`Self::next_action`].
+    pub fn search_now(&mut self, env: &Env) -> bool {
+        if env.status().is_done() || self.searches >= self.config.max_searches {
+            return false;
+        }
+        self.searches += 1;
+        self.next_search_at = self.near_decisions + self.config.after_decisions.max(1);
+        match self.planner.plan(env).actions() {
+            Some(actions) => {
+                self.plans += 1;
+                self.plan = actions.iter().rev().copied().collect();
+                true
+            }
+            None => false,
         }
     }
 

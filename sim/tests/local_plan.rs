@@ -126,4 +126,22 @@ fn the_search_waits_for_the_policy_near_the_target_and_stops_at_its_limit() {
         assert_eq!(far.next_action(&env), None);
     }
     assert_eq!(far.searches(), 0);
+    // Unless told the policy is lost (the look-ahead found no way): then it searches at
+    // once wherever the robot stands, within the same limit of searches.
+    assert!(far.search_now(&env), "a plan from 1 m away");
+    assert_eq!((far.searches(), far.plans()), (1, 1));
+    let mut followed = env.clone();
+    while let Some(action) = far.next_action(&followed) {
+        followed
+            .step(action)
+            .expect("the plan ends with the episode");
+    }
+    assert_eq!(followed.status(), Status::Success);
+    let mut spent = LastMetres::new(LastMetresConfig {
+        max_searches: 1,
+        ..hopeless
+    });
+    assert!(!spent.search_now(&env));
+    assert!(!spent.search_now(&env));
+    assert_eq!(spent.searches(), 1);
 }

@@ -12,6 +12,7 @@ use wheelleg_sim::generate::generate_many;
 use wheelleg_sim::local_plan::{LastMetresConfig, LocalPlannerConfig};
 use wheelleg_trainer::batch_policy::FloatPolicy;
 use wheelleg_trainer::evaluate::{evaluate, DecisionRule, EvalOptions};
+use wheelleg_trainer::lookahead::LookaheadConfig;
 use wheelleg_trainer::network::BackendKind;
 use wheelleg_trainer::quantize::EvalPolicy;
 
@@ -76,6 +77,24 @@ pub struct Args {
     #[arg(long, value_name = "EXPANSIONS", num_args = 0..=1, default_missing_value = "1000",
           conflicts_with_all = ["stochastic", "argmax"])]
     last_metres: Option<usize>,
+    /// At each decision, weigh the rule's own action and the next CANDIDATES-1 it would fall
+    /// back to (default 8 in all) by rolling the policy out from each, at most 40 steps, in
+    /// the scene as the robot's own map shows it (2.56 m, 1 cm cells), and take the one that
+    /// arrives soonest; ties keep the rule's order (docs/results.md, "Rollouts on the robot's
+    /// map").
+    #[arg(long, value_name = "CANDIDATES", num_args = 0..=1, default_missing_value = "8",
+          value_parser = clap::value_parser!(u16).range(2..=243),
+          conflicts_with_all = ["stochastic", "argmax"])]
+    lookahead: Option<u16>,
+    /// Steps a look-ahead rollout may take before it counts as not arriving.
+    #[arg(long, value_name = "STEPS", default_value = "40", requires = "lookahead",
+          value_parser = clap::value_parser!(u32).range(1..))]
+    lookahead_horizon: u32,
+    /// Where none of the look-ahead's candidates arrives within its horizon, weigh this many
+    /// in all (the policy is lost there; such decisions make most of the excess steps).
+    #[arg(long, value_name = "CANDIDATES", default_value = "8", requires = "lookahead",
+          value_parser = clap::value_parser!(u16).range(1..=243))]
+    lookahead_stuck: u16,
 }
 
 /// Runs `eval`.
@@ -121,6 +140,12 @@ pub fn run(args: Args) -> CliResult {
                 ..LocalPlannerConfig::default()
             },
             ..LastMetresConfig::default()
+        }),
+        lookahead: args.lookahead.map(|candidates| LookaheadConfig {
+            candidates: usize::from(candidates),
+            horizon_steps: args.lookahead_horizon,
+            stuck_candidates: usize::from(args.lookahead_stuck),
+            ..LookaheadConfig::default()
         }),
         ..EvalOptions::default()
     };
@@ -202,6 +227,13 @@ pub fn run(args: Args) -> CliResult {
         report.last_metres.map_or("off".to_string(), |l| format!(
             "searched on the robot's map in {} episodes: {} searches, {} plans",
             l.episodes_searched, l.searches, l.plans
+        ))
+    );
+    outln!(
+        "look-ahead           {}",
+        report.lookahead.map_or("off".to_string(), |l| format!(
+            "{} candidates ({} where none arrives), {}-step rollouts: another action than the rule's at {} of {} decisions",
+            l.candidates, l.stuck_candidates, l.horizon_steps, l.overrides, l.decisions
         ))
     );
     outln!("success rate         {:.1}%", 100.0 * report.success_rate);

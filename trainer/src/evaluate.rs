@@ -8,6 +8,7 @@
 //! from the caller's seeded RNG.
 
 use crate::batch_policy::BatchPolicy;
+use crate::lookahead::{candidates, mark_taken, Lookahead, LookaheadConfig};
 use crate::network_f32::NetworkF32;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
@@ -52,11 +53,24 @@ pub struct ScenarioResult {
     pub local_searches: u32,
     /// Of them, those that found a plan.
     pub local_plans: u32,
+    /// What the look-ahead did (zeros without it).
+    pub lookahead: LookaheadStats,
 }
 
-/// A finished episode and what the last-metres search did in it.
+/// What the look-ahead did in one episode.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct LookaheadStats {
+    /// Decisions it weighed candidates at (not those with one candidate or an arriving one).
+    pub decisions: u32,
+    /// Of them, those where it took another action than the rule's own.
+    pub overrides: u32,
+}
+
+/// A finished episode and what the last-metres search and the look-ahead did in it.
 #[derive(Clone, Debug)]
 pub struct FinishedEpisode {
+    /// What the look-ahead did (zeros without it).
+    pub lookahead: LookaheadStats,
     /// The episode at its end.
     pub env: Env,
     /// Searches of the last metres run.
@@ -111,6 +125,9 @@ pub struct EvalReport {
     /// Whether the last metres were searched on the robot's map
     /// (`wheelleg_sim::local_plan`), and if so how often and with what luck.
     pub last_metres: Option<LastMetresReport>,
+    /// Whether the look-ahead weighed candidates (`crate::lookahead`), and if so how often it
+    /// took another action than the rule's.
+    pub lookahead: Option<LookaheadReport>,
     /// Fraction of scenarios reached.
     pub success_rate: f32,
     /// Fraction reached without collision.
@@ -129,6 +146,21 @@ pub struct EvalReport {
     pub by_target_beside: Vec<TargetBeside>,
     /// Per scenario.
     pub scenarios: Vec<ScenarioResult>,
+}
+
+/// What the look-ahead did over an evaluation.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct LookaheadReport {
+    /// Candidates weighed at each decision.
+    pub candidates: usize,
+    /// Candidates weighed where none of the first arrives.
+    pub stuck_candidates: usize,
+    /// Steps a rollout may take.
+    pub horizon_steps: u32,
+    /// Decisions at which candidates were weighed.
+    pub decisions: u64,
+    /// Of them, those where another action than the rule's own was taken.
+    pub overrides: u64,
 }
 
 /// What the last-metres search did over an evaluation.
@@ -185,6 +217,10 @@ pub struct EvalOptions {
     /// Search the robot's own map for the last metres when the policy lingers near the
     /// target (`wheelleg_sim::local_plan`), and take the plan found; none: the policy alone.
     pub last_metres: Option<LastMetresConfig>,
+    /// Weigh the rule's first few candidate actions by rollouts of the policy on the robot's
+    /// own map, and take the one that arrives soonest (`crate::lookahead`); none: the rule's
+    /// own action.
+    pub lookahead: Option<LookaheadConfig>,
 }
 
 #[derive(Deserialize)]
@@ -225,6 +261,7 @@ impl Default for EvalOptions {
             guard_grid: None,
             arrival: false,
             last_metres: None,
+            lookahead: None,
         }
     }
 }
@@ -261,6 +298,8 @@ pub fn run_episodes(
         }
     };
     let mut guard_map = options.guard_grid.map(GuardMap::new);
+    let mut lookahead = Lookahead::new(options.lookahead.unwrap_or_default());
+    let mut lookahead_stats = vec![LookaheadStats::default(); envs.len()];
     let mut last_metres: Vec<Option<LastMetres>> = envs
         .iter()
         .map(|_| options.last_metres.map(LastMetres::new))
@@ -299,6 +338,8 @@ pub fn run_episodes(
             states.extend_from_slice(&obs.state);
         }
         let out = policy.log_probs(&heights, &states, running.len())?;
+        // Each running episode's action, or its candidates when the look-ahead picks.
+        let mut chosen: Vec<Option<Action>> = vec![None; running.len()];
         for (k, &i) in running.iter().enumerate() {
             let action = match options.decision {
                 DecisionRule::Sample => from_choices(out.sample(k, rng)),
@@ -312,42 +353,84 @@ pub fn run_episodes(
                     let arrival = options
                         .arrival
                         .then(|| Arrival::from_state_m(state, options.env_config.success_radius_m));
-                    match &guard {
-                        None => match arrival {
-                            Some(arrival) => {
-                                arrival.choose(&mut deciders[i], keys[i], &logits).action
-                            }
-                            None => deciders[i].choose(keys[i], &logits),
-                        },
-                        Some(guard) => {
+                    let legs = LegConfig {
+                        clearance_m: state[0],
+                        track_m: state[1],
+                    };
+                    let map = match (&guard, &mut guard_map) {
+                        (None, _) => None,
+                        (Some(_), None) => {
                             let cells = &heights[k * HEIGHT_MAP_CELLS..(k + 1) * HEIGHT_MAP_CELLS];
                             let cells: &[f32; HEIGHT_MAP_CELLS] = cells
                                 .try_into()
                                 .map_err(|_| "height map of the wrong size".to_string())?;
-                            let map = match &mut guard_map {
-                                None => HeightMapRef::Metres(cells),
-                                Some(guard_map) => guard_map
-                                    .observe(&envs[i])
-                                    .map_err(|e| format!("guard map: {e}"))?,
-                            };
-                            let legs = LegConfig {
-                                clearance_m: states[k * STATE_LEN],
-                                track_m: states[k * STATE_LEN + 1],
-                            };
+                            Some(HeightMapRef::Metres(cells))
+                        }
+                        (Some(_), Some(guard_map)) => Some(
+                            guard_map
+                                .observe(&envs[i])
+                                .map_err(|e| format!("guard map: {e}"))?,
+                        ),
+                    };
+                    let key = keys[i];
+                    let decide = |decider: &mut Decider| match (&guard, map) {
+                        (Some(guard), Some(map)) => {
                             guard
-                                .choose(
-                                    &mut deciders[i],
-                                    keys[i],
-                                    &logits,
-                                    map,
-                                    legs,
-                                    arrival.as_ref(),
-                                )
+                                .choose(decider, key, &logits, map, legs, arrival.as_ref())
                                 .action
+                        }
+                        _ => match &arrival {
+                            Some(arrival) => arrival.choose(decider, key, &logits).action,
+                            None => decider.choose(key, &logits),
+                        },
+                    };
+                    match &options.lookahead {
+                        None => decide(&mut deciders[i]),
+                        Some(config) => {
+                            let wanted = config.candidates.max(config.stuck_candidates);
+                            let found = candidates(&deciders[i], wanted, decide);
+                            let arrives = found.first().is_some_and(|&first| {
+                                arrival.as_ref().is_some_and(|a| a.reached_by(first))
+                            });
+                            if found.len() < 2 || arrives {
+                                let first = found.first().copied().unwrap_or_default();
+                                mark_taken(&mut deciders[i], key, first);
+                                first
+                            } else {
+                                lookahead.push(k, &envs[i], &deciders[i], key, found);
+                                continue;
+                            }
                         }
                     }
                 }
             };
+            chosen[k] = Some(action);
+        }
+        for weighed in
+            lookahead.weigh(policy, options.arrival, options.env_config.success_radius_m)?
+        {
+            let k = weighed.slot;
+            let i = running[k];
+            // No candidate arrives within the horizon: the policy is lost here, so the search
+            // (when on) runs now rather than when it is next due.
+            if !weighed.arrives {
+                if let Some(search) = &mut last_metres[i] {
+                    if search.search_now(&envs[i]) {
+                        if let Some(action) = search.next_action(&envs[i]) {
+                            mark_taken(&mut deciders[i], keys[i], action);
+                            chosen[k] = Some(action);
+                            continue;
+                        }
+                    }
+                }
+            }
+            mark_taken(&mut deciders[i], keys[i], weighed.action);
+            lookahead_stats[i].decisions += 1;
+            lookahead_stats[i].overrides += u32::from(weighed.overridden);
+            chosen[k] = Some(weighed.action);
+        }
+        for (k, &i) in running.iter().enumerate() {
+            let action = chosen[k].ok_or("no action chosen")?;
             envs[i]
                 .step(action)
                 .map_err(|_| "stepped a finished episode".to_string())?;
@@ -356,8 +439,10 @@ pub fn run_episodes(
     Ok(envs
         .into_iter()
         .zip(last_metres)
-        .map(|(env, last_metres)| FinishedEpisode {
+        .zip(lookahead_stats)
+        .map(|((env, last_metres), lookahead)| FinishedEpisode {
             env,
+            lookahead,
             local_searches: last_metres.as_ref().map_or(0, LastMetres::searches),
             local_plans: last_metres.as_ref().map_or(0, LastMetres::plans),
         })
@@ -431,6 +516,7 @@ pub fn evaluate(
             target_beside: target_beside(s).map(str::to_owned),
             local_searches: episode.local_searches,
             local_plans: episode.local_plans,
+            lookahead: episode.lookahead,
         });
     }
     let n = results.len().max(1) as f32;
@@ -489,6 +575,19 @@ pub fn evaluate(
             episodes_searched: results.iter().filter(|r| r.local_searches > 0).count(),
             searches: results.iter().map(|r| r.local_searches).sum(),
             plans: results.iter().map(|r| r.local_plans).sum(),
+        }),
+        lookahead: options.lookahead.map(|config| LookaheadReport {
+            candidates: config.candidates,
+            stuck_candidates: config.stuck_candidates,
+            horizon_steps: config.horizon_steps,
+            decisions: results
+                .iter()
+                .map(|r| u64::from(r.lookahead.decisions))
+                .sum(),
+            overrides: results
+                .iter()
+                .map(|r| u64::from(r.lookahead.overrides))
+                .sum(),
         }),
         success_rate: successes.len() as f32 / n,
         collision_free_rate: results.iter().filter(|r| r.collision_free).count() as f32 / n,
@@ -640,5 +739,49 @@ mod tests {
             untried.collisions * 4 < argmax.collisions,
             "untried {untried:?}, argmax {argmax:?}"
         );
+    }
+
+    #[test]
+    fn the_look_ahead_takes_a_later_choice_only_where_it_arrives_sooner() {
+        let lookahead = |candidates| EvalOptions {
+            lookahead: Some(LookaheadConfig {
+                candidates,
+                stuck_candidates: candidates,
+                ..LookaheadConfig::default()
+            }),
+            ..EvalOptions::default()
+        };
+        // Ahead and to the left: the policy only ever drives forward and passes it by; its
+        // second choice, forward and left, leads there diagonally.
+        let ahead_left = Scenario {
+            name: "ahead-left".into(),
+            start: RobotState::new(Point2::new(0.0, 0.125), 0),
+            target: Point2::new(0.5, 0.625),
+            obstacles: vec![],
+        };
+        let alone = fixated_on(&ahead_left, EvalOptions::default()).unwrap();
+        assert_ne!(alone.scenarios[0].status, "Success");
+        assert!(alone.lookahead.is_none());
+        let looked = fixated_on(&ahead_left, lookahead(2)).unwrap();
+        let episode = &looked.scenarios[0];
+        assert_eq!(episode.status, "Success", "{episode:?}");
+        // 0.71 m at 0.0707 m a diagonal step, within the 0.05 m success radius.
+        assert!(episode.steps <= 10, "{episode:?}");
+        assert!(episode.lookahead.overrides > 0, "{episode:?}");
+        let report = looked.lookahead.unwrap();
+        assert_eq!(report.candidates, 2);
+        assert_eq!(report.overrides, u64::from(episode.lookahead.overrides));
+        // Straight ahead the policy's own choice is already the shortest: never overridden.
+        let ahead = Scenario {
+            name: "ahead".into(),
+            target: Point2::new(0.5, 0.125),
+            ..ahead_left
+        };
+        let alone = fixated_on(&ahead, EvalOptions::default()).unwrap();
+        let looked = fixated_on(&ahead, lookahead(4)).unwrap();
+        assert_eq!(looked.scenarios[0].status, "Success");
+        assert_eq!(looked.scenarios[0].steps, alone.scenarios[0].steps);
+        assert!(looked.scenarios[0].lookahead.decisions > 0);
+        assert_eq!(looked.scenarios[0].lookahead.overrides, 0);
     }
 }

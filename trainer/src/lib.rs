@@ -31,6 +31,7 @@ pub mod conv_kernel;
 pub mod curriculum;
 pub mod evaluate;
 pub mod export;
+pub mod lookahead;
 pub mod network;
 pub mod network_f32;
 pub mod plot;
