@@ -266,14 +266,27 @@ impl Default for EvalOptions {
     }
 }
 
+/// One decision the policy took part in: the observation it read (height map in metres,
+/// row-major; state) and the action taken there, whoever chose it (the rule, the guard, the
+/// arrival rule or the look-ahead; steps of a search's plan are not decisions).
+#[derive(Clone, Copy, Debug)]
+pub struct Decision<'a> {
+    /// The height map the policy read.
+    pub height_map_m: &'a [f32],
+    /// The state it read.
+    pub state: &'a [f32],
+    /// The action taken.
+    pub action: Action,
+}
+
 /// Runs every scenario to its end in lock-step (one batched policy call per step), calling
-/// `on_observation` with each observation the policy acts on. Returns the finished episodes.
+/// `on_decision` at each decision. Returns the finished episodes.
 pub fn run_episodes(
     policy: &dyn BatchPolicy,
     scenarios: &[Scenario],
     options: &EvalOptions,
     rng: &mut impl Rng,
-    on_observation: &mut dyn FnMut(&Observation),
+    on_decision: &mut dyn FnMut(Decision<'_>),
 ) -> Result<Vec<FinishedEpisode>, String> {
     let mut envs = scenarios
         .iter()
@@ -332,7 +345,6 @@ pub fn run_episodes(
         let mut states = Vec::with_capacity(running.len() * STATE_LEN);
         for &i in &running {
             envs[i].observe(&mut obs);
-            on_observation(&obs);
             keys[i] = ObservationKey::of_metres(&obs.height_map, &obs.state);
             heights.extend_from_slice(&obs.height_map);
             states.extend_from_slice(&obs.state);
@@ -431,6 +443,11 @@ pub fn run_episodes(
         }
         for (k, &i) in running.iter().enumerate() {
             let action = chosen[k].ok_or("no action chosen")?;
+            on_decision(Decision {
+                height_map_m: &heights[k * HEIGHT_MAP_CELLS..(k + 1) * HEIGHT_MAP_CELLS],
+                state: &states[k * STATE_LEN..(k + 1) * STATE_LEN],
+                action,
+            });
             envs[i]
                 .step(action)
                 .map_err(|_| "stepped a finished episode".to_string())?;
@@ -466,9 +483,9 @@ pub fn collect_observations(
     limit: usize,
 ) -> Result<Vec<RecordedObservation>, String> {
     let mut observations = Vec::new();
-    run_episodes(policy, scenarios, options, rng, &mut |obs| {
+    run_episodes(policy, scenarios, options, rng, &mut |decision| {
         if observations.len() < limit {
-            observations.push((obs.height_map.to_vec(), obs.state.to_vec()));
+            observations.push((decision.height_map_m.to_vec(), decision.state.to_vec()));
         }
     })?;
     Ok(observations)
