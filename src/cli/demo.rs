@@ -26,6 +26,7 @@ use wheelleg_sim::generate::{generate, SceneKind};
 use wheelleg_sim::planner::PlannerConfig;
 use wheelleg_sim::render::top_view;
 use wheelleg_sim::scenario::Scenario;
+use wheelleg_trainer::lookahead::LookaheadConfig;
 
 /// Weights the demo uses when `--weights` is not given, if the file exists.
 pub const DEFAULT_WEIGHTS: &str = "weights/policy.wlw";
@@ -91,6 +92,12 @@ pub struct Args {
     /// (`wheelleg_runtime::arrival`; docs/results.md, "The last step").
     #[arg(long)]
     no_arrival: bool,
+    /// Weigh the rule's first CANDIDATES actions (default 8) at every decision by rollouts of
+    /// the policy on the robot's own map, and take the one that arrives soonest (host-side;
+    /// docs/results.md, "Rollouts on the robot's map").
+    #[arg(long, value_name = "CANDIDATES", num_args = 0..=1, default_missing_value = "8",
+          value_parser = clap::value_parser!(u16).range(2..=243))]
+    lookahead: Option<u16>,
 }
 
 /// The scene to run and how it was chosen.
@@ -239,6 +246,12 @@ pub fn run(args: Args) -> CliResult {
             let mut driver = PolicyDriver::from_bytes(&bytes, &path.display().to_string())?;
             if !args.no_arrival {
                 driver = driver.with_arrival(closed_loop.env().config().success_radius_m);
+            }
+            if let Some(candidates) = args.lookahead {
+                driver = driver.with_lookahead(LookaheadConfig {
+                    candidates: usize::from(candidates),
+                    ..LookaheadConfig::default()
+                })?;
             }
             if args.no_guard {
                 Box::new(driver)

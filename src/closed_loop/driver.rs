@@ -12,10 +12,12 @@ use wheelleg_runtime::decision::{Decider, ObservationKey};
 use wheelleg_runtime::guard::{CollisionGuard, HeightMapRef};
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::model::DefaultPolicy;
-use wheelleg_runtime::observation::{HEIGHT_MAP_SIDE, STATE_LEN};
+use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, HEIGHT_MAP_SIDE, STATE_LEN};
 use wheelleg_sim::env::{Env, GuardMap, Observation};
 use wheelleg_sim::height_map::MapGrid;
 use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig};
+use wheelleg_trainer::lookahead::{candidates, mark_taken, Lookahead, LookaheadConfig};
+use wheelleg_trainer::quantize::EvalPolicy;
 
 /// A decision maker of the closed loop.
 pub trait Driver {
@@ -110,6 +112,10 @@ pub struct PolicyDriver<'a> {
     guard_map: Option<GuardMap>,
     /// Takes an action that reaches the target within this radius when one does, when set.
     arrival_radius_m: Option<f32>,
+    /// Weighs the rule's first candidates by rollouts of the same network on the robot's map
+    /// (`wheelleg_trainer::lookahead`), when set. Host-side: a batched copy of the policy.
+    lookahead: Option<(Lookahead, EvalPolicy<'a>)>,
+    bytes: &'a [u8],
 }
 
 impl<'a> PolicyDriver<'a> {
@@ -125,7 +131,27 @@ impl<'a> PolicyDriver<'a> {
             guard: None,
             guard_map: None,
             arrival_radius_m: None,
+            lookahead: None,
+            bytes,
         })
+    }
+
+    /// Weighs the rule's first `config.candidates` actions at every decision by rollouts of
+    /// the same network in the scene as the robot's map shows it, and takes the one that
+    /// arrives soonest (`wheelleg_trainer::lookahead`; docs/results.md, "Rollouts on the
+    /// robot's map").
+    pub fn with_lookahead(
+        mut self,
+        config: LookaheadConfig,
+    ) -> Result<PolicyDriver<'a>, DriverError> {
+        let policy = EvalPolicy::from_bytes(self.bytes).map_err(|e| {
+            DriverError(format!(
+                "{}: not a usable policy weights file: {e}",
+                self.label
+            ))
+        })?;
+        self.lookahead = Some((Lookahead::new(config), policy));
+        Ok(self)
     }
 
     /// Checks every action with `guard` before taking it (`wheelleg_runtime::guard`): the
@@ -154,7 +180,7 @@ impl<'a> PolicyDriver<'a> {
 impl Driver for PolicyDriver<'_> {
     fn describe(&self) -> String {
         format!(
-            "int8 policy {} ({:?} kernel){}{}",
+            "int8 policy {} ({:?} kernel){}{}{}",
             self.label,
             self.policy.kernel(),
             self.guard.map_or(String::new(), |g| format!(
@@ -167,7 +193,14 @@ impl Driver for PolicyDriver<'_> {
                         .cell_m)
             )),
             self.arrival_radius_m
-                .map_or(String::new(), |r| format!(", arrival within {r} m"))
+                .map_or(String::new(), |r| format!(", arrival within {r} m")),
+            self.lookahead
+                .as_ref()
+                .map_or(String::new(), |(l, _)| format!(
+                    ", look-ahead ({} candidates, {}-step rollouts on the robot's map)",
+                    l.config().candidates,
+                    l.config().horizon_steps
+                ))
         )
     }
 
@@ -182,39 +215,55 @@ impl Driver for PolicyDriver<'_> {
         let arrival = self
             .arrival_radius_m
             .map(|radius_m| Arrival::from_state_mm(&state_mm, radius_m));
-        let Some(guard) = &self.guard else {
-            return Ok(match arrival {
-                Some(arrival) => {
-                    arrival
-                        .choose(&mut self.decider, key, &outputs.action_logits)
-                        .action
-                }
-                None => self.decider.choose(key, &outputs.action_logits),
-            });
-        };
-        let cells = height_mm
-            .as_flattened()
-            .try_into()
-            .map_err(|_| DriverError("height map of the wrong size".to_owned()))?;
         let legs = LegConfig {
             clearance_m: state_mm[0] as f32 * 1.0e-3,
             track_m: state_mm[1] as f32 * 1.0e-3,
         };
-        let map = match &mut self.guard_map {
-            None => HeightMapRef::Millimetres(cells),
-            Some(guard_map) => guard_map
-                .observe(env)
-                .map_err(|e| DriverError(format!("guard map: {e}")))?,
+        let cells: &[i16; HEIGHT_MAP_CELLS] = height_mm
+            .as_flattened()
+            .try_into()
+            .map_err(|_| DriverError("height map of the wrong size".to_owned()))?;
+        let map = match (&self.guard, &mut self.guard_map) {
+            (None, _) => None,
+            (Some(_), None) => Some(HeightMapRef::Millimetres(cells)),
+            (Some(_), Some(guard_map)) => Some(
+                guard_map
+                    .observe(env)
+                    .map_err(|e| DriverError(format!("guard map: {e}")))?,
+            ),
         };
-        let checked = guard.choose(
-            &mut self.decider,
-            key,
-            &outputs.action_logits,
-            map,
-            legs,
-            arrival.as_ref(),
-        );
-        Ok(checked.action)
+        let logits = &outputs.action_logits;
+        let guard = self.guard;
+        let decide = |decider: &mut Decider| match (&guard, map) {
+            (Some(guard), Some(map)) => {
+                guard
+                    .choose(decider, key, logits, map, legs, arrival.as_ref())
+                    .action
+            }
+            _ => match &arrival {
+                Some(arrival) => arrival.choose(decider, key, logits).action,
+                None => decider.choose(key, logits),
+            },
+        };
+        let Some((lookahead, policy)) = &mut self.lookahead else {
+            return Ok(decide(&mut self.decider));
+        };
+        let found = candidates(&self.decider, lookahead.config().candidates, decide);
+        let first = found.first().copied().unwrap_or_default();
+        let arrives = arrival.as_ref().is_some_and(|a| a.reached_by(first));
+        let action = if found.len() < 2 || arrives {
+            first
+        } else {
+            lookahead.push(0, env, &self.decider, key, found);
+            let success_radius_m = env.config().success_radius_m;
+            lookahead
+                .weigh(&*policy, arrival.is_some(), success_radius_m)
+                .map_err(|e| DriverError(format!("{}: look-ahead: {e}", self.label)))?
+                .first()
+                .map_or(first, |w| w.action)
+        };
+        mark_taken(&mut self.decider, key, action);
+        Ok(action)
     }
 }
 
