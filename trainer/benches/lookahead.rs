@@ -1,0 +1,62 @@
+//! The look-ahead's cost: the shipped int8 policy driving the first held-out complex scenes to
+//! their end with the robot's stack (guard on the 1 cm map, arrival), without and with the
+//! look-ahead's rollouts on the robot's map. The figure is the ratio of the two, per episode.
+//!
+//! `cargo bench -p wheelleg-trainer --bench lookahead`. Figures: docs/results.md, "Rollouts on
+//! the robot's map".
+
+#![allow(missing_docs)] // criterion_group! generates an undocumented function.
+
+use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use std::path::Path;
+use std::time::Duration;
+use wheelleg_runtime::guard::DEFAULT_MARGIN_M;
+use wheelleg_runtime::robot::WHEELLEG;
+use wheelleg_sim::height_map::MapGrid;
+use wheelleg_trainer::evaluate::{run_episodes, EvalOptions};
+use wheelleg_trainer::lookahead::LookaheadConfig;
+use wheelleg_trainer::quantize::EvalPolicy;
+
+const EPISODES: usize = 16;
+
+fn episodes(c: &mut Criterion) {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let bytes = std::fs::read(root.join("weights/policy.wlw")).expect("weights/policy.wlw");
+    let policy = EvalPolicy::from_bytes(&bytes).expect("a weights file");
+    let scenarios = wheelleg_sim::scenario_file::load(
+        &root.join("eval/heldout-complex-s1000000.json"),
+        &WHEELLEG,
+    )
+    .expect("the held-out scenes");
+    let scenarios = &scenarios[..EPISODES];
+    let stack = EvalOptions {
+        planner_expansions: 0,
+        guard_margin_m: Some(DEFAULT_MARGIN_M),
+        guard_grid: Some(MapGrid::GUARD_FINE),
+        arrival: true,
+        ..EvalOptions::default()
+    };
+    let looking = EvalOptions {
+        lookahead: Some(LookaheadConfig::default()),
+        ..stack.clone()
+    };
+    let mut group = c.benchmark_group("episodes");
+    group.throughput(Throughput::Elements(EPISODES as u64));
+    group.sample_size(10);
+    group.measurement_time(Duration::from_secs(20));
+    for (name, options) in [("stack", &stack), ("stack+lookahead", &looking)] {
+        group.bench_function(name, |b| {
+            b.iter(|| {
+                let mut rng = ChaCha8Rng::seed_from_u64(0);
+                run_episodes(&policy, scenarios, options, &mut rng, &mut |_| {})
+                    .expect("episodes run")
+            })
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, episodes);
+criterion_main!(benches);
