@@ -72,8 +72,6 @@ pub struct Weighed {
     pub overridden: bool,
     /// Whether its rollout arrived within the horizon.
     pub arrives: bool,
-    /// Candidates weighed.
-    pub weighed: usize,
 }
 
 /// One decision waiting for its rollouts.
@@ -166,7 +164,6 @@ impl Lookahead {
                     action: p.candidates.get(best).copied().unwrap_or_default(),
                     overridden: best != 0,
                     arrives: costs.get(best).is_some_and(|&c| arrives(c, horizon)),
-                    weighed: costs.len(),
                 }
             })
             .collect())
@@ -195,7 +192,7 @@ impl Lookahead {
                 rollouts.push(Rollout { env, decider });
             }
         }
-        let (costs, _) = rollout_costs(
+        let costs = rollout_costs(
             policy,
             rollouts,
             self.config.horizon_steps,
@@ -251,7 +248,7 @@ pub fn arrives(cost: f32, horizon_steps: u32) -> bool {
 /// Runs `rollouts` in lock-step with `policy` under the robot's rule without a guard, with
 /// the arrival rule at `success_radius_m` when `arrival`, until each
 /// ends or has taken `horizon_steps` steps counting the candidate. Returns each one's
-/// [`rollout_cost`], and the steps stepped in all.
+/// [`rollout_cost`].
 ///
 /// A step the perceived scene refuses (it would collide there) is stepped, so the rule moves
 /// on to its next choice, but not counted: the robot runs the guard, which refuses such an
@@ -262,14 +259,13 @@ pub fn rollout_costs(
     horizon_steps: u32,
     arrival: bool,
     success_radius_m: f32,
-) -> Result<(Vec<f32>, u64), String> {
+) -> Result<Vec<f32>, String> {
     let start_steps: Vec<u32> = rollouts
         .iter()
         .map(|r| r.env.steps().saturating_sub(1))
         .collect();
     let taken = |r: &Rollout, start: u32| r.env.steps() - start;
     let mut obs = Observation::default();
-    let mut stepped = rollouts.len() as u64;
     let mut refused = vec![0u32; rollouts.len()];
     let mut nearest_m: Vec<f32> = rollouts
         .iter()
@@ -318,7 +314,6 @@ pub fn rollout_costs(
                 refused[i] += 1;
             }
             nearest_m[i] = nearest_m[i].min(rollout.env.distance_to_target_m());
-            stepped += 1;
         }
     }
     let costs = rollouts
@@ -335,7 +330,7 @@ pub fn rollout_costs(
             )
         })
         .collect();
-    Ok((costs, stepped))
+    Ok(costs)
 }
 
 /// The candidate to take: the first (the policy's preference) of those with the least cost.
