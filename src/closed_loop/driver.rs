@@ -16,7 +16,7 @@ use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, HEIGHT_MAP_SIDE, STATE_LEN
 use wheelleg_sim::env::{Env, GuardMap, Observation};
 use wheelleg_sim::height_map::MapGrid;
 use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig};
-use wheelleg_trainer::lookahead::{candidates, mark_taken, Lookahead, LookaheadConfig};
+use wheelleg_trainer::lookahead::{candidates, mark_taken, settled, Lookahead, LookaheadConfig};
 use wheelleg_trainer::quantize::EvalPolicy;
 
 /// A decision maker of the closed loop.
@@ -248,19 +248,19 @@ impl Driver for PolicyDriver<'_> {
         let Some((lookahead, policy)) = &mut self.lookahead else {
             return Ok(decide(&mut self.decider));
         };
-        let found = candidates(&self.decider, lookahead.config().candidates, decide);
-        let first = found.first().copied().unwrap_or_default();
-        let arrives = arrival.as_ref().is_some_and(|a| a.reached_by(first));
-        let action = if found.len() < 2 || arrives {
-            first
-        } else {
-            lookahead.push(0, env, &self.decider, key, found);
-            let success_radius_m = env.config().success_radius_m;
-            lookahead
-                .weigh(&*policy, arrival.is_some(), success_radius_m)
-                .map_err(|e| DriverError(format!("{}: look-ahead: {e}", self.label)))?
-                .first()
-                .map_or(first, |w| w.action)
+        let found = candidates(&self.decider, lookahead.candidates_wanted(), decide);
+        let action = match settled(&found, arrival.as_ref()) {
+            Some(first) => first,
+            None => {
+                let first = found.first().copied().unwrap_or_default();
+                lookahead.push(0, env, &self.decider, key, found);
+                let success_radius_m = env.config().success_radius_m;
+                lookahead
+                    .weigh(&*policy, arrival.is_some(), success_radius_m)
+                    .map_err(|e| DriverError(format!("{}: look-ahead: {e}", self.label)))?
+                    .first()
+                    .map_or(first, |w| w.action)
+            }
         };
         mark_taken(&mut self.decider, key, action);
         Ok(action)

@@ -8,7 +8,7 @@
 //! from the caller's seeded RNG.
 
 use crate::batch_policy::BatchPolicy;
-use crate::lookahead::{candidates, mark_taken, Lookahead, LookaheadConfig};
+use crate::lookahead::{candidates, mark_taken, settled, Lookahead, LookaheadConfig};
 use crate::network_f32::NetworkF32;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
@@ -398,19 +398,18 @@ pub fn run_episodes(
                     };
                     match &options.lookahead {
                         None => decide(&mut deciders[i]),
-                        Some(config) => {
-                            let wanted = config.candidates.max(config.stuck_candidates);
+                        Some(_) => {
+                            let wanted = lookahead.candidates_wanted();
                             let found = candidates(&deciders[i], wanted, decide);
-                            let arrives = found.first().is_some_and(|&first| {
-                                arrival.as_ref().is_some_and(|a| a.reached_by(first))
-                            });
-                            if found.len() < 2 || arrives {
-                                let first = found.first().copied().unwrap_or_default();
-                                mark_taken(&mut deciders[i], key, first);
-                                first
-                            } else {
-                                lookahead.push(k, &envs[i], &deciders[i], key, found);
-                                continue;
+                            match settled(&found, arrival.as_ref()) {
+                                Some(first) => {
+                                    mark_taken(&mut deciders[i], key, first);
+                                    first
+                                }
+                                None => {
+                                    lookahead.push(k, &envs[i], &deciders[i], key, found);
+                                    continue;
+                                }
                             }
                         }
                     }

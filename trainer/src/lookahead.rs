@@ -108,6 +108,12 @@ impl Lookahead {
         &self.config
     }
 
+    /// How many of the rule's candidates ([`candidates`]) a decision needs: enough for the
+    /// wider look where none of the first arrives.
+    pub fn candidates_wanted(&self) -> usize {
+        self.config.candidates.max(self.config.stuck_candidates)
+    }
+
     /// Queues a decision: `env` as it stands (the look-ahead sees it only through its
     /// robot's map), the robot's `decider` before deciding, the observation's `key`, and the
     /// rule's `candidates` in order ([`candidates`], at least `stuck_candidates` of them where
@@ -370,6 +376,14 @@ pub fn candidates(
     found
 }
 
+/// The rule's own action when there is nothing to weigh: fewer than two candidates, or the
+/// first (the rule's own) already reaches the target under `arrival`. `None`: weigh them.
+pub fn settled(found: &[Action], arrival: Option<&Arrival>) -> Option<Action> {
+    let first = found.first().copied().unwrap_or_default();
+    let arrives = arrival.is_some_and(|a| a.reached_by(first));
+    (found.len() < 2 || arrives).then_some(first)
+}
+
 /// Marks `action` taken at `key` in `decider`, as if its rule had chosen it.
 pub fn mark_taken(decider: &mut Decider, key: ObservationKey, action: Action) {
     if decider.was_taken(key, action) {
@@ -392,6 +406,20 @@ mod tests {
         assert!(arrived < near && near < far, "{arrived} {near} {far}");
         assert!(rollout_cost(Status::TooFar, 3, 40, f32::NAN).is_finite());
         assert!(arrives(arrived, 40) && !arrives(near, 40) && !arrives(far, 40));
+    }
+
+    #[test]
+    fn one_candidate_or_an_arriving_first_needs_no_weighing() {
+        let ahead = Action {
+            move_x: wheelleg_runtime::action::Step::Plus,
+            ..Action::IDLE
+        };
+        let near = Arrival::new(nalgebra::Vector2::new(0.05, 0.0), 0.05);
+        let far = Arrival::new(nalgebra::Vector2::new(0.5, 0.0), 0.05);
+        assert_eq!(settled(&[ahead], None), Some(ahead));
+        assert_eq!(settled(&[ahead, Action::IDLE], Some(&near)), Some(ahead));
+        assert_eq!(settled(&[ahead, Action::IDLE], Some(&far)), None);
+        assert_eq!(settled(&[ahead, Action::IDLE], None), None);
     }
 
     #[test]
