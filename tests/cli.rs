@@ -124,6 +124,19 @@ fn generate_plan_and_render_a_scenario_file() {
         assert!(with.0 >= without.0, "{looked}");
         assert!(!without.0 || with.1 <= without.1, "{looked}");
     }
+    // With the search for a shorter way: reported, no success lost, fewer steps in all.
+    let shorter = eval(&[
+        "--guard",
+        "--guard-map",
+        "fine",
+        "--arrival",
+        "--lookahead",
+        "--lookahead-search",
+    ]);
+    assert_eq!(shorter["lookahead"]["search_expansions"], 500, "{shorter}");
+    assert!(shorter["success_rate"].as_f64() >= looked["success_rate"].as_f64());
+    let total = |report: &serde_json::Value| -> u64 { steps(report).iter().map(|s| s.1).sum() };
+    assert!(total(&shorter) < total(&looked), "{shorter}\n{looked}");
     let bad = wheelleg(&[
         "eval",
         "--policy",

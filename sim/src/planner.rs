@@ -163,6 +163,17 @@ pub fn plan_with_fallback(env: &Env, config: &PlannerConfig) -> FallbackPlan {
 /// If the plan found does not replay to success in a copy of `env` (a bug in this module), or
 /// if the robot's reachable leg lattice is larger than 16 clearance by 32 track steps.
 pub fn plan(env: &Env, config: &PlannerConfig) -> Plan {
+    plan_within(env, config, u32::MAX)
+}
+
+/// [`plan`] for a plan of at most `max_steps` steps: [`PlanOutcome::Unsolvable`] then says
+/// that none is that short. A tight limit prunes every node whose most optimistic way is
+/// longer, so proving that a known way is shortest is quick where the heuristic is close.
+///
+/// # Panics
+///
+/// As [`plan`].
+pub fn plan_within(env: &Env, config: &PlannerConfig, max_steps: u32) -> Plan {
     match env.status() {
         Status::Success => {
             return Plan {
@@ -181,7 +192,7 @@ pub fn plan(env: &Env, config: &PlannerConfig) -> Plan {
         }
         Status::Running => {}
     }
-    let mut search = Search::new(env, config);
+    let mut search = Search::new(env, config, max_steps);
     let plan = search.run();
     if let PlanOutcome::Solved { actions, .. } = &plan.outcome {
         if let Err(why) = replay(env, actions) {
@@ -1290,7 +1301,7 @@ struct Search<'a> {
 }
 
 impl<'a> Search<'a> {
-    fn new(env: &'a Env, config: &'a PlannerConfig) -> Self {
+    fn new(env: &'a Env, config: &'a PlannerConfig, max_steps: u32) -> Self {
         let start = *env.state();
         let lattice = LegLattice::new(env.geometry());
         let heuristic = Heuristic {
@@ -1328,7 +1339,11 @@ impl<'a> Search<'a> {
             // The episode gives up beyond its start distance plus the margin; the planner starts
             // from the current state, which is the start for every caller that plans a scene.
             give_up_m: (env.target() - start.position).norm() + env.config().give_up_margin_m,
-            max_steps: env.config().max_steps.saturating_sub(env.steps()),
+            max_steps: env
+                .config()
+                .max_steps
+                .saturating_sub(env.steps())
+                .min(max_steps),
             lattice,
             nodes: Vec::new(),
             seen: FastMap::default(),
@@ -1747,7 +1762,7 @@ mod tests {
                         heuristic_weight: weight,
                         ..PlannerConfig::default()
                     };
-                    let mut search = Search::new(&env, &config);
+                    let mut search = Search::new(&env, &config, u32::MAX);
                     search.cross_check = true;
                     search.run();
                     checked += search.cross_checked;

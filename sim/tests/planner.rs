@@ -10,7 +10,7 @@ use wheelleg_runtime::action::{Action, Step, COUNT};
 use wheelleg_sim::env::{Env, EnvConfig};
 use wheelleg_sim::generate::{generate_many, Behaviour, SceneKind};
 use wheelleg_sim::obstacle::{Obstacle, ObstacleKind, ObstacleYaw};
-use wheelleg_sim::planner::{plan, plan_with_fallback, PlanOutcome, PlannerConfig};
+use wheelleg_sim::planner::{plan, plan_with_fallback, plan_within, PlanOutcome, PlannerConfig};
 use wheelleg_sim::scenario::Scenario;
 use wheelleg_sim::state::RobotState;
 
@@ -140,9 +140,9 @@ fn target_straight_ahead_at_minus_45_degrees_is_seven_diagonal_steps() {
     assert_eq!(shortest(&env, &PlannerConfig::default()), 7);
 }
 
-#[test]
-fn detour_around_a_block_matches_brute_force() {
-    // A block right on the line; yaw and legs frozen so that the reference search stays small.
+/// A block right on the line to the target, and a planner with yaw and legs frozen so that
+/// the reference search stays small.
+fn detour_scene() -> (Env, PlannerConfig) {
     let env = Env::new(
         &scene(
             (-0.125, 0.125),
@@ -155,12 +155,41 @@ fn detour_around_a_block_matches_brute_force() {
     .unwrap();
     let moves_only = PlannerConfig::default()
         .restricted(|a| a.yaw == Step::Zero && a.clearance == Step::Zero && a.track == Step::Zero);
+    (env, moves_only)
+}
+
+#[test]
+fn detour_around_a_block_matches_brute_force() {
+    let (env, moves_only) = detour_scene();
     let expected = brute_force(&env, &moves_only, 40).expect("the detour exists");
     assert!(
         expected > 16,
         "the block must force a detour, got {expected}"
     );
     assert_eq!(shortest(&env, &moves_only), expected);
+}
+
+#[test]
+fn a_step_limit_below_the_shortest_way_proves_none_that_short() {
+    let (env, config) = detour_scene();
+    let steps = shortest(&env, &config);
+    let at = plan_within(&env, &config, steps as u32);
+    match at.outcome {
+        PlanOutcome::Solved { actions, shortest } => {
+            assert_eq!(actions.len(), steps);
+            assert!(shortest);
+        }
+        other => panic!("a way of {steps} steps exists: {other:?}"),
+    }
+    let below = plan_within(&env, &config, steps as u32 - 1);
+    assert_eq!(below.outcome, PlanOutcome::Unsolvable);
+    // The limit prunes: proving that nothing is shorter costs less than finding the way.
+    assert!(
+        below.expansions < plan(&env, &config).expansions,
+        "{} against {}",
+        below.expansions,
+        plan(&env, &config).expansions
+    );
 }
 
 /// Two blocks leave a 0.30 m gap centred on y = 0.125, narrower than the default pose.

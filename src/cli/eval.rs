@@ -95,6 +95,13 @@ pub struct Args {
     #[arg(long, value_name = "CANDIDATES", default_value = "8", requires = "lookahead",
           value_parser = clap::value_parser!(u16).range(1..=243))]
     lookahead_stuck: u16,
+    /// Where the best rollout arrives, also search the robot's map for a shorter way (the
+    /// planner's exact search within EXPANSIONS, default 500, limited to fewer steps than the
+    /// rollout) and take it where the guard allows its first step; the way taken is then kept
+    /// and followed while it still holds (docs/results.md, "A search for a shorter way").
+    #[arg(long, value_name = "EXPANSIONS", num_args = 0..=1, default_missing_value = "500",
+          requires = "lookahead", value_parser = clap::value_parser!(u32).range(1..))]
+    lookahead_search: Option<u32>,
 }
 
 /// Runs `eval`.
@@ -145,6 +152,7 @@ pub fn run(args: Args) -> CliResult {
             candidates: usize::from(candidates),
             horizon_steps: args.lookahead_horizon,
             stuck_candidates: usize::from(args.lookahead_stuck),
+            search_expansions: args.lookahead_search.map_or(0, |e| e as usize),
             ..LookaheadConfig::default()
         }),
         ..EvalOptions::default()

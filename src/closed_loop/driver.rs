@@ -253,7 +253,11 @@ impl Driver for PolicyDriver<'_> {
             Some(first) => first,
             None => {
                 let first = found.first().copied().unwrap_or_default();
-                lookahead.push(0, env, &self.decider, key, found);
+                let allows = |action| match (&guard, map) {
+                    (Some(guard), Some(map)) => guard.check(map, legs, action).is_ok(),
+                    _ => true,
+                };
+                lookahead.push(0, env, &self.decider, key, found, &allows);
                 let success_radius_m = env.config().success_radius_m;
                 lookahead
                     .weigh(&*policy, arrival.is_some(), success_radius_m)

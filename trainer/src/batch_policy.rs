@@ -94,3 +94,28 @@ impl BatchPolicy for EvalPolicy<'_> {
         "int8"
     }
 }
+
+/// Wants to drive forward above all, then sideways to the left; keeps everything else. A
+/// policy whose every choice a test can name.
+#[cfg(test)]
+pub(crate) struct Fixated;
+
+#[cfg(test)]
+impl BatchPolicy for Fixated {
+    fn log_probs(&self, _: &[f32], _: &[f32], n: usize) -> Result<PolicyOutput, String> {
+        let mut one = Vec::new();
+        one.extend([-9.0, -6.0, -0.01f32]); // move x: forward
+        one.extend([-9.0, -0.1, -3.0]); // move y: keep, else left
+        for _ in 2..DIMS {
+            one.extend([-9.0, -0.01, -9.0]); // keep
+        }
+        Ok(PolicyOutput {
+            log_probs: one.repeat(n),
+            values: vec![],
+        })
+    }
+
+    fn kind(&self) -> &'static str {
+        "fixed"
+    }
+}

@@ -157,6 +157,8 @@ pub struct LookaheadReport {
     pub stuck_candidates: usize,
     /// Steps a rollout may take.
     pub horizon_steps: u32,
+    /// Expansions of the search for a shorter way (0: no search).
+    pub search_expansions: usize,
     /// Decisions at which candidates were weighed.
     pub decisions: u64,
     /// Of them, those where another action than the rule's own was taken.
@@ -407,7 +409,13 @@ pub fn run_episodes(
                                     first
                                 }
                                 None => {
-                                    lookahead.push(k, &envs[i], &deciders[i], key, found);
+                                    let allows = |action| match (&guard, map) {
+                                        (Some(guard), Some(map)) => {
+                                            guard.check(map, legs, action).is_ok()
+                                        }
+                                        _ => true,
+                                    };
+                                    lookahead.push(i, &envs[i], &deciders[i], key, found, &allows);
                                     continue;
                                 }
                             }
@@ -420,8 +428,11 @@ pub fn run_episodes(
         for weighed in
             lookahead.weigh(policy, options.arrival, options.env_config.success_radius_m)?
         {
-            let k = weighed.slot;
-            let i = running[k];
+            // Slots are episodes, so that a way kept for one is offered to it again.
+            let i = weighed.slot;
+            let k = running
+                .binary_search(&i)
+                .map_err(|_| "the look-ahead weighed an episode not running")?;
             // No candidate arrives within the horizon: the policy is lost here, so the search
             // (when on) runs now rather than when it is next due.
             if !weighed.arrives {
@@ -594,6 +605,7 @@ pub fn evaluate(
         }),
         lookahead: options.lookahead.map(|config| LookaheadReport {
             candidates: config.candidates,
+            search_expansions: config.search_expansions,
             stuck_candidates: config.stuck_candidates,
             horizon_steps: config.horizon_steps,
             decisions: results
@@ -630,34 +642,12 @@ pub fn load_policy(path: &std::path::Path) -> Result<NetworkF32, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ppo::PolicyOutput;
+    use crate::batch_policy::Fixated;
     use nalgebra::Point2;
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
     use wheelleg_sim::obstacle::{Obstacle, ObstacleKind, ObstacleYaw};
     use wheelleg_sim::state::RobotState;
-
-    /// Wants to drive forward above all, then sideways to the left; keeps everything else.
-    struct Fixated;
-
-    impl BatchPolicy for Fixated {
-        fn log_probs(&self, _: &[f32], _: &[f32], n: usize) -> Result<PolicyOutput, String> {
-            let mut one = Vec::new();
-            one.extend([-9.0, -6.0, -0.01f32]); // move x: forward
-            one.extend([-9.0, -0.1, -3.0]); // move y: keep, else left
-            for _ in 2..DIMS {
-                one.extend([-9.0, -0.01, -9.0]); // keep
-            }
-            Ok(PolicyOutput {
-                log_probs: one.repeat(n),
-                values: vec![],
-            })
-        }
-
-        fn kind(&self) -> &'static str {
-            "fixed"
-        }
-    }
 
     /// [`Fixated`] on `scenario` alone, without the planner.
     fn fixated_on(scenario: &Scenario, options: EvalOptions) -> Result<EvalReport, String> {
@@ -799,5 +789,40 @@ mod tests {
         assert_eq!(looked.scenarios[0].steps, alone.scenarios[0].steps);
         assert!(looked.scenarios[0].lookahead.decisions > 0);
         assert_eq!(looked.scenarios[0].lookahead.overrides, 0);
+    }
+
+    #[test]
+    fn the_search_finds_the_shortest_way_where_every_rollout_is_longer() {
+        // Far ahead on open ground: the policy drives straight, one 5 cm step at a time; the
+        // shortest way turns so that the longer diagonal steps carry it.
+        let ahead = Scenario {
+            name: "far-ahead".into(),
+            start: RobotState::new(Point2::new(0.0, 0.125), 0),
+            target: Point2::new(0.9, 0.125),
+            obstacles: vec![],
+        };
+        let searching = |search_expansions| EvalOptions {
+            lookahead: Some(LookaheadConfig {
+                candidates: 4,
+                stuck_candidates: 4,
+                search_expansions,
+                ..LookaheadConfig::default()
+            }),
+            ..EvalOptions::default()
+        };
+        let run = |options| fixated_on(&ahead, options).unwrap().scenarios.remove(0);
+        let rollouts = run(searching(0));
+        let searched = run(searching(2_000));
+        assert_eq!(rollouts.status, "Success", "{rollouts:?}");
+        assert_eq!(searched.status, "Success", "{searched:?}");
+        let env = Env::new(&ahead, EnvConfig::default()).unwrap();
+        let PlanOutcome::Solved { actions, .. } = plan(&env, &PlannerConfig::default()).outcome
+        else {
+            panic!("open ground is solvable");
+        };
+        let shortest = actions.len();
+        assert!(rollouts.steps > shortest as u32, "{rollouts:?}");
+        assert_eq!(searched.steps, shortest as u32, "{searched:?}");
+        assert!(searched.lookahead.overrides > 0);
     }
 }

@@ -17,15 +17,34 @@
 //! action taken.
 //!
 //! Rollouts of all episodes and candidates run in lock-step, one batched policy call per step.
+//!
+//! A search for a shorter way (optional, [`LookaheadConfig::search_expansions`]): where the
+//! best rollout arrives in `n` steps, the planner's exact search runs in the same perceived
+//! scene for a way of at most `n - 1` steps, within a small budget of expansions, and its way
+//! is taken where the robot's guard allows its first step. The policy's ways are about a tenth
+//! longer than the shortest even on open ground, because the shortest way turns the robot so
+//! that its longest step (a diagonal move, 0.071 m) carries it, and the policy mostly drives
+//! along its axes; no rollout of the policy finds that, and an exact search does so in a few
+//! hundred expansions where the way is open. Where the way is hard (clutter, a bar or slab at
+//! the target) the budget runs out and the rollouts decide, as without the search.
+//!
+//! With the search on, the way taken (searched or rolled out) is kept, and at the next
+//! decision it is replayed in the newly perceived scene: where it still arrives with every
+//! step clear and its next step allowed by the guard, it is followed unless a rollout now
+//! arrives strictly sooner (the fortified rollout algorithm), and no search is run. That
+//! keeps the cost of the search to the decisions where the way changed, and keeps the robot
+//! from switching between ways of equal length as its map shifts.
 
 use crate::batch_policy::BatchPolicy;
 use wheelleg_runtime::action::{Action, CHOICES, DIMS, MOVE_STEP_M};
 use wheelleg_runtime::arrival::Arrival;
 use wheelleg_runtime::decision::{Decider, ObservationKey};
-use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
+use wheelleg_runtime::observation::STATE_LEN;
 use wheelleg_sim::env::{Env, Observation, Status};
 use wheelleg_sim::height_map::MapGrid;
 use wheelleg_sim::local_plan::{PerceivedScene, LOCAL_MAP};
+use wheelleg_sim::planner::{plan_within, PlanOutcome, PlannerConfig};
+use wheelleg_sim::state::RobotState;
 
 /// Settings of the look-ahead.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -37,6 +56,10 @@ pub struct LookaheadConfig {
     pub stuck_candidates: usize,
     /// Steps a rollout may take (the candidate included) before it counts as not arriving.
     pub horizon_steps: u32,
+    /// Expansions of the exact search for a way shorter than the best rollout's (0: no
+    /// search; see [`Lookahead::weigh`]). With the search on, the way taken is kept and
+    /// followed while it still holds.
+    pub search_expansions: usize,
     /// The map the perceived scene is made of.
     pub grid: MapGrid,
     /// Growth of every perceived box on each side.
@@ -55,6 +78,7 @@ impl Default for LookaheadConfig {
             candidates: 8,
             stuck_candidates: 8,
             horizon_steps: 40,
+            search_expansions: 0,
             grid: LOCAL_MAP,
             margin_m: 0.0,
         }
@@ -82,6 +106,26 @@ struct Pending {
     seen: Env,
     decider: Decider,
     key: ObservationKey,
+    incumbent: Option<KeptPlan>,
+    /// The actions the robot's guard allows now, where the search is on.
+    allowed: Vec<Action>,
+}
+
+/// The way the last decision of an episode expected to arrive by: the actions after the one
+/// taken, and the robot's state that action was to lead to.
+#[derive(Clone, Debug)]
+struct KeptPlan {
+    expected: RobotState,
+    actions: Vec<Action>,
+}
+
+/// What one candidate's best rollout found: its cost and the actions it took that the
+/// perceived scene did not refuse, the candidate first.
+#[derive(Clone, Debug)]
+struct Found {
+    cost: f32,
+    actions: Vec<Action>,
+    after_first: RobotState,
 }
 
 /// The look-ahead over a batch of episodes: decisions are pushed one by one, then weighed
@@ -91,6 +135,8 @@ pub struct Lookahead {
     config: LookaheadConfig,
     perceived: PerceivedScene,
     pending: Vec<Pending>,
+    /// By slot, the way the last decision expected to arrive by (see `keep_plans`).
+    plans: Vec<Option<KeptPlan>>,
 }
 
 impl Lookahead {
@@ -100,6 +146,7 @@ impl Lookahead {
             config,
             perceived: PerceivedScene::new(config.grid, config.margin_m),
             pending: Vec::new(),
+            plans: Vec::new(),
         }
     }
 
@@ -114,10 +161,13 @@ impl Lookahead {
         self.config.candidates.max(self.config.stuck_candidates)
     }
 
-    /// Queues a decision: `env` as it stands (the look-ahead sees it only through its
-    /// robot's map), the robot's `decider` before deciding, the observation's `key`, and the
-    /// rule's `candidates` in order ([`candidates`], at least `stuck_candidates` of them where
-    /// the rule has that many).
+    /// Queues a decision of episode `slot` (a number that stays with the episode, so that the
+    /// way kept for it is offered again): `env` as it stands (the look-ahead sees it only
+    /// through its robot's map), the robot's `decider` before deciding, the observation's
+    /// `key`, the rule's `candidates` in order ([`candidates`], at least `stuck_candidates` of
+    /// them where the rule has that many), and whether the robot's guard `allows` an action
+    /// now (asked only with the search on: a searched or kept way's next step must pass it,
+    /// and must not have been taken at `key` already).
     pub fn push(
         &mut self,
         slot: usize,
@@ -125,20 +175,44 @@ impl Lookahead {
         decider: &Decider,
         key: ObservationKey,
         candidates: Vec<Action>,
+        allows: &dyn Fn(Action) -> bool,
     ) {
         let (seen, _) = self.perceived.of(env);
+        // A searched or kept way's step is taken only as the rule would take it: passed by
+        // the guard, and not already tried at this observation (a step the world refused
+        // leaves the robot where it was, and the same search would offer it again forever).
+        let allowed = if self.config.search_expansions > 0 {
+            (0..wheelleg_runtime::action::COUNT)
+                .filter_map(Action::from_index)
+                .filter(|&a| allows(a) && !decider.was_taken(key, a))
+                .collect()
+        } else {
+            Vec::new()
+        };
+        // The way kept from the last decision holds only where the robot stands where it was
+        // to lead (the action taken was the one weighed, and the world moved it as the map
+        // said it would).
+        let incumbent = self
+            .plans
+            .get_mut(slot)
+            .and_then(Option::take)
+            .filter(|plan| plan.expected == *env.state());
         self.pending.push(Pending {
             slot,
             candidates,
             seen,
             decider: decider.clone(),
             key,
+            incumbent,
+            allowed,
         });
     }
 
     /// Weighs every queued decision by rollouts of `policy` (see [`rollout_costs`]): the
     /// first `candidates` of each, then the rest up to `stuck_candidates` of those where none
-    /// arrived. Returns the choices in the order pushed and empties the queue.
+    /// arrived (nor a kept way). With the search on, a shorter searched way or the kept way
+    /// may stand instead (see the module's notes). Returns the choices in the order pushed
+    /// and empties the queue.
     pub fn weigh(
         &mut self,
         policy: &dyn BatchPolicy,
@@ -148,34 +222,96 @@ impl Lookahead {
         let pending = std::mem::take(&mut self.pending);
         let horizon = self.config.horizon_steps;
         let first = self.config.candidates.max(1);
-        let mut costs = self.costs_of(policy, &pending, 0..first, arrival, success_radius_m)?;
+        let incumbents: Vec<Option<Found>> = pending.iter().map(replay_incumbent).collect();
+        let mut found = self.costs_of(policy, &pending, 0..first, arrival, success_radius_m)?;
         let lost: Vec<usize> = (0..pending.len())
-            .filter(|&p| !costs[p].iter().any(|&c| arrives(c, horizon)))
+            .filter(|&p| {
+                incumbents[p].is_none() && !found[p].iter().any(|f| arrives(f.cost, horizon))
+            })
             .collect();
         let wider = first..self.config.stuck_candidates.max(first);
         if !lost.is_empty() && !wider.is_empty() {
             let lost_pending: Vec<Pending> = lost.iter().map(|&p| pending[p].clone()).collect();
             let more = self.costs_of(policy, &lost_pending, wider, arrival, success_radius_m)?;
             for (&p, more) in lost.iter().zip(more) {
-                costs[p].extend(more);
+                found[p].extend(more);
             }
         }
-        Ok(pending
-            .iter()
-            .zip(&costs)
-            .map(|(p, costs)| {
-                let best = best_candidate(costs).unwrap_or(0);
-                Weighed {
-                    slot: p.slot,
-                    action: p.candidates.get(best).copied().unwrap_or_default(),
-                    overridden: best != 0,
-                    arrives: costs.get(best).is_some_and(|&c| arrives(c, horizon)),
+        let mut weighed = Vec::with_capacity(pending.len());
+        for ((p, found), incumbent) in pending.iter().zip(found).zip(incumbents) {
+            let costs: Vec<f32> = found.iter().map(|f| f.cost).collect();
+            let best = best_candidate(&costs).unwrap_or(0);
+            let mut chosen = found.into_iter().nth(best);
+            // A kept way that still holds was the shortest the search found, or no longer
+            // than any rollout since: searching again would mostly repeat it.
+            let searching = incumbent.is_none();
+            if let Some(best) = chosen
+                .as_ref()
+                .filter(|c| searching && arrives(c.cost, horizon))
+            {
+                if let Some(searched) = self.shorter_way(p, best.cost as u32) {
+                    chosen = Some(searched);
                 }
-            })
-            .collect())
+            }
+            // The kept way stands unless a rollout now arrives strictly sooner.
+            if let Some(incumbent) = incumbent {
+                if chosen.as_ref().is_none_or(|c| incumbent.cost <= c.cost) {
+                    chosen = Some(incumbent);
+                }
+            }
+            let action = chosen
+                .as_ref()
+                .and_then(|c| c.actions.first().copied())
+                .unwrap_or_else(|| p.candidates.first().copied().unwrap_or_default());
+            let arrived = chosen.as_ref().is_some_and(|c| arrives(c.cost, horizon));
+            if self.config.search_expansions > 0 {
+                if self.plans.len() <= p.slot {
+                    self.plans.resize(p.slot + 1, None);
+                }
+                self.plans[p.slot] = chosen.filter(|_| arrived).map(|c| KeptPlan {
+                    expected: c.after_first,
+                    actions: c.actions.get(1..).unwrap_or_default().to_vec(),
+                });
+            }
+            weighed.push(Weighed {
+                slot: p.slot,
+                action,
+                overridden: Some(&action) != p.candidates.first(),
+                arrives: arrived,
+            });
+        }
+        Ok(weighed)
     }
 
-    /// Rollout costs of candidates `range` (those there are) of each decision.
+    /// A way strictly shorter than `steps` in the perceived scene, by an exact search within
+    /// the configured expansions, whose first action the robot's guard allows.
+    fn shorter_way(&self, p: &Pending, steps: u32) -> Option<Found> {
+        if self.config.search_expansions == 0 || steps < 2 {
+            return None;
+        }
+        let config = PlannerConfig {
+            max_expansions: self.config.search_expansions,
+            ..PlannerConfig::default()
+        };
+        let PlanOutcome::Solved { actions, .. } = plan_within(&p.seen, &config, steps - 1).outcome
+        else {
+            return None;
+        };
+        let first = *actions.first()?;
+        if !p.allowed.contains(&first) {
+            return None;
+        }
+        let mut env = p.seen.clone();
+        env.step(first).ok()?;
+        Some(Found {
+            cost: actions.len() as f32,
+            actions,
+            after_first: *env.state(),
+        })
+    }
+
+    /// What the best rollout of each of candidates `range` (those there are) of each decision
+    /// found.
     fn costs_of(
         &self,
         policy: &dyn BatchPolicy,
@@ -183,37 +319,98 @@ impl Lookahead {
         range: std::ops::Range<usize>,
         arrival: bool,
         success_radius_m: f32,
-    ) -> Result<Vec<Vec<f32>>, String> {
+    ) -> Result<Vec<Vec<Found>>, String> {
         let mut rollouts = Vec::new();
         let mut counts = Vec::with_capacity(pending.len());
         for p in pending {
             let these = p.candidates.get(range.clone()).unwrap_or_default();
             counts.push(these.len());
             for &candidate in these {
-                let mut env = p.seen.clone();
-                env.step(candidate)
-                    .map_err(|_| "stepped a finished episode".to_string())?;
-                let mut decider = p.decider.clone();
-                mark_taken(&mut decider, p.key, candidate);
-                rollouts.push(Rollout { env, decider });
+                let mut rollout = Rollout::new(p.seen.clone(), p.decider.clone());
+                rollout.take_candidate(p.key, candidate)?;
+                rollouts.push(rollout);
             }
         }
+        let after_first: Vec<RobotState> = rollouts.iter().map(|r| *r.env.state()).collect();
         let costs = rollout_costs(
             policy,
-            rollouts,
+            &mut rollouts,
             self.config.horizon_steps,
             arrival,
             success_radius_m,
         )?;
-        let mut rest = costs.as_slice();
+        let mut found = rollouts.into_iter().zip(costs).zip(after_first).map(
+            |((rollout, cost), after_first)| Found {
+                cost,
+                actions: rollout.actions,
+                after_first,
+            },
+        );
         Ok(counts
             .into_iter()
-            .map(|n| {
-                let (these, after) = rest.split_at(n.min(rest.len()));
-                rest = after;
-                these.to_vec()
-            })
+            .map(|n| found.by_ref().take(n).collect())
             .collect())
+    }
+}
+
+/// The policy's inputs for a batch of episodes, with each observation's key.
+struct PolicyInputs {
+    heights: Vec<f32>,
+    states: Vec<f32>,
+    keys: Vec<ObservationKey>,
+}
+
+impl PolicyInputs {
+    fn of<'a>(envs: impl Iterator<Item = &'a Env>) -> PolicyInputs {
+        let mut obs = Observation::default();
+        let mut inputs = PolicyInputs {
+            heights: Vec::new(),
+            states: Vec::new(),
+            keys: Vec::new(),
+        };
+        for env in envs {
+            env.observe(&mut obs);
+            inputs
+                .keys
+                .push(ObservationKey::of_metres(&obs.height_map, &obs.state));
+            inputs.heights.extend_from_slice(&obs.height_map);
+            inputs.states.extend_from_slice(&obs.state);
+        }
+        inputs
+    }
+
+    fn state(&self, k: usize) -> &[f32] {
+        &self.states[k * STATE_LEN..(k + 1) * STATE_LEN]
+    }
+
+    fn logits<'a>(
+        &self,
+        log_probs: &'a [f32],
+        k: usize,
+    ) -> Result<&'a [f32; DIMS * CHOICES], String> {
+        log_probs
+            .get(k * DIMS * CHOICES..(k + 1) * DIMS * CHOICES)
+            .and_then(|l| l.try_into().ok())
+            .ok_or_else(|| "the policy returned too few log-probabilities".to_string())
+    }
+}
+
+/// The robot's rule without its guard: the decider's choice, or the arrival rule's where
+/// `arrival` is on.
+fn rule_action(
+    decider: &mut Decider,
+    key: ObservationKey,
+    logits: &[f32; DIMS * CHOICES],
+    state: &[f32],
+    arrival: bool,
+    success_radius_m: f32,
+) -> Action {
+    if arrival {
+        Arrival::from_state_m(state, success_radius_m)
+            .choose(decider, key, logits)
+            .action
+    } else {
+        decider.choose(key, logits)
     }
 }
 
@@ -225,6 +422,38 @@ pub struct Rollout {
     pub env: Env,
     /// The decision rule's memory, as the robot's would be after the candidate.
     pub decider: Decider,
+    /// The episode's step count at the decision weighed.
+    pub decision_step: u32,
+    /// Steps since the decision that the perceived scene refused (not counted).
+    pub refused_steps: u32,
+    /// The actions taken since the decision that the perceived scene did not refuse (the
+    /// candidate always).
+    pub actions: Vec<Action>,
+}
+
+impl Rollout {
+    /// A rollout of `env` from the decision at hand, with the rule's memory `decider`.
+    pub fn new(env: Env, decider: Decider) -> Rollout {
+        Rollout {
+            decision_step: env.steps(),
+            env,
+            decider,
+            refused_steps: 0,
+            actions: Vec::new(),
+        }
+    }
+
+    /// Takes the candidate `action` at the observation `key`: stepped and marked taken as if
+    /// the rule had chosen it. Counted even where the perceived scene refuses it: the guard
+    /// passed it, so the robot takes it.
+    fn take_candidate(&mut self, key: ObservationKey, action: Action) -> Result<(), String> {
+        self.env
+            .step(action)
+            .map_err(|_| "stepped a finished episode".to_string())?;
+        self.actions.push(action);
+        mark_taken(&mut self.decider, key, action);
+        Ok(())
+    }
 }
 
 /// The cost of a rollout that ended (or was cut at the horizon) after `steps` steps that the
@@ -261,82 +490,92 @@ pub fn arrives(cost: f32, horizon_steps: u32) -> bool {
 /// action before it is sent and takes the next choice in the same decision.
 pub fn rollout_costs(
     policy: &dyn BatchPolicy,
-    mut rollouts: Vec<Rollout>,
+    rollouts: &mut [Rollout],
     horizon_steps: u32,
     arrival: bool,
     success_radius_m: f32,
 ) -> Result<Vec<f32>, String> {
-    let start_steps: Vec<u32> = rollouts
-        .iter()
-        .map(|r| r.env.steps().saturating_sub(1))
-        .collect();
-    let taken = |r: &Rollout, start: u32| r.env.steps() - start;
-    let mut obs = Observation::default();
-    let mut refused = vec![0u32; rollouts.len()];
+    let taken = |r: &Rollout| r.env.steps() - r.decision_step;
     let mut nearest_m: Vec<f32> = rollouts
         .iter()
         .map(|r| r.env.distance_to_target_m())
         .collect();
     loop {
         let running: Vec<usize> = (0..rollouts.len())
-            .filter(|&i| {
-                !rollouts[i].env.status().is_done()
-                    && taken(&rollouts[i], start_steps[i]) < horizon_steps
-            })
+            .filter(|&i| !rollouts[i].env.status().is_done() && taken(&rollouts[i]) < horizon_steps)
             .collect();
         if running.is_empty() {
             break;
         }
-        let mut heights = Vec::with_capacity(running.len() * HEIGHT_MAP_CELLS);
-        let mut states = Vec::with_capacity(running.len() * STATE_LEN);
-        let mut keys = Vec::with_capacity(running.len());
-        for &i in &running {
-            rollouts[i].env.observe(&mut obs);
-            keys.push(ObservationKey::of_metres(&obs.height_map, &obs.state));
-            heights.extend_from_slice(&obs.height_map);
-            states.extend_from_slice(&obs.state);
-        }
-        let out = policy.log_probs(&heights, &states, running.len())?;
+        let inputs = PolicyInputs::of(running.iter().map(|&i| &rollouts[i].env));
+        let out = policy.log_probs(&inputs.heights, &inputs.states, running.len())?;
         for (k, &i) in running.iter().enumerate() {
-            let logits: &[f32; DIMS * CHOICES] = out
-                .log_probs
-                .get(k * DIMS * CHOICES..(k + 1) * DIMS * CHOICES)
-                .and_then(|l| l.try_into().ok())
-                .ok_or("the policy returned too few log-probabilities")?;
+            let logits = inputs.logits(&out.log_probs, k)?;
             let rollout = &mut rollouts[i];
-            let action = if arrival {
-                let state = &states[k * STATE_LEN..(k + 1) * STATE_LEN];
-                Arrival::from_state_m(state, success_radius_m)
-                    .choose(&mut rollout.decider, keys[k], logits)
-                    .action
-            } else {
-                rollout.decider.choose(keys[k], logits)
-            };
+            let action = rule_action(
+                &mut rollout.decider,
+                inputs.keys[k],
+                logits,
+                inputs.state(k),
+                arrival,
+                success_radius_m,
+            );
             let outcome = rollout
                 .env
                 .step(action)
                 .map_err(|_| "stepped a finished rollout".to_string())?;
             if outcome.invalid.is_some() {
-                refused[i] += 1;
+                rollout.refused_steps += 1;
+            } else {
+                rollout.actions.push(action);
             }
             nearest_m[i] = nearest_m[i].min(rollout.env.distance_to_target_m());
         }
     }
     let costs = rollouts
         .iter()
-        .zip(&start_steps)
-        .zip(&refused)
         .zip(&nearest_m)
-        .map(|(((r, &start), &refused), &nearest_m)| {
+        .map(|(r, &nearest_m)| {
             rollout_cost(
                 r.env.status(),
-                taken(r, start) - refused,
+                taken(r) - r.refused_steps,
                 horizon_steps,
                 nearest_m,
             )
         })
         .collect();
     Ok(costs)
+}
+
+/// The kept way of decision `p`, replayed in the scene as now perceived: its cost and
+/// actions where the robot's guard still allows its first action and it still arrives with
+/// no step refused; `None` otherwise.
+fn replay_incumbent(p: &Pending) -> Option<Found> {
+    let plan = p.incumbent.as_ref()?;
+    let first = *plan.actions.first()?;
+    if !p.allowed.contains(&first) {
+        return None;
+    }
+    let mut env = p.seen.clone();
+    let mut after_first = None;
+    for (taken, &action) in plan.actions.iter().enumerate() {
+        let outcome = env.step(action).ok()?;
+        if outcome.invalid.is_some() {
+            return None;
+        }
+        after_first.get_or_insert(*env.state());
+        if env.status() == Status::Success {
+            return Some(Found {
+                cost: (taken + 1) as f32,
+                actions: plan.actions[..=taken].to_vec(),
+                after_first: after_first?,
+            });
+        }
+        if env.status().is_done() {
+            return None;
+        }
+    }
+    None
 }
 
 /// The candidate to take: the first (the policy's preference) of those with the least cost.
