@@ -98,6 +98,12 @@ pub struct Args {
     #[arg(long, value_name = "CANDIDATES", num_args = 0..=1, default_missing_value = "8",
           value_parser = clap::value_parser!(u16).range(2..=243))]
     lookahead: Option<u16>,
+    /// With the look-ahead, also search the robot's map for a way shorter than the best
+    /// rollout's (the planner's exact search within EXPANSIONS, default 500) and keep the way
+    /// taken while it holds (docs/results.md, "A search for a shorter way").
+    #[arg(long, value_name = "EXPANSIONS", num_args = 0..=1, default_missing_value = "500",
+          requires = "lookahead", value_parser = clap::value_parser!(u32).range(1..))]
+    lookahead_search: Option<u32>,
 }
 
 /// The scene to run and how it was chosen.
@@ -250,6 +256,7 @@ pub fn run(args: Args) -> CliResult {
             if let Some(candidates) = args.lookahead {
                 driver = driver.with_lookahead(LookaheadConfig {
                     candidates: usize::from(candidates),
+                    search_expansions: args.lookahead_search.map_or(0, |e| e as usize),
                     ..LookaheadConfig::default()
                 })?;
             }

@@ -197,9 +197,13 @@ impl Driver for PolicyDriver<'_> {
             self.lookahead
                 .as_ref()
                 .map_or(String::new(), |(l, _)| format!(
-                    ", look-ahead ({} candidates, {}-step rollouts on the robot's map)",
+                    ", look-ahead ({} candidates, {}-step rollouts on the robot's map{})",
                     l.config().candidates,
-                    l.config().horizon_steps
+                    l.config().horizon_steps,
+                    match l.config().search_expansions {
+                        0 => String::new(),
+                        n => format!(", a search for a shorter way within {n} expansions"),
+                    }
                 ))
         )
     }
