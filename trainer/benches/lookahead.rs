@@ -1,9 +1,10 @@
 //! The look-ahead's cost: the shipped int8 policy driving the first held-out complex scenes to
 //! their end with the robot's stack (guard on the 1 cm map, arrival), without and with the
-//! look-ahead's rollouts on the robot's map. The figure is the ratio of the two, per episode.
+//! look-ahead's rollouts on the robot's map, and with its search for a shorter way as well.
+//! The figures are the ratios to the stack alone, per episode.
 //!
 //! `cargo bench -p wheelleg-trainer --bench lookahead`. Figures: docs/results.md, "Rollouts on
-//! the robot's map".
+//! the robot's map" and "A search for a shorter way".
 
 #![allow(missing_docs)] // criterion_group! generates an undocumented function.
 
@@ -42,11 +43,22 @@ fn episodes(c: &mut Criterion) {
         lookahead: Some(LookaheadConfig::default()),
         ..stack.clone()
     };
+    let searching = EvalOptions {
+        lookahead: Some(LookaheadConfig {
+            search_expansions: 500,
+            ..LookaheadConfig::default()
+        }),
+        ..stack.clone()
+    };
     let mut group = c.benchmark_group("episodes");
     group.throughput(Throughput::Elements(EPISODES as u64));
     group.sample_size(10);
     group.measurement_time(Duration::from_secs(20));
-    for (name, options) in [("stack", &stack), ("stack+lookahead", &looking)] {
+    for (name, options) in [
+        ("stack", &stack),
+        ("stack+lookahead", &looking),
+        ("stack+lookahead+search", &searching),
+    ] {
         group.bench_function(name, |b| {
             b.iter(|| {
                 let mut rng = ChaCha8Rng::seed_from_u64(0);
