@@ -125,7 +125,6 @@ struct KeptPlan {
 struct Found {
     cost: f32,
     actions: Vec<Action>,
-    after_first: RobotState,
 }
 
 /// The look-ahead over a batch of episodes: decisions are pushed one by one, then weighed
@@ -268,10 +267,18 @@ impl Lookahead {
                 if self.plans.len() <= p.slot {
                     self.plans.resize(p.slot + 1, None);
                 }
-                self.plans[p.slot] = chosen.filter(|_| arrived).map(|c| KeptPlan {
-                    expected: c.after_first,
-                    actions: c.actions.get(1..).unwrap_or_default().to_vec(),
-                });
+                // The state the action leads to in the perceived scene, as its rollout or the
+                // search stepped it there.
+                let mut after = p.seen.clone();
+                let expected = after.step(action).ok().map(|_| *after.state());
+                self.plans[p.slot] =
+                    chosen
+                        .filter(|_| arrived)
+                        .zip(expected)
+                        .map(|(c, expected)| KeptPlan {
+                            expected,
+                            actions: c.actions.get(1..).unwrap_or_default().to_vec(),
+                        });
             }
             weighed.push(Weighed {
                 slot: p.slot,
@@ -301,12 +308,9 @@ impl Lookahead {
         if !p.allowed.contains(&first) {
             return None;
         }
-        let mut env = p.seen.clone();
-        env.step(first).ok()?;
         Some(Found {
             cost: actions.len() as f32,
             actions,
-            after_first: *env.state(),
         })
     }
 
@@ -331,7 +335,6 @@ impl Lookahead {
                 rollouts.push(rollout);
             }
         }
-        let after_first: Vec<RobotState> = rollouts.iter().map(|r| *r.env.state()).collect();
         let costs = rollout_costs(
             policy,
             &mut rollouts,
@@ -339,13 +342,13 @@ impl Lookahead {
             arrival,
             success_radius_m,
         )?;
-        let mut found = rollouts.into_iter().zip(costs).zip(after_first).map(
-            |((rollout, cost), after_first)| Found {
+        let mut found = rollouts
+            .into_iter()
+            .zip(costs)
+            .map(|(rollout, cost)| Found {
                 cost,
                 actions: rollout.actions,
-                after_first,
-            },
-        );
+            });
         Ok(counts
             .into_iter()
             .map(|n| found.by_ref().take(n).collect())
@@ -557,18 +560,15 @@ fn replay_incumbent(p: &Pending) -> Option<Found> {
         return None;
     }
     let mut env = p.seen.clone();
-    let mut after_first = None;
     for (taken, &action) in plan.actions.iter().enumerate() {
         let outcome = env.step(action).ok()?;
         if outcome.invalid.is_some() {
             return None;
         }
-        after_first.get_or_insert(*env.state());
         if env.status() == Status::Success {
             return Some(Found {
                 cost: (taken + 1) as f32,
                 actions: plan.actions[..=taken].to_vec(),
-                after_first: after_first?,
             });
         }
         if env.status().is_done() {
