@@ -2,7 +2,7 @@
 """Decode a `candump -L` log with ODrive's CANSimple DBC and check every frame.
 
 Usage:
-    python3 tools/check_dbc.py LOG [--dbc ../shared/odrive-cansimple.dbc] [--project-dbc docs/wheelleg.dbc]
+    python3 tools/check_dbc.py LOG [--dbc third_party/odrive/odrive-cansimple.dbc] [--project-dbc docs/wheelleg.dbc]
 
 Installs cantools from PyPI (tools/requirements.txt) if it is missing.
 
@@ -25,7 +25,7 @@ from collections import Counter
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
-DEFAULT_DBC = os.path.join(ROOT, "..", "shared", "odrive-cansimple.dbc")
+DEFAULT_DBC = os.path.join(ROOT, "third_party", "odrive", "odrive-cansimple.dbc")
 DEFAULT_PROJECT_DBC = os.path.join(ROOT, "docs", "wheelleg.dbc")
 
 EMPTY_COMMANDS = {0x02: "Estop", 0x18: "Clear_Errors"}

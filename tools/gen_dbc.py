@@ -2,7 +2,7 @@
 """Generate docs/wheelleg.dbc: ODrive CANSimple messages for every node of the robot's node map.
 
 The node map is runtime/src/can/node_map.rs (node 1 + index in Axis::ALL); payload layouts are
-ODrive's (../shared/odrive-cansimple.dbc), with the same signal names so tools/check_dbc.py can
+ODrive's (third_party/odrive/odrive-cansimple.dbc), with the same signal names so tools/check_dbc.py can
 compare the two decodings. Run: python3 tools/gen_dbc.py > docs/wheelleg.dbc
 """
 
