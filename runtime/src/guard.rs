@@ -60,16 +60,22 @@ pub enum HeightMapRef<'a> {
     Metres(&'a [f32; HEIGHT_MAP_CELLS]),
     /// A robot-centred square map of any size and resolution, heights in metres.
     Grid(GridMap<'a>),
+    /// The part of such a map that the robot and one step can touch, heights in millimetres
+    /// ([`FineWindow`]): what a controller with a few KiB of RAM keeps.
+    Window(&'a FineWindow<'a>),
 }
 
 impl HeightMapRef<'_> {
-    fn height_m(&self, index: usize) -> f32 {
+    /// The height of cell (`row`, `col`) of the whole map (0 outside what is held).
+    fn height_at_m(&self, row: usize, col: usize) -> f32 {
+        let index = row * self.side() + col;
         match self {
             HeightMapRef::Millimetres(cells) => {
                 cells.get(index).map_or(0.0, |&mm| f32::from(mm) * 1.0e-3)
             }
             HeightMapRef::Metres(cells) => cells.get(index).copied().unwrap_or(0.0),
             HeightMapRef::Grid(grid) => grid.heights_m.get(index).copied().unwrap_or(0.0),
+            HeightMapRef::Window(window) => window.height_m(row, col),
         }
     }
 
@@ -77,6 +83,7 @@ impl HeightMapRef<'_> {
     fn side(&self) -> usize {
         match self {
             HeightMapRef::Grid(grid) => grid.side,
+            HeightMapRef::Window(window) => window.bounds.side,
             _ => HEIGHT_MAP_SIDE,
         }
     }
@@ -85,7 +92,26 @@ impl HeightMapRef<'_> {
     fn cell_m(&self) -> f32 {
         match self {
             HeightMapRef::Grid(grid) => grid.cell_m,
+            HeightMapRef::Window(window) => window.bounds.cell_m,
             _ => HEIGHT_MAP_CELL_M,
+        }
+    }
+
+    /// The columns of `row` that may hold a positive height (all but a window's, which knows
+    /// each row's first and last): cells outside are skipped, as flat ones would be.
+    #[inline]
+    fn occupied(&self, row: usize) -> core::ops::Range<usize> {
+        match self {
+            HeightMapRef::Window(window) => window.occupied(row),
+            _ => 0..self.side(),
+        }
+    }
+
+    /// The rows and columns that hold heights: the whole map, or a window's part of it.
+    fn held(&self) -> (core::ops::Range<usize>, core::ops::Range<usize>) {
+        match self {
+            HeightMapRef::Window(window) => (window.bounds.rows(), window.bounds.cols()),
+            _ => (0..self.side(), 0..self.side()),
         }
     }
 
@@ -164,6 +190,155 @@ impl<'a> GridMap<'a> {
     }
 }
 
+/// Where a [`FineWindow`] lies in its robot-centred square map: rows `first_row..` and
+/// columns `first_col..` of a `side` x `side` map of `cell_m` cells (laid out as [`GridMap`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WindowBounds {
+    /// Cells per side of the whole map.
+    pub side: usize,
+    /// Side of a cell.
+    pub cell_m: f32,
+    /// First row held.
+    pub first_row: usize,
+    /// Rows held.
+    pub rows: usize,
+    /// First column held.
+    pub first_col: usize,
+    /// Columns held.
+    pub cols: usize,
+}
+
+impl WindowBounds {
+    /// Cells held.
+    pub fn cells(&self) -> usize {
+        self.rows * self.cols
+    }
+
+    /// The rows of the whole map held.
+    pub fn rows(&self) -> core::ops::Range<usize> {
+        self.first_row..self.first_row + self.rows
+    }
+
+    /// The columns of the whole map held.
+    pub fn cols(&self) -> core::ops::Range<usize> {
+        self.first_col..self.first_col + self.cols
+    }
+}
+
+/// The cells of a finer map that the robot and one step can touch, heights in millimetres:
+/// what the guard needs of a 128 x 128 map at 1 cm (64 KiB of `f32`), in about 10 KiB.
+///
+/// Heights are little-endian `i16` pairs in a byte slice, so that a controller can lend the
+/// same bytes to inference first and to the window after (the two are never needed at once).
+/// Cells outside the window read as flat ground: [`CollisionGuard::fine_window`] chooses the
+/// window so that no column outside can meet any part of the robot along any step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FineWindow<'a> {
+    heights_mm_le: &'a [u8],
+    bounds: WindowBounds,
+    /// Per window row, the first and one past the last column (of the window) with a
+    /// positive height: most of a window is flat ground, which the guard need not visit.
+    occupied: [(u8, u8); MAX_WINDOW_ROWS],
+}
+
+/// Most rows a [`FineWindow`] holds (and columns it indexes in its occupancy table).
+pub const MAX_WINDOW_ROWS: usize = 255;
+
+impl<'a> FineWindow<'a> {
+    /// The window `bounds` with heights (row-major, `bounds.rows` x `bounds.cols`, `i16`
+    /// millimetres, little-endian) in the first `2 * bounds.cells()` bytes of `heights_mm_le`.
+    pub fn new(heights_mm_le: &'a [u8], bounds: WindowBounds) -> Result<Self, GridMapError> {
+        let expected = bounds.cells().saturating_mul(2);
+        let heights_mm_le = heights_mm_le
+            .get(..expected)
+            .ok_or(GridMapError::WrongLength {
+                expected,
+                found: heights_mm_le.len(),
+            })?;
+        let fits = bounds.first_row.saturating_add(bounds.rows) <= bounds.side
+            && bounds.first_col.saturating_add(bounds.cols) <= bounds.side;
+        if !fits || bounds.side == 0 {
+            return Err(GridMapError::WrongLength {
+                expected: bounds.side.saturating_mul(bounds.side),
+                found: bounds.cells(),
+            });
+        }
+        if !(bounds.cell_m.is_finite() && bounds.cell_m > 0.0) {
+            return Err(GridMapError::BadCellSize);
+        }
+        if bounds.rows > MAX_WINDOW_ROWS || bounds.cols > usize::from(u8::MAX) {
+            return Err(GridMapError::WrongLength {
+                expected: MAX_WINDOW_ROWS,
+                found: bounds.rows.max(bounds.cols),
+            });
+        }
+        let mut occupied = [(0u8, 0u8); MAX_WINDOW_ROWS];
+        if bounds.cols > 0 {
+            for (span, row) in occupied
+                .iter_mut()
+                .zip(heights_mm_le.chunks_exact(2 * bounds.cols))
+            {
+                let mut first = None;
+                let mut last = 0;
+                for (col, pair) in row.chunks_exact(2).enumerate() {
+                    if let &[lo, hi] = pair {
+                        if i16::from_le_bytes([lo, hi]) > 0 {
+                            first.get_or_insert(col);
+                            last = col + 1;
+                        }
+                    }
+                }
+                // Columns fit a u8 (checked above).
+                *span = first.map_or((0, 0), |first| (first as u8, last as u8));
+            }
+        }
+        Ok(FineWindow {
+            heights_mm_le,
+            bounds,
+            occupied,
+        })
+    }
+
+    /// The columns of the whole map's `row` that may hold a positive height.
+    #[inline]
+    fn occupied(&self, row: usize) -> core::ops::Range<usize> {
+        let span = row
+            .checked_sub(self.bounds.first_row)
+            .and_then(|r| self.occupied.get(r));
+        match span {
+            Some(&(first, last)) => {
+                self.bounds.first_col + usize::from(first)
+                    ..self.bounds.first_col + usize::from(last)
+            }
+            None => 0..0,
+        }
+    }
+
+    /// Where the window lies.
+    pub fn bounds(&self) -> WindowBounds {
+        self.bounds
+    }
+
+    /// Height of cell (`row`, `col`) of the whole map: 0 outside the window.
+    #[inline]
+    fn height_m(&self, row: usize, col: usize) -> f32 {
+        let (Some(r), Some(c)) = (
+            row.checked_sub(self.bounds.first_row),
+            col.checked_sub(self.bounds.first_col),
+        ) else {
+            return 0.0;
+        };
+        if r >= self.bounds.rows || c >= self.bounds.cols {
+            return 0.0;
+        }
+        let at = 2 * (r * self.bounds.cols + c);
+        match self.heights_mm_le.get(at..at + 2) {
+            Some(&[lo, hi]) => f32::from(i16::from_le_bytes([lo, hi])) * 1.0e-3,
+            _ => 0.0,
+        }
+    }
+}
+
 /// Why the guard refuses an action.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Refusal {
@@ -208,6 +383,53 @@ impl CollisionGuard {
             geometry,
             margin_m,
             reach_m,
+        }
+    }
+
+    /// The window of a robot-centred `side` x `side` map of `cell_m` cells outside which no
+    /// column can meet the robot on any step ([`FineWindow`]).
+    ///
+    /// Tighter than the square of [`Self::check`]'s reach (which bounds the robot's distance
+    /// from its centre in any direction): along each map axis, the robot's extent along that
+    /// axis in its own frame, turned by at most one yaw step (the farthest corner of a
+    /// rectangle turned by an angle below its diagonal's is at that angle), plus one move step
+    /// and the margin; then one cell more, as in [`Self::check`], for the column's own
+    /// half-side.
+    pub fn fine_window(&self, side: usize, cell_m: f32) -> WindowBounds {
+        let g = &self.geometry;
+        // The robot's half-extent along its own x and y, for any leg configuration: the
+        // body, the wheels at the widest track, and the links (all in the hip's leg plane).
+        let half_x_m =
+            (0.5 * g.body_length_m).max(g.hip_x_m + g.wheel_radius_m.max(g.link_radius_m));
+        let half_y_m = (0.5 * g.body_width_m)
+            .max(0.5 * g.track_range_m[1] + 0.5 * g.wheel_width_m)
+            .max(g.hip_y_m + g.thigh_m + g.link_radius_m);
+        let turn_rad = crate::action::YAW_STEP_DEG.to_radians();
+        let (sin, cos) = (libm::sinf(turn_rad), libm::cosf(turn_rad));
+        let travel_m = crate::action::MOVE_STEP_M + self.margin_m.max(0.0);
+        let reach_x_m = half_x_m * cos + half_y_m * sin + travel_m;
+        let reach_y_m = half_y_m * cos + half_x_m * sin + travel_m;
+        let span = |reach_m: f32| {
+            let half = 0.5 * (side as f32 - 1.0);
+            let cells = if cell_m > 0.0 {
+                reach_m / cell_m + 1.0
+            } else {
+                0.0
+            };
+            let first = libm::ceilf(half - cells).max(0.0) as usize;
+            let last =
+                (libm::floorf(half + cells).min(side as f32 - 1.0).max(0.0) as usize).max(first);
+            (first, (last + 1).min(side) - first.min(side))
+        };
+        let (first_row, rows) = span(reach_x_m);
+        let (first_col, cols) = span(reach_y_m);
+        WindowBounds {
+            side,
+            cell_m,
+            first_row,
+            rows,
+            first_col,
+            cols,
         }
     }
 
@@ -353,10 +575,13 @@ impl CollisionGuard {
             let parts = Parts::place(&self.geometry, legs_t).ok_or(Refusal::Unreachable)?;
             let inverse = (from * base.isometry_at(t)).inverse();
             let (x0_m, y0_m) = (from.translation.x, from.translation.y);
-            for row in self.cells_within_reach(&heights, x0_m) {
-                for col in self.cells_within_reach(&heights, y0_m) {
+            let (held_rows, held_cols) = heights.held();
+            let rows = intersect(self.cells_within_reach(&heights, x0_m), held_rows);
+            let cols = intersect(self.cells_within_reach(&heights, y0_m), held_cols);
+            for row in rows {
+                for col in intersect(cols.clone(), heights.occupied(row)) {
                     let (x_m, y_m) = heights.cell_centre_m(row, col);
-                    let height_m = heights.height_m(row * heights.side() + col);
+                    let height_m = heights.height_at_m(row, col);
                     if height_m.is_nan() || height_m <= 0.0 {
                         continue;
                     }
@@ -405,6 +630,12 @@ impl CollisionGuard {
         let last = libm::floorf(half + cells).min(side - 1.0) as usize;
         first..last + 1
     }
+}
+
+/// The indices in both ranges.
+fn intersect(a: core::ops::Range<usize>, b: core::ops::Range<usize>) -> core::ops::Range<usize> {
+    let start = a.start.max(b.start);
+    start..a.end.min(b.end).max(start)
 }
 
 /// Overlap the lenient check forgives on top of the current pose's, per column: rounding.
@@ -905,5 +1136,88 @@ mod tests {
         // A diagonal passing the corner (1, 1) at distance sqrt(2).
         let d = segment_rect_distance_m((1.0, 3.0), (3.0, 1.0), lo, hi);
         assert!((d - core::f32::consts::SQRT_2).abs() < 1e-6, "{d}");
+    }
+
+    /// The fine window gives the whole map's verdicts: every action, from several leg
+    /// configurations, among blocks scattered over the whole 1 cm map, most of them near the
+    /// window's edge (where a window one cell too small would be caught).
+    #[test]
+    fn fine_window_keeps_the_whole_maps_verdicts() {
+        extern crate std;
+        const SIDE: usize = 128;
+        const CELL_M: f32 = 0.01;
+        let guard = CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M);
+        let bounds = guard.fine_window(SIDE, CELL_M);
+        assert!(bounds.rows < SIDE && bounds.cols < SIDE, "{bounds:?}");
+        assert!(bounds.cells() <= 5600, "{bounds:?}");
+        let mut seed = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move |n: usize| {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed % n as u64) as usize
+        };
+        let mut refused = 0;
+        let mut checked = 0;
+        for _case in 0..12 {
+            let mut mm = [0i16; SIDE * SIDE];
+            for _block in 0..6 {
+                // Corners near the window's edge, rows or columns.
+                let near = |first: usize, len: usize, pick: usize| match pick % 3 {
+                    0 => first.saturating_sub(4) + pick % 8,
+                    1 => (first + len).saturating_sub(4) + pick % 8,
+                    _ => pick % SIDE,
+                };
+                let r0 = near(bounds.first_row, bounds.rows, next(1000)).min(SIDE - 1);
+                let c0 = near(bounds.first_col, bounds.cols, next(1000)).min(SIDE - 1);
+                let (h, w) = (1 + next(30), 1 + next(30));
+                let height = 20 + next(300) as i16;
+                for row in r0..(r0 + h).min(SIDE) {
+                    for col in c0..(c0 + w).min(SIDE) {
+                        mm[row * SIDE + col] = height;
+                    }
+                }
+            }
+            let metres: std::vec::Vec<f32> = mm.iter().map(|&h| f32::from(h) * 1.0e-3).collect();
+            let grid = HeightMapRef::Grid(GridMap::new(&metres, SIDE, CELL_M).unwrap());
+            let mut bytes = std::vec::Vec::new();
+            for row in bounds.rows() {
+                for col in bounds.cols() {
+                    bytes.extend_from_slice(&mm[row * SIDE + col].to_le_bytes());
+                }
+            }
+            let fine = FineWindow::new(&bytes, bounds).unwrap();
+            let window = HeightMapRef::Window(&fine);
+            for legs in [
+                default_legs(),
+                LegConfig {
+                    clearance_m: 0.04,
+                    track_m: 0.56,
+                },
+                LegConfig {
+                    clearance_m: 0.24,
+                    track_m: 0.16,
+                },
+            ] {
+                for index in 0..crate::action::COUNT {
+                    let action = Action::from_index(index).unwrap();
+                    let whole = guard.check(grid, legs, action);
+                    assert_eq!(
+                        whole,
+                        guard.check(window, legs, action),
+                        "{action:?} {legs:?}"
+                    );
+                    assert_eq!(
+                        guard.check_no_deeper(grid, legs, action),
+                        guard.check_no_deeper(window, legs, action),
+                        "{action:?} {legs:?}"
+                    );
+                    refused += usize::from(whole == Err(Refusal::Collision));
+                    checked += 1;
+                }
+            }
+        }
+        // Not a vacuous comparison: many actions meet a block.
+        assert!(refused > checked / 20, "{refused} of {checked}");
     }
 }

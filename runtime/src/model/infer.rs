@@ -9,7 +9,9 @@
 use core::mem;
 
 use super::format::STATE_FRACTION_BITS;
-use super::kernel::{le_i32, linear_batch, padded_row_len, quantize_inputs, Kernel, Output};
+use super::kernel::{
+    le_i32, linear_batch, padded_row_len, prepare_row, quantize_inputs, Kernel, Output,
+};
 use super::load::{ConvLayer, Linear, Model, ACTION_LOGITS, MAX_STATE_FEATURES};
 use super::quant::{quantize_mm, quantize_mm16};
 
@@ -33,6 +35,13 @@ pub enum InferError {
     /// A buffer was too small. Cannot happen for a model accepted by `Policy::from_bytes` (which
     /// checks the capacities); reported instead of panicking.
     Internal,
+    /// Caller-owned buffers ([`super::Policy::evaluate_in`]) are smaller than the model needs.
+    Buffers {
+        /// int8 elements each activation buffer needs.
+        activation_elements: usize,
+        /// int16 elements the row buffer needs.
+        row_elements: usize,
+    },
 }
 
 impl core::fmt::Display for InferError {
@@ -48,6 +57,14 @@ impl core::fmt::Display for InferError {
                 write!(f, "state has {found} features, the model takes {expected}")
             }
             InferError::Internal => write!(f, "inference buffer too small (runtime bug)"),
+            InferError::Buffers {
+                activation_elements,
+                row_elements,
+            } => write!(
+                f,
+                "buffers too small: the model needs {activation_elements} int8 per activation \
+                 buffer and {row_elements} int16 in the row"
+            ),
         }
     }
 }
@@ -129,6 +146,7 @@ fn layer<T: Output>(
     let (output, row) = layer_buffers(linear_layer, row, output)?;
     let values = row.get_mut(..row_len).ok_or(InferError::Internal)?;
     widen(input, linear_layer.input_zero_point, values);
+    prepare_row(kernel, values);
     linear_batch(kernel, linear_layer, row, row_len, output);
     Ok(())
 }
@@ -172,6 +190,7 @@ fn layer_with_state<T: Output>(
         .ok_or(InferError::Internal)?;
     widen(input, linear_layer.input_zero_point, feature_values);
     state_values.fill(0);
+    prepare_row(kernel, values);
     // The state in the layer's input domain, 256 times finer: u - 256 * zp_in.
     let zero_point = i32::from(linear_layer.input_zero_point) << STATE_FRACTION_BITS;
     let mut wide = [0i32; MAX_STATE_FEATURES];
@@ -355,6 +374,32 @@ pub fn forward<const ACT: usize, const ROW: usize>(
     height_mm: &[i16],
     state_mm: &[i32],
 ) -> Result<Outputs, InferError> {
+    let Scratch { ping, pong, row } = scratch;
+    forward_in(model, kernel, ping, pong, row, height_mm, state_mm)
+}
+
+/// [`forward`] in any buffers: two activation buffers and a row, each at least as large as the
+/// model's [`super::Requirements`] (checked: [`InferError::Buffers`]). For a controller that
+/// lends the same RAM to something else between decisions.
+pub fn forward_in(
+    model: &Model<'_>,
+    kernel: Kernel,
+    ping: &mut [i8],
+    pong: &mut [i8],
+    row: &mut [i16],
+    height_mm: &[i16],
+    state_mm: &[i32],
+) -> Result<Outputs, InferError> {
+    let needs = model.requirements;
+    if ping.len() < needs.activation_elements
+        || pong.len() < needs.activation_elements
+        || row.len() < needs.row_elements
+    {
+        return Err(InferError::Buffers {
+            activation_elements: needs.activation_elements,
+            row_elements: needs.row_elements,
+        });
+    }
     let rows = usize::from(model.input.rows);
     let cols = usize::from(model.input.cols);
     if height_mm.len() != rows * cols {
@@ -369,7 +414,6 @@ pub fn forward<const ACT: usize, const ROW: usize>(
             found: state_mm.len(),
         });
     }
-    let Scratch { ping, pong, row } = scratch;
     let mut src: &mut [i8] = ping;
     let mut dst: &mut [i8] = pong;
 
@@ -406,6 +450,11 @@ pub fn forward<const ACT: usize, const ROW: usize>(
             let count = out.len() / out_channels;
             let patches = row.get_mut(..count * stride).ok_or(InferError::Internal)?;
             gather_patches(kernel, conv, src, first, patches, stride);
+            if kernel == Kernel::Dsp {
+                for patch in patches.chunks_exact_mut(stride) {
+                    prepare_row(kernel, patch.get_mut(..row_len).unwrap_or_default());
+                }
+            }
             linear_batch(kernel, &conv.linear, patches, stride, out);
             first += count;
         }

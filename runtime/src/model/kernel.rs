@@ -7,7 +7,7 @@
 //! Two implementations, bit-exact by construction: integer sums are exact in any order (the
 //! loader bounds row length and bias so that no partial sum can overflow an i32), and the AVX2
 //! requantization computes the scalar one's exact 64-bit formula of [`super::quant`] 4 lanes at
-//! a time. The AVX2 side also has a first-layer path that needs no patches
+//! a time; the DSP kernel (Cortex-M4) calls the scalar requantization itself. The AVX2 side also has a first-layer path that needs no patches
 //! (`simd_x86::conv3x3_one_channel_avx2`, called by `infer`).
 
 use super::format::InputQuantRecord;
@@ -96,15 +96,21 @@ pub enum Kernel {
     Scalar,
     /// x86_64 AVX2 (`vpmaddwd`, 16 multiply-accumulates per instruction).
     Avx2,
+    /// Arm Cortex-M4/M7 DSP extension (`SMLAD` on `SXTB16`-widened weight pairs), chosen at
+    /// compile time for targets with the `dsp` feature (thumbv7em).
+    Dsp,
 }
 
 impl Kernel {
     /// Every kernel, for tests and benchmarks.
-    pub const ALL: [Kernel; 2] = [Kernel::Scalar, Kernel::Avx2];
+    pub const ALL: [Kernel; 3] = [Kernel::Scalar, Kernel::Avx2, Kernel::Dsp];
 
-    /// The fastest kernel this CPU runs, found by reading CPUID (works without `std`).
+    /// The fastest kernel this CPU runs: the DSP one where the target has it (known at
+    /// compile time), else AVX2 if CPUID reports it (works without `std`), else scalar.
     pub fn detect() -> Kernel {
-        if Kernel::Avx2.is_supported() {
+        if Kernel::Dsp.is_supported() {
+            Kernel::Dsp
+        } else if Kernel::Avx2.is_supported() {
             Kernel::Avx2
         } else {
             Kernel::Scalar
@@ -116,6 +122,7 @@ impl Kernel {
         match self {
             Kernel::Scalar => true,
             Kernel::Avx2 => avx2_supported(),
+            Kernel::Dsp => cfg!(all(target_arch = "arm", target_feature = "dsp")),
         }
     }
 }
@@ -205,6 +212,20 @@ pub const fn padded_row_len(row_len: usize) -> usize {
     row_len.div_ceil(ROW_ALIGN) * ROW_ALIGN
 }
 
+/// Puts one input row (its first `row_len` elements) in the order the kernel reads: a no-op
+/// but for [`Kernel::Dsp`], whose `SXTB16` pairs weights 0 with 2 and 1 with 3 (see
+/// `dsp_m4::permute`). Every producer of [`linear_batch`]'s inputs calls it once per row.
+#[inline(always)]
+pub fn prepare_row(kernel: Kernel, row: &mut [i16]) {
+    match kernel {
+        #[cfg(all(target_arch = "arm", target_feature = "dsp"))]
+        Kernel::Dsp => super::dsp_m4::permute(row),
+        _ => {
+            let _ = row;
+        }
+    }
+}
+
 /// Runs one layer on several input rows at once (the patches of several conv output pixels):
 /// input row `p` is `inputs[p * stride..p * stride + row_len]`, its outputs go to
 /// `outputs[p * rows..(p + 1) * rows]` (pixel-major, which is HWC for a conv), and the number
@@ -225,6 +246,8 @@ pub fn linear_batch<T: Output>(
     match kernel {
         #[cfg(target_arch = "x86_64")]
         Kernel::Avx2 => super::simd_x86::linear_batch_avx2(linear, inputs, stride, outputs),
+        #[cfg(all(target_arch = "arm", target_feature = "dsp"))]
+        Kernel::Dsp => super::dsp_m4::linear_batch_dsp(linear, inputs, stride, outputs),
         _ => linear_batch_scalar(linear, inputs, stride, outputs),
     }
 }

@@ -9,7 +9,8 @@
 //! - [`format`]: the `.wlw` file's records and envelope (byte level: docs/weights-format.md).
 //! - [`load`]: checks a file once and borrows its tensors ([`Model`]); typed [`LoadError`]s.
 //! - [`quant`]: fixed-point requantization (multiplier + shift, no floating point).
-//! - [`kernel`]: the dot-product kernel, scalar or AVX2 ([`Kernel`], chosen by CPUID).
+//! - [`kernel`]: the dot-product kernel, scalar, AVX2 ([`Kernel`], chosen by CPUID) or the
+//!   Cortex-M4's DSP extension (chosen at compile time for thumbv7em).
 //! - [`infer`]: the forward pass over ping-pong buffers sized by const generics ([`Scratch`]).
 //!
 //! Scheme (TFLite / CMSIS-NN): weights int8, symmetric, one scale per output channel; activations
@@ -21,6 +22,8 @@
 //! same integer multiply-shift.
 
 pub mod crc32;
+#[cfg(all(target_arch = "arm", target_feature = "dsp"))]
+mod dsp_m4;
 pub mod format;
 pub mod infer;
 pub mod kernel;
@@ -128,6 +131,28 @@ impl<'a, const ACT: usize, const ROW: usize> Policy<'a, ACT, ROW> {
         state_mm: &[i32],
     ) -> Result<Outputs, InferError> {
         infer::forward(&self.model, self.kernel, scratch, height_mm, state_mm)
+    }
+
+    /// The raw outputs of one decision in caller-owned buffers of any size that fits the
+    /// model (see [`infer::forward_in`]): for a controller that lends the same RAM to other
+    /// work between decisions.
+    pub fn evaluate_in(
+        &self,
+        ping: &mut [i8],
+        pong: &mut [i8],
+        row: &mut [i16],
+        height_mm: &[i16],
+        state_mm: &[i32],
+    ) -> Result<Outputs, InferError> {
+        infer::forward_in(
+            &self.model,
+            self.kernel,
+            ping,
+            pong,
+            row,
+            height_mm,
+            state_mm,
+        )
     }
 
     /// Convenience for hosts with floating point: heights and state in metres, rounded to

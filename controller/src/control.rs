@@ -1,0 +1,213 @@
+//! The 100 Hz control loop: each period reads the axes' feedback, integrates odometry,
+//! supervises the axes' health and sends one setpoint (16 ODrive CANSimple frames), as the
+//! host's rig does (`firmware_sim::rig`), on any CAN peripheral behind `embedded-can`.
+
+use embedded_can::nb::Can;
+use embedded_can::Frame;
+use wheelleg_runtime::action::Action;
+use wheelleg_runtime::base::{MecanumBase, Odometry};
+use wheelleg_runtime::can::host::{CanError, Commander, FeedbackTracker, TxQueue};
+use wheelleg_runtime::can::node_map::{Axis, NodeMap};
+use wheelleg_runtime::can::protocol::AxisState;
+use wheelleg_runtime::leg::LegConfig;
+use wheelleg_runtime::motion::{MotionConfig, MotionError, Setpoint, StepMotion};
+use wheelleg_runtime::robot::RobotGeometry;
+
+/// Transmit queue capacity: two periods of start-up frames, as the host's rig.
+pub const TX_FRAMES: usize = 64;
+/// Hold periods of the start-up sequence: a few heartbeat periods, enough for every axis to
+/// report closed loop (the rig's count).
+pub const STARTUP_TICKS: u32 = 30;
+/// Hold time after each step's setpoints, so the motors settle (the rig's 0.2 s).
+pub const SETTLE_S: f32 = 0.2;
+/// An axis not heard from for this long is silent: 5 missed encoder estimates at 100 Hz.
+pub const HEALTH_TIMEOUT_US: u64 = 50_000;
+
+/// What the control loop needs of a board: its CAN peripheral and the control period's clock.
+pub trait Board {
+    /// The CAN peripheral's frame type.
+    type Frame: Frame;
+    /// The CAN peripheral (a HAL's bxCAN or FDCAN driver, or QEMU's replay).
+    type Can: Can<Frame = Self::Frame>;
+    /// The CAN peripheral.
+    fn can(&mut self) -> &mut Self::Can;
+    /// Waits for the start of the next control period.
+    fn wait_for_tick(&mut self);
+}
+
+/// Why the control loop stops.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ControlError {
+    /// A frame could not be built or queued.
+    Can(CanError),
+    /// The step cannot be driven (legs out of reach, too fast).
+    Motion(MotionError),
+    /// The CAN peripheral refused a frame.
+    Bus,
+    /// Not every axis reached closed loop at start-up.
+    StartupFailed,
+}
+
+impl From<CanError> for ControlError {
+    fn from(error: CanError) -> Self {
+        ControlError::Can(error)
+    }
+}
+
+impl From<MotionError> for ControlError {
+    fn from(error: MotionError) -> Self {
+        ControlError::Motion(error)
+    }
+}
+
+/// The robot's motion side: commanded legs, odometry, axis feedback and the frames out.
+pub struct Control<F: Frame> {
+    geometry: RobotGeometry,
+    motion: MotionConfig,
+    commander: Commander,
+    tracker: FeedbackTracker,
+    tx: TxQueue<F, TX_FRAMES>,
+    odometry: Odometry,
+    legs: LegConfig,
+    now_us: u64,
+    stopped: bool,
+}
+
+impl<F: Frame> Control<F> {
+    /// The loop for `geometry` with the legs at `start`, motors idle.
+    pub fn new(geometry: RobotGeometry, start: LegConfig) -> Control<F> {
+        Control {
+            geometry,
+            motion: MotionConfig::default(),
+            commander: Commander::new(NodeMap::NOMINAL),
+            tracker: FeedbackTracker::new(NodeMap::NOMINAL),
+            tx: TxQueue::new(),
+            odometry: Odometry::default(),
+            legs: start,
+            now_us: 0,
+            stopped: false,
+        }
+    }
+
+    /// The commanded legs.
+    pub fn legs(&self) -> LegConfig {
+        self.legs
+    }
+
+    /// The pose integrated from the wheels' measured speeds.
+    pub fn odometry(&self) -> &Odometry {
+        &self.odometry
+    }
+
+    /// Whether the loop has put the robot in safe stop.
+    pub fn stopped(&self) -> bool {
+        self.stopped
+    }
+
+    fn tick_s(&self) -> f32 {
+        1.0 / self.motion.control_rate_hz
+    }
+
+    /// One control period: feedback in, odometry, health, then this period's frames out.
+    pub fn tick<B: Board<Frame = F>>(
+        &mut self,
+        board: &mut B,
+        setpoint: &Setpoint,
+        supervise: bool,
+    ) -> Result<(), ControlError> {
+        board.wait_for_tick();
+        while let Ok(frame) = board.can().receive() {
+            self.tracker.receive(&frame, self.now_us);
+        }
+        if let (Some(wheels), Some(legs)) = (
+            self.tracker.wheel_speeds(),
+            self.tracker.leg_config(&self.geometry),
+        ) {
+            // A measured configuration the base cannot take is skipped, not fatal: the
+            // health check below is what stops the robot.
+            if let Ok(base) = MecanumBase::at(&self.geometry, legs) {
+                let _ = self.odometry.integrate_wheels(&base, wheels, self.tick_s());
+            }
+        }
+        if supervise && !self.stopped {
+            self.stopped = self.unhealthy();
+        }
+        // The rig slows a step in progress to rest along its own path first; the controller
+        // holds the measured joints with the wheels stopped at once (the commander's safe
+        // stop), which needs no plan kept across periods.
+        if self.stopped {
+            self.commander
+                .queue_safe_stop(&mut self.tx, &self.tracker)?;
+        } else {
+            self.commander.queue_setpoint(&mut self.tx, setpoint)?;
+        }
+        while let Some(frame) = self.tx.pop() {
+            send(board.can(), &frame)?;
+        }
+        self.now_us += (1.0e6 * self.tick_s()) as u64;
+        Ok(())
+    }
+
+    /// Silent or errored axes (the rig's stop conditions; an axis merely not in closed loop
+    /// yet is not one).
+    fn unhealthy(&self) -> bool {
+        let health = self.tracker.health(self.now_us, HEALTH_TIMEOUT_US);
+        !health.silent.is_empty() || !health.errored.is_empty()
+    }
+
+    /// Arms every axis and holds the start pose until all report closed loop.
+    pub fn start_up<B: Board<Frame = F>>(&mut self, board: &mut B) -> Result<(), ControlError> {
+        self.commander.queue_startup(&mut self.tx)?;
+        let hold = Setpoint::hold(&self.geometry, self.legs)?;
+        for _ in 0..STARTUP_TICKS {
+            self.tick(board, &hold, false)?;
+        }
+        let armed = Axis::ALL.into_iter().all(|axis| {
+            self.tracker
+                .axis(axis)
+                .is_some_and(|f| f.axis_state == Some(AxisState::ClosedLoopControl))
+        });
+        if armed && !self.unhealthy() {
+            Ok(())
+        } else {
+            Err(ControlError::StartupFailed)
+        }
+    }
+
+    /// Drives one decision: its setpoint stream, then [`SETTLE_S`] holding its target. An
+    /// action the legs cannot take is not sent (`Err`, nothing queued), as on the host.
+    pub fn step<B: Board<Frame = F>>(
+        &mut self,
+        board: &mut B,
+        action: Action,
+    ) -> Result<(), ControlError> {
+        let motion = StepMotion::plan(&self.geometry, &self.motion, self.legs, action)?;
+        let target = motion.target();
+        for setpoint in motion {
+            self.tick(board, &setpoint, true)?;
+        }
+        self.legs = target;
+        let hold = Setpoint::hold(&self.geometry, self.legs)?;
+        let ticks = libm_round(SETTLE_S / self.tick_s());
+        for _ in 0..ticks {
+            self.tick(board, &hold, true)?;
+        }
+        Ok(())
+    }
+}
+
+/// Rounds a small positive count of periods (no `std` `round`).
+fn libm_round(periods: f32) -> u32 {
+    (periods + 0.5) as u32
+}
+
+/// Sends one frame, waiting while the peripheral's mailboxes are full.
+fn send<C: Can>(can: &mut C, frame: &C::Frame) -> Result<(), ControlError> {
+    loop {
+        match can.transmit(frame) {
+            Ok(_) => return Ok(()),
+            Err(nb::Error::WouldBlock) => continue,
+            Err(nb::Error::Other(_)) => return Err(ControlError::Bus),
+        }
+    }
+}

@@ -1,0 +1,669 @@
+//! The kernel on the Cortex-M4's DSP extension (Armv7E-M): `SMLAD` multiplies two pairs of
+//! 16-bit values and adds both products to an accumulator, and `SXTB16` sign-extends bytes 0
+//! and 2 of a word (or, rotated by 8 bits, bytes 1 and 3) into such a pair. So four int8
+//! weights loaded as one word become two pairs in two instructions, and meet four int16 inputs
+//! in two more: four multiply-accumulates in four instructions, plus the loads.
+//!
+//! `SXTB16` pairs weights 0 with 2 and 1 with 3, so the inputs must come in that order: every
+//! whole group of four inputs `x0 x1 x2 x3` is stored as `x0 x2 x1 x3` ([`permute`], which
+//! `infer` applies to each row once, after gathering it, for every output row that reads it).
+//! Elements after the last whole group stay in order.
+//!
+//! Two inner loops, hand-scheduled in assembly (`global_asm!`, AAPCS functions) so that the
+//! accumulators, inputs and weights stay in registers:
+//! - `wheelleg_dsp_dot_2x2`: two input rows (two conv pixels) by two weight rows: each input pair loaded
+//!   serves two rows and each weight pair two pixels, 16 MACs in 16 instructions;
+//! - `wheelleg_dsp_dot_1x4`: one input row by four weight rows (the dense layers), 16 MACs in 21.
+//!
+//! Each loop turn handles two groups of four (unrolled once), then a compare and a branch.
+//! Integer sums are exact in any order (the loader bounds every partial sum within an i32),
+//! and requantization is the scalar kernel's own ([`super::kernel::finish`]), so the results
+//! are the scalar kernel's bit for bit; `runtime/tests` cannot run this on the host, so
+//! scripts/mcu.sh checks it in QEMU against the host's decisions.
+//!
+//! Cycle estimate of the inner loops (Cortex-M4 Technical Reference Manual, instruction
+//! timings): `SMLAD` and `SXTB16` 1 cycle each, `LDR` 2 cycles (1 when pipelined with the next
+//! load or store), `LDRD` 3 cycles, a taken branch 2 to 4 (1 + pipeline refill). `dot_2x2`'s
+//! turn of 32 MACs: 4 `LDRD` (12) + 4 `LDR` (8) + 8 `SXTB16` (8) + 16 `SMLAD` (16) + `LDR`,
+//! `CMP`, `BNE` (2 + 1 + 3) = 50 cycles, 1.56 cycles per MAC; `dot_1x4`'s: 2 `LDRD` (6) +
+//! 8 `LDR` (16) + 16 `SXTB16` (16) + 16 `SMLAD` (16) + `CMP`, `BNE` (4) = 58, 1.81 per MAC.
+//! On a part with flash wait states (170 MHz: 4 on an STM32G4) the weights' loads may cost
+//! more unless they hit the flash accelerator's prefetch and cache, which sequential loads do.
+#![allow(unsafe_code)]
+
+use super::kernel::{le_i32, output_bounds, Output, OutputSlice};
+use super::load::Linear;
+use super::quant::{requantize_clamped, MAX_SHIFT, MIN_SHIFT};
+
+// The 2 x 2 loop over row pairs: `r0` input row a (input row b is `stride` bytes further),
+// `r1` the first weight row, `r2` parameters [stride in bytes, weight row length in bytes,
+// groups of four per row, row pairs], `r3` where to store the sums, 4 per row pair (row A
+// pixel a, A b, B a, B b). Input rows must be word-aligned (LDRD). Stack frame: [sp] the
+// sums' address, [sp, #4] input a's end of the unrolled turns, [sp, #8] groups, [sp, #12]
+// input row a, [sp, #16] row pairs left, [sp, #20] from one row pair's weights (after the
+// loop) to the next, [sp, #24] stride.
+core::arch::global_asm!(
+    ".syntax unified",
+    ".thumb",
+    ".section .text.wheelleg_dsp_dot_2x2,\"ax\",%progbits",
+    ".global wheelleg_dsp_dot_2x2",
+    ".type wheelleg_dsp_dot_2x2,%function",
+    ".thumb_func",
+    "wheelleg_dsp_dot_2x2:",
+    "push {{r4-r11, lr}}",
+    "sub sp, sp, #28",
+    "str r3, [sp]",
+    "str r0, [sp, #12]",
+    "ldr r12, [r2, #8]",
+    "str r12, [sp, #8]",
+    "lsrs r4, r12, #1",
+    "add r4, r0, r4, lsl #4",
+    "str r4, [sp, #4]",
+    "ldr r4, [r2, #12]",
+    "str r4, [sp, #16]",
+    "ldr r3, [r2, #4]",
+    "lsls r4, r3, #1",
+    "sub r4, r4, r12, lsl #2",
+    "str r4, [sp, #20]",
+    "ldr r4, [r2]",
+    "str r4, [sp, #24]",
+    "ldr r4, [sp, #16]",
+    "cmp r4, #0",
+    "beq 9f",
+    "5:",
+    "ldr r0, [sp, #12]",
+    "ldr r2, [sp, #24]",
+    "add r2, r2, r0",
+    "movs r4, #0",
+    "movs r5, #0",
+    "movs r6, #0",
+    "movs r7, #0",
+    "ldr lr, [sp, #4]",
+    "cmp r0, lr",
+    "beq 2f",
+    "1:",
+    "ldrd r8, r9, [r0], #8",
+    "ldrd r10, r11, [r2], #8",
+    "ldr r12, [r1, r3]",
+    "sxtb16 lr, r12",
+    "smlad r6, lr, r8, r6",
+    "smlad r7, lr, r10, r7",
+    "sxtb16 lr, r12, ror #8",
+    "smlad r6, lr, r9, r6",
+    "smlad r7, lr, r11, r7",
+    "ldr r12, [r1], #4",
+    "sxtb16 lr, r12",
+    "smlad r4, lr, r8, r4",
+    "smlad r5, lr, r10, r5",
+    "sxtb16 lr, r12, ror #8",
+    "smlad r4, lr, r9, r4",
+    "smlad r5, lr, r11, r5",
+    "ldrd r8, r9, [r0], #8",
+    "ldrd r10, r11, [r2], #8",
+    "ldr r12, [r1, r3]",
+    "sxtb16 lr, r12",
+    "smlad r6, lr, r8, r6",
+    "smlad r7, lr, r10, r7",
+    "sxtb16 lr, r12, ror #8",
+    "smlad r6, lr, r9, r6",
+    "smlad r7, lr, r11, r7",
+    "ldr r12, [r1], #4",
+    "sxtb16 lr, r12",
+    "smlad r4, lr, r8, r4",
+    "smlad r5, lr, r10, r5",
+    "sxtb16 lr, r12, ror #8",
+    "smlad r4, lr, r9, r4",
+    "smlad r5, lr, r11, r5",
+    "ldr lr, [sp, #4]",
+    "cmp r0, lr",
+    "bne 1b",
+    "2:",
+    "ldr r12, [sp, #8]",
+    "tst r12, #1",
+    "beq 3f",
+    "ldrd r8, r9, [r0], #8",
+    "ldrd r10, r11, [r2], #8",
+    "ldr r12, [r1, r3]",
+    "sxtb16 lr, r12",
+    "smlad r6, lr, r8, r6",
+    "smlad r7, lr, r10, r7",
+    "sxtb16 lr, r12, ror #8",
+    "smlad r6, lr, r9, r6",
+    "smlad r7, lr, r11, r7",
+    "ldr r12, [r1], #4",
+    "sxtb16 lr, r12",
+    "smlad r4, lr, r8, r4",
+    "smlad r5, lr, r10, r5",
+    "sxtb16 lr, r12, ror #8",
+    "smlad r4, lr, r9, r4",
+    "smlad r5, lr, r11, r5",
+    "3:",
+    "ldr r12, [sp]",
+    "stm r12!, {{r4-r7}}",
+    "str r12, [sp]",
+    "ldr r12, [sp, #20]",
+    "add r1, r1, r12",
+    "ldr r12, [sp, #16]",
+    "subs r12, r12, #1",
+    "str r12, [sp, #16]",
+    "bne 5b",
+    "9:",
+    "add sp, sp, #28",
+    "pop {{r4-r11, pc}}",
+    ".size wheelleg_dsp_dot_2x2, . - wheelleg_dsp_dot_2x2",
+);
+
+// The 1 x 4 loop over row quads: `r0` the input row, `r1` the first weight row, `r2`
+// parameters [weight row length in bytes, groups of four per row, row quads], `r3` where to
+// store the sums, 4 per quad. The input row must be word-aligned (LDRD). Registers: r1 and r2
+// weight rows 0 and 2 (rows 1 and 3 one row length further, r3), r10 the input's end of the
+// unrolled turns, r11 groups. Stack frame: [sp] the sums' address, [sp, #4] the input row,
+// [sp, #8] quads left, [sp, #12] from one quad's weights (after the loop) to the next.
+core::arch::global_asm!(
+    ".syntax unified",
+    ".thumb",
+    ".section .text.wheelleg_dsp_dot_1x4,\"ax\",%progbits",
+    ".global wheelleg_dsp_dot_1x4",
+    ".type wheelleg_dsp_dot_1x4,%function",
+    ".thumb_func",
+    "wheelleg_dsp_dot_1x4:",
+    "push {{r4-r11, lr}}",
+    "sub sp, sp, #16",
+    "str r3, [sp]",
+    "str r0, [sp, #4]",
+    "ldr r11, [r2, #4]",
+    "ldr r4, [r2, #8]",
+    "str r4, [sp, #8]",
+    "ldr r3, [r2]",
+    "lsls r4, r3, #2",
+    "sub r4, r4, r11, lsl #2",
+    "str r4, [sp, #12]",
+    "lsrs r10, r11, #1",
+    "add r10, r0, r10, lsl #4",
+    "ldr r4, [sp, #8]",
+    "cmp r4, #0",
+    "beq 9f",
+    "5:",
+    "ldr r0, [sp, #4]",
+    "add r2, r1, r3, lsl #1",
+    "movs r4, #0",
+    "movs r5, #0",
+    "movs r6, #0",
+    "movs r7, #0",
+    "cmp r0, r10",
+    "beq 2f",
+    "1:",
+    "ldrd r8, r9, [r0], #8",
+    "ldr r12, [r1, r3]",
+    "sxtb16 lr, r12",
+    "smlad r5, lr, r8, r5",
+    "sxtb16 lr, r12, ror #8",
+    "smlad r5, lr, r9, r5",
+    "ldr r12, [r1], #4",
+    "sxtb16 lr, r12",
+    "smlad r4, lr, r8, r4",
+    "sxtb16 lr, r12, ror #8",
+    "smlad r4, lr, r9, r4",
+    "ldr r12, [r2, r3]",
+    "sxtb16 lr, r12",
+    "smlad r7, lr, r8, r7",
+    "sxtb16 lr, r12, ror #8",
+    "smlad r7, lr, r9, r7",
+    "ldr r12, [r2], #4",
+    "sxtb16 lr, r12",
+    "smlad r6, lr, r8, r6",
+    "sxtb16 lr, r12, ror #8",
+    "smlad r6, lr, r9, r6",
+    "ldrd r8, r9, [r0], #8",
+    "ldr r12, [r1, r3]",
+    "sxtb16 lr, r12",
+    "smlad r5, lr, r8, r5",
+    "sxtb16 lr, r12, ror #8",
+    "smlad r5, lr, r9, r5",
+    "ldr r12, [r1], #4",
+    "sxtb16 lr, r12",
+    "smlad r4, lr, r8, r4",
+    "sxtb16 lr, r12, ror #8",
+    "smlad r4, lr, r9, r4",
+    "ldr r12, [r2, r3]",
+    "sxtb16 lr, r12",
+    "smlad r7, lr, r8, r7",
+    "sxtb16 lr, r12, ror #8",
+    "smlad r7, lr, r9, r7",
+    "ldr r12, [r2], #4",
+    "sxtb16 lr, r12",
+    "smlad r6, lr, r8, r6",
+    "sxtb16 lr, r12, ror #8",
+    "smlad r6, lr, r9, r6",
+    "cmp r0, r10",
+    "bne 1b",
+    "2:",
+    "tst r11, #1",
+    "beq 3f",
+    "ldrd r8, r9, [r0], #8",
+    "ldr r12, [r1, r3]",
+    "sxtb16 lr, r12",
+    "smlad r5, lr, r8, r5",
+    "sxtb16 lr, r12, ror #8",
+    "smlad r5, lr, r9, r5",
+    "ldr r12, [r1], #4",
+    "sxtb16 lr, r12",
+    "smlad r4, lr, r8, r4",
+    "sxtb16 lr, r12, ror #8",
+    "smlad r4, lr, r9, r4",
+    "ldr r12, [r2, r3]",
+    "sxtb16 lr, r12",
+    "smlad r7, lr, r8, r7",
+    "sxtb16 lr, r12, ror #8",
+    "smlad r7, lr, r9, r7",
+    "ldr r12, [r2], #4",
+    "sxtb16 lr, r12",
+    "smlad r6, lr, r8, r6",
+    "sxtb16 lr, r12, ror #8",
+    "smlad r6, lr, r9, r6",
+    "3:",
+    "ldr r12, [sp]",
+    "stm r12!, {{r4-r7}}",
+    "str r12, [sp]",
+    "ldr r12, [sp, #12]",
+    "add r1, r1, r12",
+    "ldr r12, [sp, #8]",
+    "subs r12, r12, #1",
+    "str r12, [sp, #8]",
+    "bne 5b",
+    "9:",
+    "add sp, sp, #16",
+    "pop {{r4-r11, pc}}",
+    ".size wheelleg_dsp_dot_1x4, . - wheelleg_dsp_dot_1x4",
+);
+
+extern "C" {
+    fn wheelleg_dsp_dot_2x2(a: *const i16, weights: *const u8, params: *const u32, sums: *mut i32);
+    fn wheelleg_dsp_dot_1x4(x: *const i16, weights: *const u8, params: *const u32, sums: *mut i32);
+}
+
+/// Puts every whole group of four of `row` in `SXTB16` order: `x0 x1 x2 x3` -> `x0 x2 x1 x3`.
+#[inline]
+pub fn permute(row: &mut [i16]) {
+    for group in row.chunks_exact_mut(4) {
+        group.swap(1, 2);
+    }
+}
+
+/// The dot product of a [`permute`]d input row and a weight row in natural order, in Rust:
+/// for the tails and leftovers the loops do not cover, and as the fallback.
+#[inline]
+fn dot_permuted(input: &[i16], weights: &[u8]) -> i32 {
+    let whole = input.len() / 4 * 4;
+    let (groups, tail) = input.split_at(whole.min(input.len()));
+    let (group_weights, tail_weights) = weights.split_at(whole.min(weights.len()));
+    let mut sum = 0i32;
+    for (x, w) in groups.chunks_exact(4).zip(group_weights.chunks_exact(4)) {
+        if let (&[x0, x2, x1, x3], &[w0, w1, w2, w3]) = (x, w) {
+            sum += i32::from(x0) * i32::from(w0 as i8)
+                + i32::from(x1) * i32::from(w1 as i8)
+                + i32::from(x2) * i32::from(w2 as i8)
+                + i32::from(x3) * i32::from(w3 as i8);
+        }
+    }
+    for (&x, &w) in tail.iter().zip(tail_weights) {
+        sum += i32::from(x) * i32::from(w as i8);
+    }
+    sum
+}
+
+/// [`super::kernel::linear_batch`] on the DSP extension, for inputs whose rows were
+/// [`permute`]d: input row `p` is `inputs[p * stride..][..row_len]`, its outputs
+/// `outputs[p * rows..][..rows]`. Pixels go in pairs through `wheelleg_dsp_dot_2x2`, a last odd one
+/// and a batch of one through `wheelleg_dsp_dot_1x4`. Lengths that do not fit run what fits (no panic); an
+/// input that is not word-aligned runs in Rust.
+pub fn linear_batch_dsp<T: Output>(
+    linear: &Linear<'_>,
+    inputs: &[i16],
+    stride: usize,
+    outputs: &mut [T],
+) {
+    // One copy of the code for both output types (flash is scarce on a controller): the
+    // type only decides the store.
+    let bounds = bounds::<T>(linear);
+    linear_batch_any(linear, inputs, stride, T::slice(outputs), bounds);
+}
+
+/// Stores `value` (already within the layer's bounds) at `index`.
+#[inline(always)]
+fn put(out: &mut OutputSlice<'_>, index: usize, value: i16) {
+    match out {
+        OutputSlice::Int8(out) => {
+            if let Some(slot) = out.get_mut(index) {
+                *slot = value as i8;
+            }
+        }
+        OutputSlice::Int16(out) => {
+            if let Some(slot) = out.get_mut(index) {
+                *slot = value;
+            }
+        }
+    }
+}
+
+/// Outputs in the slice.
+fn len(out: &OutputSlice<'_>) -> usize {
+    match out {
+        OutputSlice::Int8(out) => out.len(),
+        OutputSlice::Int16(out) => out.len(),
+    }
+}
+
+/// [`linear_batch_dsp`] for either output type.
+fn linear_batch_any(
+    linear: &Linear<'_>,
+    inputs: &[i16],
+    stride: usize,
+    mut outputs: OutputSlice<'_>,
+    bounds: (i32, i32, i32),
+) {
+    let outputs = &mut outputs;
+    let rows = linear.rows;
+    let row_len = linear.row_len;
+    if rows == 0 || stride == 0 {
+        return;
+    }
+    let pixels = len(outputs) / rows;
+    // Every input row the loops read, and every weight row, must be in its slice.
+    let inputs_fit = pixels == 0
+        || (pixels - 1)
+            .checked_mul(stride)
+            .and_then(|start| start.checked_add(row_len))
+            .is_some_and(|end| end <= inputs.len());
+    let weights_fit = rows
+        .checked_mul(row_len)
+        .is_some_and(|len| len <= linear.weights.len());
+    let aligned = inputs.as_ptr() as usize % 4 == 0 && stride % 2 == 0;
+    if !(inputs_fit && weights_fit && linear.bias.len() >= 4 * rows) {
+        return;
+    }
+    if !aligned {
+        permuted_rust(linear, inputs, stride, outputs, pixels, bounds);
+        return;
+    }
+    let groups = row_len / 4;
+    let whole = 4 * groups;
+    // Written by the loops before it is read; zero for rows too short for them.
+    let mut sums = [0i32; SUMS];
+    let mut pixel = 0;
+    while pixel < pixels {
+        let pair = pixel + 1 < pixels;
+        let Some(a) = inputs.get(pixel * stride..) else {
+            return;
+        };
+        let first = pixel * rows;
+        if pair {
+            pixel_pair(
+                linear,
+                a,
+                stride,
+                (groups, whole),
+                outputs,
+                first,
+                &mut sums,
+                bounds,
+            );
+        } else {
+            single_pixel(
+                linear,
+                a,
+                (groups, whole),
+                outputs,
+                first,
+                &mut sums,
+                bounds,
+            );
+        }
+        pixel += 1 + usize::from(pair);
+    }
+}
+
+/// The scalar kernel's requantization ([`super::quant::requantize_clamped`]) in 32-bit
+/// steps where it can be. For a right shift `r` of 33 or more (every layer of a network whose
+/// real multipliers are below 1/2), with `p` the 64-bit product and `h = p >> 32` its high
+/// word (`SMMUL`): `(p + 2^(r-1)) >> r = ((p >> (r-1)) + 1) >> 1` (write `p >> (r-1)` as
+/// `q` and the rest as `m < 2^(r-1)`: adding half of `2^r` and dividing rounds `q / 2` the
+/// same way), and `p >> (r-1) = h >> (r-33)` (arithmetic shifts compose). The result is below
+/// 2^30 in magnitude, so it and the zero point fit an i32. Other shifts take the 64-bit
+/// formula itself.
+#[inline(always)]
+fn requantize(acc: i32, multiplier: i32, shift: i8, bounds: (i32, i32, i32)) -> i16 {
+    let (zero_point, low, high) = bounds;
+    let right = 31 - i32::from(shift.clamp(MIN_SHIFT, MAX_SHIFT));
+    if right < 33 {
+        return requantize_clamped(
+            acc,
+            multiplier,
+            shift,
+            zero_point as i8,
+            low as i16,
+            high as i16,
+        );
+    }
+    let high_word = ((i64::from(acc) * i64::from(multiplier)) >> 32) as i32;
+    let value = ((high_word >> (right - 33)) + 1) >> 1;
+    (value + zero_point).min(high).max(low) as i16
+}
+
+/// A layer's zero point and output bounds for [`requantize`].
+#[inline(always)]
+fn bounds<T: Output>(linear: &Linear<'_>) -> (i32, i32, i32) {
+    let (low, high) = output_bounds::<T>(linear);
+    (
+        i32::from(linear.output_zero_point),
+        i32::from(low),
+        i32::from(high),
+    )
+}
+
+/// Bias, multiplier and shift of each row, in lock-step.
+#[inline(always)]
+fn row_params<'a>(linear: &'a Linear<'_>) -> impl Iterator<Item = (i32, i32, i8)> + Clone + 'a {
+    linear
+        .bias
+        .chunks_exact(4)
+        .zip(linear.multipliers.chunks_exact(4))
+        .zip(linear.shifts)
+        .map(|((bias, multiplier), &shift)| (le_i32(bias), le_i32(multiplier), shift as i8))
+}
+
+/// Sums one call of an assembly loop writes at most: 64 rows of two pixels, 128 of one.
+const SUMS: usize = 128;
+
+/// Two pixels: input rows `a[..row_len]` and `a[stride..][..row_len]`, outputs `out[..rows]`
+/// and `out[rows..2 * rows]`.
+#[allow(clippy::too_many_arguments)]
+fn pixel_pair(
+    linear: &Linear<'_>,
+    a: &[i16],
+    stride: usize,
+    (groups, whole): (usize, usize),
+    out: &mut OutputSlice<'_>,
+    first: usize,
+    sums: &mut [i32; SUMS],
+    bounds: (i32, i32, i32),
+) {
+    let (rows, row_len) = (linear.rows, linear.row_len);
+    let (Some(row_a), Some(row_b)) = (a.get(..row_len), a.get(stride..stride + row_len)) else {
+        return;
+    };
+    let (tail_a, tail_b) = (
+        row_a.get(whole..).unwrap_or(&[]),
+        row_b.get(whole..).unwrap_or(&[]),
+    );
+    let paired = rows / 2 * 2;
+    let has_tail = whole < row_len;
+    let mut weight_rows = linear.weights.chunks_exact(row_len);
+    let mut requant = row_params(linear);
+    let mut outputs = first..first + rows;
+    let mut done = 0;
+    while done < paired {
+        let chunk = (paired - done).min(SUMS / 2);
+        let Some(weights) = linear.weights.get(done * row_len..(done + chunk) * row_len) else {
+            return;
+        };
+        if groups > 0 {
+            let params = [
+                (2 * stride) as u32,
+                row_len as u32,
+                groups as u32,
+                (chunk / 2) as u32,
+            ];
+            // SAFETY: for each of `chunk / 2` row pairs the loop reads `whole` (<= `row_len`)
+            // inputs from `row_a` and from `row_a + stride` (= `row_b`), both `row_len` long,
+            // and `whole` weights of each of the pair's rows, all within `weights` (`chunk`
+            // rows of `row_len`); `row_a` is word-aligned (`linear_batch_dsp` checked the
+            // input and the even stride), as its LDRDs need; it writes `2 * chunk <= SUMS`
+            // sums.
+            unsafe {
+                wheelleg_dsp_dot_2x2(
+                    row_a.as_ptr(),
+                    weights.as_ptr(),
+                    params.as_ptr(),
+                    sums.as_mut_ptr(),
+                );
+            }
+        }
+        for (pixels, ((w, p), ya)) in sums.chunks_exact(2).take(chunk).zip(
+            weight_rows
+                .by_ref()
+                .zip(requant.by_ref())
+                .zip(outputs.by_ref()),
+        ) {
+            let &[sum_a, sum_b] = pixels else {
+                return;
+            };
+            let (mut acc_a, mut acc_b) = (sum_a + p.0, sum_b + p.0);
+            if has_tail {
+                let tail_w = w.get(whole..).unwrap_or(&[]);
+                acc_a += tail_dot(tail_a, tail_w);
+                acc_b += tail_dot(tail_b, tail_w);
+            }
+            put(out, ya, requantize(acc_a, p.1, p.2, bounds));
+            put(out, ya + rows, requantize(acc_b, p.1, p.2, bounds));
+        }
+        done += chunk;
+    }
+    // The last row of an odd count.
+    for ((w, p), ya) in weight_rows.zip(requant).zip(outputs) {
+        put(
+            out,
+            ya,
+            requantize(dot_permuted(row_a, w) + p.0, p.1, p.2, bounds),
+        );
+        put(
+            out,
+            ya + rows,
+            requantize(dot_permuted(row_b, w) + p.0, p.1, p.2, bounds),
+        );
+    }
+}
+
+/// One pixel: input row `a[..row_len]`, outputs `out[..rows]`, four rows at a time.
+fn single_pixel(
+    linear: &Linear<'_>,
+    a: &[i16],
+    (groups, whole): (usize, usize),
+    out: &mut OutputSlice<'_>,
+    first: usize,
+    sums: &mut [i32; SUMS],
+    bounds: (i32, i32, i32),
+) {
+    let (rows, row_len) = (linear.rows, linear.row_len);
+    let Some(input) = a.get(..row_len) else {
+        return;
+    };
+    let tail_x = input.get(whole..).unwrap_or(&[]);
+    let quads = rows / 4 * 4;
+    let has_tail = whole < row_len;
+    let mut weight_rows = linear.weights.chunks_exact(row_len);
+    let mut requant = row_params(linear);
+    let mut outputs = first..first + rows;
+    let mut done = 0;
+    while done < quads {
+        let chunk = (quads - done).min(SUMS);
+        let Some(weights) = linear.weights.get(done * row_len..(done + chunk) * row_len) else {
+            return;
+        };
+        if groups > 0 {
+            let params = [row_len as u32, groups as u32, (chunk / 4) as u32];
+            // SAFETY: for each of `chunk / 4` row quads the loop reads `whole` (<= `row_len`)
+            // inputs of `input` (word-aligned, as in `pixel_pair`) and `whole` weights of each
+            // of the quad's rows, all within `weights` (`chunk` rows of `row_len`); it writes
+            // `chunk <= SUMS` sums.
+            unsafe {
+                wheelleg_dsp_dot_1x4(
+                    input.as_ptr(),
+                    weights.as_ptr(),
+                    params.as_ptr(),
+                    sums.as_mut_ptr(),
+                );
+            }
+        }
+        for (&sum, ((w, p), y)) in sums.iter().take(chunk).zip(
+            weight_rows
+                .by_ref()
+                .zip(requant.by_ref())
+                .zip(outputs.by_ref()),
+        ) {
+            let mut acc = sum + p.0;
+            if has_tail {
+                acc += tail_dot(tail_x, w.get(whole..).unwrap_or(&[]));
+            }
+            put(out, y, requantize(acc, p.1, p.2, bounds));
+        }
+        done += chunk;
+    }
+    // The rows after the last whole quad.
+    for ((w, p), y) in weight_rows.zip(requant).zip(outputs) {
+        put(
+            out,
+            y,
+            requantize(dot_permuted(input, w) + p.0, p.1, p.2, bounds),
+        );
+    }
+}
+
+/// The dot product of the elements after the loops' whole groups (in natural order).
+#[inline(always)]
+fn tail_dot(input: &[i16], weights: &[u8]) -> i32 {
+    input
+        .iter()
+        .zip(weights)
+        .map(|(&x, &w)| i32::from(x) * i32::from(w as i8))
+        .sum()
+}
+
+/// The whole batch in Rust, for inputs the loops cannot take.
+fn permuted_rust(
+    linear: &Linear<'_>,
+    inputs: &[i16],
+    stride: usize,
+    out: &mut OutputSlice<'_>,
+    pixels: usize,
+    bounds: (i32, i32, i32),
+) {
+    let (rows, row_len) = (linear.rows, linear.row_len);
+    for pixel in 0..pixels {
+        let Some(input) = inputs.get(pixel * stride..pixel * stride + row_len) else {
+            return;
+        };
+        for (r, (w, p)) in linear
+            .weights
+            .chunks_exact(row_len)
+            .zip(row_params(linear))
+            .enumerate()
+        {
+            put(
+                out,
+                pixel * rows + r,
+                requantize(dot_permuted(input, w) + p.0, p.1, p.2, bounds),
+            );
+        }
+    }
+}
