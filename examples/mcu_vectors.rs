@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! cargo run --release --example mcu_vectors -- vectors OUT_DIR [--decisions N]
-//! cargo run --release --example mcu_vectors -- evaluate [--scenes N]
+//! cargo run --release --example mcu_vectors -- evaluate [--scenes N] [--whole-map]
 //! ```
 //!
 //! Both drive the held-out complex scenes (`eval/heldout-complex-s1000000.json`) with the
@@ -23,7 +23,8 @@
 //!   `episode.decisions.expected`.
 //!
 //! `evaluate` runs the scenes to their end with the stack and prints success and
-//! collision-free rates as JSON.
+//! collision-free rates as JSON; `--whole-map` lets the guard read the whole 1 cm map in
+//! metres, as the host's `eval --guard-map fine` does, instead of the controller's window.
 
 #[path = "../controller/src/stack.rs"]
 #[allow(dead_code)]
@@ -87,7 +88,8 @@ fn run() -> Result<()> {
         }
         Some("evaluate") => {
             let count = value("--scenes")?.unwrap_or(scenes.len()).min(scenes.len());
-            evaluate(&weights, scenes.get(..count).unwrap_or(&[]))
+            let whole_map = args.iter().any(|a| a == "--whole-map");
+            evaluate(&weights, scenes.get(..count).unwrap_or(&[]), whole_map)
         }
         _ => {
             Err("usage: mcu_vectors vectors OUT_DIR [--decisions N] | evaluate [--scenes N]".into())
@@ -137,6 +139,12 @@ impl<'w> Robot<'w> {
 
     /// One decision on `env` as it is now.
     fn decide(&mut self, env: &Env) -> Result<Decided> {
+        self.decide_with(env, false)
+    }
+
+    /// One decision; with `whole_map`, the guard reads the whole fine map in metres (the
+    /// host's `--guard-map fine`) instead of the controller's window.
+    fn decide_with(&mut self, env: &Env, whole_map: bool) -> Result<Decided> {
         env.observe(&mut self.sim_observation);
         let (height_mm, state_mm) = observation_mm(&self.sim_observation);
         let mut observation = Observation::new();
@@ -158,11 +166,15 @@ impl<'w> Robot<'w> {
             .stack
             .infer(&observation, &mut self.work, &mut self.row)
             .map_err(|e| format!("inference: {e:?}"))?;
-        let record = self
-            .stack
-            .decide(&observation, &outputs, &window_mm_le)
-            .map_err(|e| format!("decision: {e:?}"))?;
         let grid = GridMap::new(&self.fine, side, bounds.cell_m).map_err(|e| e.to_string())?;
+        let record = if whole_map {
+            self.stack
+                .decide_on(&observation, &outputs, HeightMapRef::Grid(grid))
+        } else {
+            self.stack
+                .decide(&observation, &outputs, &window_mm_le)
+                .map_err(|e| format!("decision: {e:?}"))?
+        };
         let greedy = Action::from_index(usize::from(record.greedy)).unwrap_or_default();
         let full_map_verdict = self
             .guard
@@ -436,28 +448,34 @@ fn record_episode(weights: &[u8], scenes: &[Scenario], out: &Path) -> Result<Epi
     Err("no held-out scene ran clean through the closed loop".into())
 }
 
-fn evaluate(weights: &[u8], scenes: &[Scenario]) -> Result<()> {
+fn evaluate(weights: &[u8], scenes: &[Scenario], whole_map: bool) -> Result<()> {
     let mut robot = Robot::new(weights)?;
     let (mut success, mut collision_free, mut decisions) = (0usize, 0usize, 0usize);
+    let mut failed = Vec::new();
     for scene in scenes {
         let mut env = Env::new(scene, EnvConfig::default()).map_err(|e| format!("{e:?}"))?;
         robot.stack.reset();
         while !env.status().is_done() {
-            let decided = robot.decide(&env)?;
+            let decided = robot.decide_with(&env, whole_map)?;
             decisions += 1;
             env.step(decided.record.action())
                 .map_err(|_| "stepped a finished episode")?;
         }
         let succeeded = env.status() == Status::Success;
         success += usize::from(succeeded);
+        if !succeeded {
+            failed.push(format!("\"{}\"", scene.name));
+        }
         collision_free += usize::from(succeeded && env.collisions() == 0);
     }
     let n = scenes.len().max(1) as f64;
     println!(
-        "{{\"scenes\": {}, \"success_rate\": {:.4}, \"collision_free_rate\": {:.4}, \"decisions\": {decisions}}}",
+        "{{\"scenes\": {}, \"guard_map\": \"{}\", \"success_rate\": {:.4}, \"collision_free_rate\": {:.4}, \"decisions\": {decisions}, \"failed\": [{}]}}",
         scenes.len(),
+        if whole_map { "whole fine map, metres" } else { "controller window, millimetres" },
         success as f64 / n,
-        collision_free as f64 / n
+        collision_free as f64 / n,
+        failed.join(", ")
     );
     Ok(())
 }

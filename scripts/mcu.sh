@@ -109,6 +109,13 @@ boot=$(field instructions_boot_check)
 # in, the issue's anchors' measure); the decision rule, guard and arrival are counted apart.
 per_decision=$((infer / decided))
 per_rule=$((decide / decided))
+scalar=$(field scalar_infer_instructions)
+per_decision_scalar=$((scalar / decided))
+kernel_mismatches=$(field kernel_mismatches)
+if [ "$kernel_mismatches" != 0 ]; then
+    log "error: the DSP kernel's outputs differ from the scalar kernel's on $kernel_mismatches decisions"
+    match=false
+fi
 per_tick=$((tick_instructions / ticks))
 
 if [ "$calibration" != "$calibration_expected" ]; then
@@ -122,14 +129,14 @@ if [ "$flash" -gt "$FLASH_BUDGET" ] || [ "$ram" -gt "$RAM_BUDGET" ]; then
 fi
 
 if $json; then
-    echo "{\"decisions_match\": $match, \"flash_bytes\": $flash, \"ram_bytes\": $ram, \"stack_bytes\": $stack, \"instructions_per_decision\": $per_decision, \"instructions_per_tick\": $per_tick, \"instructions_boot_check\": $boot, \"decisions\": $decided, \"ticks\": $ticks, \"weights_bytes\": $weights, \"text_bytes\": $((vector_table + text)), \"rodata_bytes\": $rodata, \"data_bytes\": $data, \"bss_bytes\": $((bss + uninit)), \"fits_budget\": $fits, \"instructions_rule_guard_arrival\": $per_rule, \"calibration_instructions\": $calibration}"
+    echo "{\"decisions_match\": $match, \"flash_bytes\": $flash, \"ram_bytes\": $ram, \"stack_bytes\": $stack, \"instructions_per_decision\": $per_decision, \"instructions_per_tick\": $per_tick, \"instructions_boot_check\": $boot, \"decisions\": $decided, \"ticks\": $ticks, \"weights_bytes\": $weights, \"text_bytes\": $((vector_table + text)), \"rodata_bytes\": $rodata, \"data_bytes\": $data, \"bss_bytes\": $((bss + uninit)), \"fits_budget\": $fits, \"instructions_rule_guard_arrival\": $per_rule, \"calibration_instructions\": $calibration, \"instructions_per_decision_scalar\": $per_decision_scalar}"
 else
     cat <<EOF
 decisions match the host's:   $match ($decided decisions, $ticks control periods)
 fits the budget:              $fits (128 KiB flash, 32 KiB RAM)
 flash:                        $flash bytes (code $((vector_table + text)), read-only data $rodata of which weights $weights, data $data)
 RAM:                          $ram bytes (data $data, bss $((bss + uninit)), peak stack $stack)
-instructions per decision:    $per_decision (policy), and $per_rule for the rule, guard and arrival
+instructions per decision:    $per_decision (policy, DSP kernel; scalar kernel $per_decision_scalar), and $per_rule for the rule, guard and arrival
 instructions per period:      $per_tick
 instructions for boot check:  $boot
 EOF

@@ -24,6 +24,7 @@ use wheelleg_controller::stack::{
 };
 use wheelleg_runtime::can::CanFrame;
 use wheelleg_runtime::leg::LegConfig;
+use wheelleg_runtime::model::Kernel;
 use wheelleg_runtime::robot::WHEELLEG;
 
 use qemu::{tag, Clock, ReplayBoard, ReplayCan, Uart};
@@ -188,6 +189,8 @@ struct Counts {
     max_decision_instructions: u64,
     ticks: u64,
     tick_instructions: u64,
+    scalar_infer_instructions: u64,
+    kernel_mismatches: u64,
 }
 
 #[entry]
@@ -259,6 +262,11 @@ fn main() -> ! {
     );
     uart.field("ticks", counts.ticks);
     uart.field("tick_instructions", counts.tick_instructions);
+    uart.field(
+        "scalar_infer_instructions",
+        counts.scalar_infer_instructions,
+    );
+    uart.field("kernel_mismatches", counts.kernel_mismatches);
     uart.field("stack_bytes", peak_stack_bytes() as u64);
     uart.write(b"\n");
     exit(0)
@@ -430,6 +438,16 @@ fn decide_one(
         .infer(observation, work, row)
         .map_err(|_| b"inference".as_slice())?;
     let infer = clock.instructions_since(start);
+    // The portable scalar kernel on the same observation: its outputs must be the fast
+    // kernel's, bit for bit (`Outputs` compares every logit).
+    let fast = stack.policy().kernel();
+    if stack.set_kernel(Kernel::Scalar).is_ok() {
+        let start = clock.now();
+        let reference = stack.infer(observation, work, row);
+        counts.scalar_infer_instructions += clock.instructions_since(start);
+        counts.kernel_mismatches += u64::from(reference != Ok(outputs));
+        stack.set_kernel(fast).map_err(|_| b"kernel".as_slice())?;
+    }
     // The window arrives after inference, into the bytes inference no longer needs.
     let window: &mut [u8] = bytes_of(work)
         .get_mut(..window_bytes.min(WINDOW_BYTES))

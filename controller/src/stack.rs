@@ -13,7 +13,9 @@ use wheelleg_runtime::guard::{
     CollisionGuard, FineWindow, HeightMapRef, Refusal, WindowBounds, DEFAULT_MARGIN_M,
 };
 use wheelleg_runtime::leg::LegConfig;
-use wheelleg_runtime::model::{InferError, LoadError, Outputs, Policy, ACTION_LOGITS};
+use wheelleg_runtime::model::{
+    InferError, Kernel, LoadError, Outputs, Policy, UnsupportedKernel, ACTION_LOGITS,
+};
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
 use wheelleg_runtime::robot::WHEELLEG;
 
@@ -185,6 +187,12 @@ impl<'w, 'd, const STATES: usize> Stack<'w, 'd, STATES> {
         &self.policy
     }
 
+    /// Runs inference with `kernel` from now on (the check harness runs the portable scalar
+    /// kernel beside the fastest one); refuses a kernel this target cannot run.
+    pub fn set_kernel(&mut self, kernel: Kernel) -> Result<(), UnsupportedKernel> {
+        self.policy.set_kernel(kernel)
+    }
+
     /// A new episode: forget the actions taken.
     pub fn reset(&mut self) {
         self.decider.reset();
@@ -222,7 +230,17 @@ impl<'w, 'd, const STATES: usize> Stack<'w, 'd, STATES> {
         window_mm_le: &[u8],
     ) -> Result<DecisionRecord, StackError> {
         let window = FineWindow::new(window_mm_le, self.window).map_err(|_| StackError::Window)?;
-        let map = HeightMapRef::Window(&window);
+        Ok(self.decide_on(observation, outputs, HeightMapRef::Window(&window)))
+    }
+
+    /// [`Self::decide`] with the guard reading `map` (for the host's comparisons with other
+    /// maps; the firmware reads its window).
+    pub fn decide_on(
+        &mut self,
+        observation: &Observation,
+        outputs: &Outputs,
+        map: HeightMapRef<'_>,
+    ) -> DecisionRecord {
         let legs = observation.legs();
         let key = ObservationKey::of_mm(&observation.height_mm, &observation.state_mm);
         let arrival = Arrival::from_state_mm(&observation.state_mm, DEFAULT_RADIUS_M);
@@ -236,7 +254,7 @@ impl<'w, 'd, const STATES: usize> Stack<'w, 'd, STATES> {
         let checked = self
             .guard
             .choose(self.decider, key, logits, map, legs, Some(&arrival));
-        Ok(DecisionRecord {
+        DecisionRecord {
             logits: outputs.action_logits,
             greedy: index_u8(greedy),
             greedy_verdict,
@@ -245,7 +263,7 @@ impl<'w, 'd, const STATES: usize> Stack<'w, 'd, STATES> {
                 .level
                 .map_or(u8::MAX, |level| u8::try_from(level).unwrap_or(u8::MAX)),
             checks: u16::try_from(checked.checks).unwrap_or(u16::MAX),
-        })
+        }
     }
 }
 
