@@ -25,7 +25,7 @@ pub const FINE_SIDE: usize = 128;
 /// Cell side of the fine map.
 pub const FINE_CELL_M: f32 = 0.01;
 /// Capacity of the fine window, in cells: [`CollisionGuard::fine_window`] of the default
-/// guard on the 1 cm map is 69 x 77 = 5,313 cells; the stack refuses to start if it were more.
+/// guard on the 1 cm map is 68 x 78 = 5,304 cells; the stack refuses to start if it were more.
 pub const WINDOW_CELLS: usize = 5_376;
 /// Bytes of the fine window (`i16` heights).
 pub const WINDOW_BYTES: usize = 2 * WINDOW_CELLS;
