@@ -7,9 +7,12 @@
 //! - [`control`]: the 100 Hz loop that drives a decision: setpoints to 16 ODrive axes over CAN,
 //!   their feedback in, odometry and health, behind the [`control::Board`] trait.
 //!
-//! The program for QEMU's mps2-an386 (Cortex-M4F) is `src/main.rs`; docs/controller.md says
-//! how to build, run and flash it.
+//!
+//! Two programs for QEMU's mps2-an386 (Cortex-M4F): the production image `src/main.rs` (what
+//! flash is measured on) and the check image `src/check/main.rs` (scripts/mcu.sh's vectors,
+//! counts and kernel comparison); docs/controller.md says how to build, run and flash them.
 #![no_std]
 
 pub mod control;
+pub mod link;
 pub mod stack;

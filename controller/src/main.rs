@@ -1,72 +1,34 @@
-//! The controller on QEMU's mps2-an386 (Cortex-M4F): boots, checks the weights file, then runs
-//! the check harness of scripts/mcu.sh. It decides on every recorded observation of
-//! `decisions.bin` and writes each decision to `decisions.out`, then drives the recorded
-//! episode of `episode.bin` (decisions, the 100 Hz setpoint stream, the axes' feedback) and
-//! writes its frames to `episode.frames.out` and its decisions to `episode.decisions.out`; the
-//! host compares both with its own. On the console it reports what it counted: instructions
-//! (QEMU's `-icount shift=0` clock) and the peak stack (by painting).
+//! The production image on QEMU's mps2-an386 (Cortex-M4F): what flash is measured on. Boots,
+//! checks the weights file, then decides and drives, with none of the check harness
+//! (semihosting, replay, counts, the scalar kernel's comparison: `src/check/main.rs`).
+//!
+//! Its links stand in for a real board's: observations arrive on CMSDK UART 1 (the record of
+//! `link::read_observation`, then the fine window's `i16` little-endian heights), each
+//! decision's record leaves on it; the ODrive bus is a CAN bridge on UART 2 (each frame as
+//! id, length and 8 data bytes), and SysTick paces the 100 Hz period. A board's HAL puts its
+//! FDCAN driver and timer in their place (docs/controller.md).
 #![no_std]
 #![no_main]
 
-mod qemu;
-mod semihosting;
-
 use core::arch::asm;
-use core::cell::UnsafeCell;
 use core::mem::MaybeUninit;
 use core::panic::PanicInfo;
-use core::sync::atomic::{AtomicBool, Ordering};
+use core::ptr::{read_volatile, write_volatile};
 
 use cortex_m_rt::entry;
-use wheelleg_controller::control::Control;
+use embedded_can::{Frame, Id, StandardId};
+use wheelleg_controller::control::{Board, Control};
+use wheelleg_controller::link::{read_observation, Buffer};
 use wheelleg_controller::stack::{
-    ControllerDecider, DecisionRecord, Observation, Stack, ROW_ELEMENTS, WINDOW_BYTES, WORK_BYTES,
+    ControllerDecider, Observation, Stack, ROW_ELEMENTS, WINDOW_BYTES, WORK_BYTES,
 };
 use wheelleg_runtime::can::CanFrame;
-use wheelleg_runtime::leg::LegConfig;
-use wheelleg_runtime::model::Kernel;
 use wheelleg_runtime::robot::WHEELLEG;
-
-use qemu::{tag, Clock, ReplayBoard, ReplayCan, Uart};
-use semihosting::{exit, File, Mode};
 
 /// The shipped weights, in flash, word-aligned so that the kernels may load 4 weights at once.
 #[repr(C, align(4))]
 struct Aligned<T: ?Sized>(T);
 static WEIGHTS: &Aligned<[u8]> = &Aligned(*include_bytes!("../../weights/policy.wlw"));
-
-/// Header of the decisions file: magic, version, records, window (side, cell in um, first
-/// row, rows, first column, columns).
-const HEADER_BYTES: usize = 4 * 10;
-const DECISIONS_MAGIC: &[u8; 4] = b"WLDV";
-const EPISODE_MAGIC: &[u8; 4] = b"WLEP";
-const VERSION: u32 = 1;
-/// Pattern of the painted stack.
-const PAINT: u32 = 0xC0DE_5AFE;
-
-/// A buffer in `.bss` handed out once, as a `&'static mut`: the large buffers live here
-/// rather than in `main`'s frame, so that nothing copies them and their RAM shows in the
-/// image's section sizes.
-struct Buffer<T>(UnsafeCell<T>, AtomicBool);
-
-// SAFETY: the only access is through `take`, which hands out the one reference at most once.
-unsafe impl<T> Sync for Buffer<T> {}
-
-impl<T> Buffer<T> {
-    const fn new(value: T) -> Buffer<T> {
-        Buffer(UnsafeCell::new(value), AtomicBool::new(false))
-    }
-
-    // The one `&mut` comes from the cell, handed out once (the flag), as `singleton!` does.
-    #[allow(clippy::mut_from_ref)]
-    fn take(&'static self) -> Option<&'static mut T> {
-        if self.1.swap(true, Ordering::AcqRel) {
-            return None;
-        }
-        // SAFETY: the flag was clear, so no other reference was ever handed out.
-        Some(unsafe { &mut *self.0.get() })
-    }
-}
 
 static WORK: Buffer<[i8; WORK_BYTES]> = Buffer::new([0; WORK_BYTES]);
 static ROW: Buffer<[i16; ROW_ELEMENTS]> = Buffer::new([0; ROW_ELEMENTS]);
@@ -77,26 +39,19 @@ static DECIDER: Buffer<ControllerDecider> = Buffer::new(ControllerDecider::new()
 #[link_section = ".uninit.STACK"]
 static STACK: Buffer<MaybeUninit<Stack<'static, 'static>>> = Buffer::new(MaybeUninit::uninit());
 
-/// The boot check: the weights file parsed and checked into the static `slot` (in a frame of
-/// its own, popped before the first decision).
-#[inline(never)]
-fn boot(
-    slot: &'static mut MaybeUninit<Stack<'static, 'static>>,
-    decider: &'static mut ControllerDecider,
-) -> Option<&'static mut Stack<'static, 'static>> {
-    let stack = Stack::new(&WEIGHTS.0, decider).ok()?;
-    Some(slot.write(stack))
-}
-
 /// Interrupts of the vector table: the 32 of QEMU's mps2-an386 (CMSDK peripherals), none
-/// used (the controller polls its peripherals), each parked in a loop. A real board's HAL
-/// crate provides its own table (102 entries on an STM32G431).
+/// used (the controller polls its peripherals), each parked in a loop.
 #[link_section = ".vector_table.interrupts"]
 #[no_mangle]
 static __INTERRUPTS: [unsafe extern "C" fn(); 32] = [unused_interrupt; 32];
 
 /// An interrupt nothing enabled: stop here.
 unsafe extern "C" fn unused_interrupt() {
+    halt()
+}
+
+/// Stops the core (an unused interrupt, a panic, a failed boot check, a lost link).
+fn halt() -> ! {
     loop {
         // SAFETY: `wfi` only waits for an interrupt.
         unsafe { asm!("wfi", options(nomem, nostack)) };
@@ -105,370 +60,208 @@ unsafe extern "C" fn unused_interrupt() {
 
 #[panic_handler]
 fn panic(_info: &PanicInfo) -> ! {
-    exit(101)
+    halt()
 }
 
-extern "C" {
-    static __sheap: u32;
-    static _stack_start: u32;
-}
+/// A CMSDK UART of mps2-an386, polled.
+struct Uart(usize);
 
-/// Fills the free stack (from the end of `.bss` to a little below the current stack pointer)
-/// with [`PAINT`], so that [`peak_stack_bytes`] can find the deepest word ever written.
-#[inline(never)]
-fn paint_stack() {
-    let bottom = core::ptr::addr_of!(__sheap) as usize;
-    let sp: usize;
-    // SAFETY: reads the stack pointer.
-    unsafe { asm!("mov {}, sp", out(reg) sp, options(nomem, nostack)) };
-    let mut at = bottom;
-    // Leave 64 bytes below this frame untouched: this function's own.
-    while at + 64 < sp {
-        // SAFETY: `[__sheap, sp - 64)` is RAM that no live object uses: below every frame,
-        // above every static.
-        unsafe { core::ptr::write_volatile(at as *mut u32, PAINT) };
-        at += 4;
-    }
-}
+impl Uart {
+    const UART1: usize = 0x4000_5000;
+    const UART2: usize = 0x4000_6000;
 
-/// Bytes of stack used at the deepest so far: from the top of RAM down to the lowest word
-/// no longer painted.
-fn peak_stack_bytes() -> usize {
-    let bottom = core::ptr::addr_of!(__sheap) as usize;
-    let top = core::ptr::addr_of!(_stack_start) as usize;
-    let mut at = bottom;
-    // SAFETY: reads the painted region, word by word, below the live frames.
-    while at < top && unsafe { core::ptr::read_volatile(at as *const u32) } == PAINT {
-        at += 4;
-    }
-    top - at
-}
-
-fn u32_at(bytes: &[u8], word: usize) -> u32 {
-    match bytes.get(4 * word..4 * word + 4) {
-        Some(&[a, b, c, d]) => u32::from_le_bytes([a, b, c, d]),
-        _ => 0,
-    }
-}
-
-/// Reads the fixed part of an observation record (flags, map, state) into `observation`.
-fn read_observation(
-    read: &mut dyn FnMut(&mut [u8]) -> bool,
-    observation: &mut Observation,
-) -> Option<u32> {
-    let mut flags = [0u8; 4];
-    let mut map = [0u8; 2 * 64];
-    if !read(&mut flags) {
-        return None;
-    }
-    for cells in observation.height_mm.chunks_mut(64) {
-        let bytes = map.get_mut(..2 * cells.len())?;
-        if !read(bytes) {
-            return None;
+    /// Enables the transmitter and the receiver.
+    fn new(base: usize) -> Uart {
+        // SAFETY: the CMSDK UART's registers (data, state, control, baud divider); writing
+        // them has no effect on memory.
+        unsafe {
+            write_volatile((base + 0x10) as *mut u32, 16);
+            write_volatile((base + 0x08) as *mut u32, 0b11);
         }
-        for (cell, pair) in cells.iter_mut().zip(bytes.chunks_exact(2)) {
-            *cell = i16::from_le_bytes([*pair.first()?, *pair.get(1)?]);
+        Uart(base)
+    }
+
+    fn state(&self) -> u32 {
+        // SAFETY: as in `new`: device registers.
+        unsafe { read_volatile((self.0 + 0x04) as *const u32) }
+    }
+
+    /// Writes `bytes`, waiting while the transmit buffer is full.
+    fn write(&mut self, bytes: &[u8]) {
+        for &byte in bytes {
+            while self.state() & 1 != 0 {}
+            // SAFETY: as in `new`.
+            unsafe { write_volatile(self.0 as *mut u32, u32::from(byte)) };
         }
     }
-    for value in observation.state_mm.iter_mut() {
-        let mut bytes = [0u8; 4];
-        if !read(&mut bytes) {
-            return None;
-        }
-        *value = i32::from_le_bytes(bytes);
+
+    /// A received byte, if one is waiting.
+    fn try_read(&mut self) -> Option<u8> {
+        // SAFETY: as in `new`.
+        (self.state() & 2 != 0).then(|| unsafe { read_volatile(self.0 as *const u32) } as u8)
     }
-    Some(u32::from_le_bytes(flags))
+
+    /// Fills `buf`, waiting for each byte.
+    fn read_exact(&mut self, buf: &mut [u8]) -> bool {
+        for slot in buf.iter_mut() {
+            *slot = loop {
+                if let Some(byte) = self.try_read() {
+                    break byte;
+                }
+            };
+        }
+        true
+    }
 }
 
-/// What the harness counts.
-#[derive(Default)]
-struct Counts {
-    decisions: u64,
-    infer_instructions: u64,
-    decide_instructions: u64,
-    max_decision_instructions: u64,
-    ticks: u64,
-    tick_instructions: u64,
-    scalar_infer_instructions: u64,
-    kernel_mismatches: u64,
+/// Bytes of a bridged CAN frame: id (u16), length, 8 data bytes.
+const FRAME_BYTES: usize = 11;
+
+/// The CAN bridge: frames over a UART, a received frame handed out once all its bytes came.
+struct BridgeCan {
+    uart: Uart,
+    partial: [u8; FRAME_BYTES],
+    have: usize,
+}
+
+/// The bridge's only error: a received frame that no CAN frame can be.
+#[derive(Debug)]
+struct BridgeError;
+
+impl embedded_can::Error for BridgeError {
+    fn kind(&self) -> embedded_can::ErrorKind {
+        embedded_can::ErrorKind::Other
+    }
+}
+
+impl embedded_can::nb::Can for BridgeCan {
+    type Frame = CanFrame;
+    type Error = BridgeError;
+
+    fn transmit(&mut self, frame: &CanFrame) -> nb::Result<Option<CanFrame>, BridgeError> {
+        let id = match frame.id() {
+            Id::Standard(id) => id.as_raw(),
+            Id::Extended(_) => u16::MAX,
+        };
+        let mut bytes = [0u8; FRAME_BYTES];
+        let [lo, hi] = id.to_le_bytes();
+        let [id_lo, id_hi, len, data @ ..] = &mut bytes;
+        (*id_lo, *id_hi, *len) = (lo, hi, frame.dlc() as u8);
+        for (slot, &byte) in data.iter_mut().zip(frame.data()) {
+            *slot = byte;
+        }
+        self.uart.write(&bytes);
+        Ok(None)
+    }
+
+    fn receive(&mut self) -> nb::Result<CanFrame, BridgeError> {
+        while self.have < FRAME_BYTES {
+            let byte = self.uart.try_read().ok_or(nb::Error::WouldBlock)?;
+            if let Some(slot) = self.partial.get_mut(self.have) {
+                *slot = byte;
+            }
+            self.have += 1;
+        }
+        self.have = 0;
+        let [lo, hi, len, data @ ..] = self.partial;
+        StandardId::new(u16::from_le_bytes([lo, hi]))
+            .and_then(|id| CanFrame::new(id, data.get(..usize::from(len))?))
+            .ok_or(nb::Error::Other(BridgeError))
+    }
+}
+
+/// SysTick's reload for one 10 ms period of the machine's 25 MHz clock.
+const PERIOD_COUNTS: u32 = 250_000;
+
+/// The board: the CAN bridge and SysTick's period.
+struct BridgeBoard {
+    can: BridgeCan,
+}
+
+impl BridgeBoard {
+    fn new(can: BridgeCan) -> BridgeBoard {
+        // SAFETY: SysTick's reload, current value and control registers; no memory effects.
+        unsafe {
+            write_volatile(0xE000_E014 as *mut u32, PERIOD_COUNTS - 1);
+            write_volatile(0xE000_E018 as *mut u32, 0);
+            write_volatile(0xE000_E010 as *mut u32, 0b101);
+        }
+        BridgeBoard { can }
+    }
+}
+
+impl Board for BridgeBoard {
+    type Frame = CanFrame;
+    type Can = BridgeCan;
+
+    fn can(&mut self) -> &mut BridgeCan {
+        &mut self.can
+    }
+
+    fn wait_for_tick(&mut self) {
+        // SAFETY: SysTick's control register; reading it clears COUNTFLAG (bit 16), set when
+        // the counter wrapped: the period began.
+        while unsafe { read_volatile(0xE000_E010 as *const u32) } & (1 << 16) == 0 {}
+    }
 }
 
 #[entry]
 fn main() -> ! {
-    paint_stack();
-    let mut uart = Uart::new();
-    let clock = Clock::start();
-
-    // The clock's calibration: a loop of exactly 2 instructions per turn.
-    let turns: u32 = 500_000;
-    let start = clock.now();
-    // SAFETY: a register-only countdown loop.
-    unsafe {
-        asm!("1:", "subs {n}, #1", "bne 1b", n = inout(reg) turns => _, options(nomem, nostack));
-    }
-    let calibration = clock.instructions_since(start);
-
-    let (Some(decider), Some(slot)) = (DECIDER.take(), STACK.take()) else {
-        exit(5)
+    let (Some(decider), Some(slot), Some(work), Some(row), Some(observation)) = (
+        DECIDER.take(),
+        STACK.take(),
+        WORK.take(),
+        ROW.take(),
+        OBSERVATION.take(),
+    ) else {
+        halt()
     };
-    let start = clock.now();
-    let stack = boot(slot, decider);
-    let boot_instructions = clock.instructions_since(start);
-    let Some(stack) = stack else {
-        uart.write(b"WLMCU error=weights\n");
-        exit(2)
+    let Ok(stack) = Stack::new(&WEIGHTS.0, decider) else {
+        halt()
     };
-    uart.write(b"WLMCU ");
-    uart.field("calibration_instructions", calibration);
-    uart.field("calibration_expected", 2 * u64::from(turns));
-    uart.field("instructions_boot_check", boot_instructions);
-    uart.write(b"\n");
-
-    let (Some(work), Some(row), Some(observation)) = (WORK.take(), ROW.take(), OBSERVATION.take())
-    else {
-        exit(5)
-    };
-    let mut counts = Counts::default();
-    let status = run_decisions(stack, observation, work, row, &clock, &mut counts);
-    if let Err(what) = status {
-        uart.write(b"WLMCU error=");
-        uart.write(what);
-        uart.write(b"\n");
-        exit(3)
-    }
-    let status = run_episode(stack, observation, work, row, &clock, &mut counts);
-    match status {
-        Ok((ticks, sent)) => {
-            uart.write(b"WLMCU ");
-            uart.field("episode_ticks", u64::from(ticks));
-            uart.field("episode_frames", u64::from(sent));
-            uart.write(b"\n");
-        }
-        Err(what) => {
-            uart.write(b"WLMCU error=");
-            uart.write(what);
-            uart.write(b"\n");
-            exit(4)
-        }
-    }
-
-    uart.write(b"WLMCU ");
-    uart.field("decisions", counts.decisions);
-    uart.field("infer_instructions", counts.infer_instructions);
-    uart.field("decide_instructions", counts.decide_instructions);
-    uart.field(
-        "max_decision_instructions",
-        counts.max_decision_instructions,
-    );
-    uart.field("ticks", counts.ticks);
-    uart.field("tick_instructions", counts.tick_instructions);
-    uart.field(
-        "scalar_infer_instructions",
-        counts.scalar_infer_instructions,
-    );
-    uart.field("kernel_mismatches", counts.kernel_mismatches);
-    uart.field("stack_bytes", peak_stack_bytes() as u64);
-    uart.write(b"\n");
-    exit(0)
-}
-
-/// Decides on every observation of `decisions.bin`, writing each record to `decisions.out`.
-#[inline(never)]
-fn run_decisions(
-    stack: &mut Stack<'_, '_>,
-    observation: &mut Observation,
-    work: &mut [i8; WORK_BYTES],
-    row: &mut [i16; ROW_ELEMENTS],
-    clock: &Clock,
-    counts: &mut Counts,
-) -> Result<(), &'static [u8]> {
-    let window_bytes = 2 * stack.window().cells();
-    let mut input =
-        File::open(b"decisions.bin\0", Mode::Read).ok_or(b"open decisions.bin".as_slice())?;
-    let mut output =
-        File::open(b"decisions.out\0", Mode::Write).ok_or(b"open decisions.out".as_slice())?;
-    let mut header = [0u8; HEADER_BYTES];
-    if !input.read_exact(&mut header) || header.get(..4) != Some(DECISIONS_MAGIC.as_slice()) {
-        return Err(b"decisions.bin header");
-    }
-    check_header(&header, stack)?;
-    let records = u32_at(&header, 2);
-    for _ in 0..records {
-        let flags = read_observation(&mut |buf| input.read_exact(buf), observation)
-            .ok_or(b"decisions.bin record".as_slice())?;
+    let stack = slot.write(stack);
+    let window_bytes = (2 * stack.window().cells()).min(WINDOW_BYTES);
+    let mut link = Uart::new(Uart::UART1);
+    let mut board = BridgeBoard::new(BridgeCan {
+        uart: Uart::new(Uart::UART2),
+        partial: [0; FRAME_BYTES],
+        have: 0,
+    });
+    // The legs start where the first observation says they are.
+    let mut control: Option<Control<CanFrame>> = None;
+    loop {
+        let Some(flags) = read_observation(&mut |buf| link.read_exact(buf), observation) else {
+            halt()
+        };
         if flags & 1 != 0 {
             stack.reset();
         }
-        let record = decide_one(
-            stack,
-            observation,
-            work,
-            row,
-            window_bytes,
-            &mut |buf| input.read_exact(buf),
-            clock,
-            counts,
-        )?;
-        if !output.write_all(&record.to_bytes()) {
-            return Err(b"decisions.out write");
-        }
-    }
-    Ok(())
-}
-
-/// Drives the recorded episode of `episode.bin` period by period; returns the periods run and
-/// the frames sent.
-#[inline(never)]
-fn run_episode(
-    stack: &mut Stack<'_, '_>,
-    observation: &mut Observation,
-    work: &mut [i8; WORK_BYTES],
-    row: &mut [i16; ROW_ELEMENTS],
-    clock: &Clock,
-    counts: &mut Counts,
-) -> Result<(u32, u32), &'static [u8]> {
-    let window_bytes = 2 * stack.window().cells();
-    let mut input =
-        File::open(b"episode.bin\0", Mode::Read).ok_or(b"open episode.bin".as_slice())?;
-    let frames = File::open(b"episode.frames.out\0", Mode::Write)
-        .ok_or(b"open episode.frames.out".as_slice())?;
-    let mut decisions = File::open(b"episode.decisions.out\0", Mode::Write)
-        .ok_or(b"open episode.decisions.out".as_slice())?;
-    let mut header = [0u8; 16];
-    if !input.read_exact(&mut header) || header.get(..4) != Some(EPISODE_MAGIC.as_slice()) {
-        return Err(b"episode.bin header");
-    }
-    if u32_at(&header, 1) != VERSION {
-        return Err(b"episode.bin version");
-    }
-    let start = LegConfig {
-        clearance_m: f32::from_bits(u32_at(&header, 2)),
-        track_m: f32::from_bits(u32_at(&header, 3)),
-    };
-    stack.reset();
-    let mut board = ReplayBoard {
-        can: ReplayCan::new(input, frames),
-    };
-    let mut control: Control<CanFrame> = Control::new(WHEELLEG, start);
-    loop {
-        let Some(entry) = board.can.next_tag() else {
-            return Err(b"episode.bin truncated");
+        let Ok(outputs) = stack.infer(observation, work, row) else {
+            halt()
         };
-        let ticks = board.can.ticks;
-        match entry {
-            tag::END => break,
-            tag::STARTUP => {
-                let start = clock.now();
-                control
-                    .start_up(&mut board)
-                    .map_err(|_| b"start-up failed".as_slice())?;
-                counts.tick_instructions += clock.instructions_since(start);
-            }
-            tag::DECISION => {
-                let can = &mut board.can;
-                read_observation(&mut |buf| can.read(buf), observation)
-                    .ok_or(b"episode.bin record".as_slice())?;
-                // Counted apart: part 1 measures decisions.
-                let mut episode_counts = Counts::default();
-                let record = decide_one(
-                    stack,
-                    observation,
-                    work,
-                    row,
-                    window_bytes,
-                    &mut |buf| can.read(buf),
-                    clock,
-                    &mut episode_counts,
-                )?;
-                if !decisions.write_all(&record.to_bytes()) {
-                    return Err(b"episode.decisions.out write");
+        // The window arrives after inference, into the bytes inference no longer needs.
+        // SAFETY: `i8` and `u8` have the same size, alignment and validity.
+        let bytes = unsafe { &mut *(work as *mut [i8; WORK_BYTES] as *mut [u8; WORK_BYTES]) };
+        let Some(window) = bytes.get_mut(..window_bytes) else {
+            halt()
+        };
+        link.read_exact(window);
+        let Ok(record) = stack.decide(observation, &outputs, window) else {
+            halt()
+        };
+        link.write(&record.to_bytes());
+        let control = match &mut control {
+            Some(control) => control,
+            empty => {
+                let started = empty.insert(Control::new(WHEELLEG, observation.legs()));
+                if started.start_up(&mut board).is_err() {
+                    halt()
                 }
-                let start = clock.now();
-                // An action the legs cannot take is not sent, as on the host.
-                let _ = control.step(&mut board, record.action());
-                counts.tick_instructions += clock.instructions_since(start);
+                started
             }
-            _ => return Err(b"episode.bin entry"),
-        }
-        counts.ticks += u64::from(board.can.ticks - ticks);
-        if board.can.desync {
-            return Err(b"episode: the controller's periods differ from the recording's");
-        }
+        };
+        // An action the legs cannot take is not sent; a stopped loop holds the robot still
+        // (the commander's safe stop) on every later period.
+        let _ = control.step(&mut board, record.action());
     }
-    Ok((board.can.ticks, board.can.sent))
-}
-
-/// The decisions file's version and window must be the controller's own (words 1 and 4 to 9
-/// of its header: version; side, cell in micrometres, first row, rows, first column, columns).
-fn check_header(header: &[u8], stack: &Stack<'_, '_>) -> Result<(), &'static [u8]> {
-    let window = stack.window();
-    let expected = [
-        (1, VERSION),
-        (4, window.side as u32),
-        (5, (window.cell_m * 1.0e6 + 0.5) as u32),
-        (6, window.first_row as u32),
-        (7, window.rows as u32),
-        (8, window.first_col as u32),
-        (9, window.cols as u32),
-    ];
-    if expected
-        .iter()
-        .all(|&(word, want)| u32_at(header, word) == want)
-    {
-        Ok(())
-    } else {
-        Err(b"decisions.bin: not this controller's version or fine window")
-    }
-}
-
-/// One decision: inference, then the window is read into the same bytes, then the rule.
-#[allow(clippy::too_many_arguments)]
-fn decide_one(
-    stack: &mut Stack<'_, '_>,
-    observation: &Observation,
-    work: &mut [i8; WORK_BYTES],
-    row: &mut [i16; ROW_ELEMENTS],
-    window_bytes: usize,
-    read: &mut dyn FnMut(&mut [u8]) -> bool,
-    clock: &Clock,
-    counts: &mut Counts,
-) -> Result<DecisionRecord, &'static [u8]> {
-    let start = clock.now();
-    let outputs = stack
-        .infer(observation, work, row)
-        .map_err(|_| b"inference".as_slice())?;
-    let infer = clock.instructions_since(start);
-    // The portable scalar kernel on the same observation: its outputs must be the fast
-    // kernel's, bit for bit (`Outputs` compares every logit).
-    let fast = stack.policy().kernel();
-    if stack.set_kernel(Kernel::Scalar).is_ok() {
-        let start = clock.now();
-        let reference = stack.infer(observation, work, row);
-        counts.scalar_infer_instructions += clock.instructions_since(start);
-        counts.kernel_mismatches += u64::from(reference != Ok(outputs));
-        stack.set_kernel(fast).map_err(|_| b"kernel".as_slice())?;
-    }
-    // The window arrives after inference, into the bytes inference no longer needs.
-    let window: &mut [u8] = bytes_of(work)
-        .get_mut(..window_bytes.min(WINDOW_BYTES))
-        .ok_or(b"window".as_slice())?;
-    if !read(window) {
-        return Err(b"window read");
-    }
-    let start = clock.now();
-    let record = stack
-        .decide(observation, &outputs, window)
-        .map_err(|_| b"decision".as_slice())?;
-    let decide = clock.instructions_since(start);
-    counts.decisions += 1;
-    counts.infer_instructions += infer;
-    counts.decide_instructions += decide;
-    counts.max_decision_instructions = counts.max_decision_instructions.max(infer + decide);
-    Ok(record)
-}
-
-/// The work area's bytes as `u8` (the window's little-endian heights).
-fn bytes_of(work: &mut [i8; WORK_BYTES]) -> &mut [u8; WORK_BYTES] {
-    // SAFETY: `i8` and `u8` have the same size, alignment and validity (every bit pattern).
-    unsafe { &mut *(work as *mut [i8; WORK_BYTES] as *mut [u8; WORK_BYTES]) }
 }
