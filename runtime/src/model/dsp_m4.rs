@@ -37,11 +37,23 @@ use super::quant::{requantize_clamped, MAX_SHIFT, MIN_SHIFT};
 
 // The 2 x 2 loop over row pairs: `r0` input row a (input row b is `stride` bytes further),
 // `r1` the first weight row, `r2` parameters [stride in bytes, weight row length in bytes,
-// groups of four per row, row pairs], `r3` where to store the sums, 4 per row pair (row A
-// pixel a, A b, B a, B b). Input rows must be word-aligned (LDRD). Stack frame: [sp] the
-// sums' address, [sp, #4] input a's end of the unrolled turns, [sp, #8] groups, [sp, #12]
-// input row a, [sp, #16] row pairs left, [sp, #20] from one row pair's weights (after the
-// loop) to the next, [sp, #24] stride.
+// groups of four per row, row pairs, tail, bias, multipliers, shifts, outputs, rows, zero
+// point, low bound], `r3` where to store the sums, 4 per row pair (row A pixel a, A b, B a,
+// B b). Input rows must be word-aligned (LDRD).
+//
+// With a null bias the loop stores the sums for Rust to finish (the tail parameter must then
+// be 0). Otherwise it finishes each row pair itself, as `requantize` does for a right shift of
+// 33 or more (the caller checked every row's shift for it) into int8 outputs with the high
+// bound 127: the `tail` (0 to 3) elements after the whole groups, in natural order, by `MLA`;
+// the bias; `SMMUL` (the high word of the 64-bit product); the arithmetic shift by
+// `-2 - shift`, plus one, halved into the zero point (`ADD` with `ASR #1`); `SSAT` to int8 and
+// the low bound (ReLU). Pixel a's outputs go to `outputs[row]`, pixel b's `rows` bytes on.
+//
+// Stack frame: [sp] the sums' (or outputs') address, [sp, #4] input a's end of the unrolled
+// turns, [sp, #8] groups, [sp, #12] input row a, [sp, #16] row pairs left, [sp, #20] from
+// one row pair's weights (after the loop and the tail) to the next, [sp, #24] stride,
+// [sp, #28] tail, [sp, #32] bias, [sp, #36] multipliers, [sp, #40] shifts, [sp, #44] rows,
+// [sp, #48] zero point, [sp, #52] low bound.
 core::arch::global_asm!(
     ".syntax unified",
     ".thumb",
@@ -51,7 +63,7 @@ core::arch::global_asm!(
     ".thumb_func",
     "wheelleg_dsp_dot_2x2:",
     "push {{r4-r11, lr}}",
-    "sub sp, sp, #28",
+    "sub sp, sp, #60",
     "str r3, [sp]",
     "str r0, [sp, #12]",
     "ldr r12, [r2, #8]",
@@ -61,12 +73,31 @@ core::arch::global_asm!(
     "str r4, [sp, #4]",
     "ldr r4, [r2, #12]",
     "str r4, [sp, #16]",
+    "ldr r4, [r2, #16]",
+    "str r4, [sp, #28]",
     "ldr r3, [r2, #4]",
-    "lsls r4, r3, #1",
-    "sub r4, r4, r12, lsl #2",
-    "str r4, [sp, #20]",
+    "lsls r5, r3, #1",
+    "sub r5, r5, r12, lsl #2",
+    "sub r5, r5, r4",
+    "str r5, [sp, #20]",
     "ldr r4, [r2]",
     "str r4, [sp, #24]",
+    "ldr r4, [r2, #24]",
+    "str r4, [sp, #36]",
+    "ldr r4, [r2, #28]",
+    "str r4, [sp, #40]",
+    "ldr r4, [r2, #36]",
+    "str r4, [sp, #44]",
+    "ldr r4, [r2, #40]",
+    "str r4, [sp, #48]",
+    "ldr r4, [r2, #44]",
+    "str r4, [sp, #52]",
+    "ldr r4, [r2, #20]",
+    "str r4, [sp, #32]",
+    "cbz r4, 6f",
+    "ldr r4, [r2, #32]",
+    "str r4, [sp]",
+    "6:",
     "ldr r4, [sp, #16]",
     "cmp r4, #0",
     "beq 9f",
@@ -138,9 +169,92 @@ core::arch::global_asm!(
     "smlad r4, lr, r9, r4",
     "smlad r5, lr, r11, r5",
     "3:",
+    "ldr r12, [sp, #28]",
+    "cmp r12, #0",
+    "beq 4f",
+    "7:",
+    "ldrsb r9, [r1, r3]",
+    "ldrsb r8, [r1], #1",
+    "ldrsh r10, [r0], #2",
+    "ldrsh r11, [r2], #2",
+    "mla r4, r8, r10, r4",
+    "mla r5, r8, r11, r5",
+    "mla r6, r9, r10, r6",
+    "mla r7, r9, r11, r7",
+    "subs r12, r12, #1",
+    "bne 7b",
+    "4:",
+    "ldr r12, [sp, #32]",
+    "cmp r12, #0",
+    "bne 8f",
     "ldr r12, [sp]",
     "stm r12!, {{r4-r7}}",
     "str r12, [sp]",
+    "b 10f",
+    "8:",
+    "ldr r8, [r12], #4",
+    "ldr r9, [r12], #4",
+    "str r12, [sp, #32]",
+    "add r4, r4, r8",
+    "add r5, r5, r8",
+    "add r6, r6, r9",
+    "add r7, r7, r9",
+    "ldr r12, [sp, #36]",
+    "ldr r8, [r12], #4",
+    "ldr r9, [r12], #4",
+    "str r12, [sp, #36]",
+    "smmul r4, r4, r8",
+    "smmul r5, r5, r8",
+    "smmul r6, r6, r9",
+    "smmul r7, r7, r9",
+    "ldr r12, [sp, #40]",
+    "ldrsb r8, [r12], #1",
+    "ldrsb r9, [r12], #1",
+    "str r12, [sp, #40]",
+    "mvn r8, r8",
+    "sub r8, r8, #1",
+    "mvn r9, r9",
+    "sub r9, r9, #1",
+    "asr r4, r4, r8",
+    "asr r5, r5, r8",
+    "asr r6, r6, r9",
+    "asr r7, r7, r9",
+    "add r4, r4, #1",
+    "add r5, r5, #1",
+    "add r6, r6, #1",
+    "add r7, r7, #1",
+    "ldr r10, [sp, #48]",
+    "ldr r11, [sp, #52]",
+    "add r4, r10, r4, asr #1",
+    "add r5, r10, r5, asr #1",
+    "add r6, r10, r6, asr #1",
+    "add r7, r10, r7, asr #1",
+    "ssat r4, #8, r4",
+    "ssat r5, #8, r5",
+    "ssat r6, #8, r6",
+    "ssat r7, #8, r7",
+    "cmp r4, r11",
+    "it lt",
+    "movlt r4, r11",
+    "cmp r5, r11",
+    "it lt",
+    "movlt r5, r11",
+    "cmp r6, r11",
+    "it lt",
+    "movlt r6, r11",
+    "cmp r7, r11",
+    "it lt",
+    "movlt r7, r11",
+    "ldr r12, [sp]",
+    "ldr r10, [sp, #44]",
+    "strb r4, [r12]",
+    "strb r6, [r12, #1]",
+    "strb r5, [r12, r10]",
+    "add r10, r10, r12",
+    "strb r7, [r10, #1]",
+    "add r12, r12, #2",
+    "str r12, [sp]",
+    "10:",
     "ldr r12, [sp, #20]",
     "add r1, r1, r12",
     "ldr r12, [sp, #16]",
@@ -148,7 +262,7 @@ core::arch::global_asm!(
     "str r12, [sp, #16]",
     "bne 5b",
     "9:",
-    "add sp, sp, #28",
+    "add sp, sp, #60",
     "pop {{r4-r11, pc}}",
     ".size wheelleg_dsp_dot_2x2, . - wheelleg_dsp_dot_2x2",
 );
@@ -496,6 +610,9 @@ fn pixel_pair(
         row_a.get(whole..).unwrap_or(&[]),
         row_b.get(whole..).unwrap_or(&[]),
     );
+    if finish_in_asm(linear, a, stride, groups, out, first, bounds) {
+        return;
+    }
     let paired = rows / 2 * 2;
     let has_tail = whole < row_len;
     let mut weight_rows = linear.weights.chunks_exact(row_len);
@@ -513,6 +630,14 @@ fn pixel_pair(
                 row_len as u32,
                 groups as u32,
                 (chunk / 2) as u32,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
             ];
             // SAFETY: for each of `chunk / 2` row pairs the loop reads `whole` (<= `row_len`)
             // inputs from `row_a` and from `row_a + stride` (= `row_b`), both `row_len` long,
@@ -562,6 +687,76 @@ fn pixel_pair(
             requantize(dot_permuted(row_b, w) + p.0, p.1, p.2, bounds),
         );
     }
+}
+
+/// [`pixel_pair`] whole in `wheelleg_dsp_dot_2x2`, requantization included, where it can be:
+/// int8 outputs with the high bound 127 (what `SSAT` clamps to), an even number of rows of
+/// at most `SUMS / 2`, at least one group of four, and every row's shift at most -2 (a right
+/// shift of 33 or more: `requantize`'s 32-bit steps). Returns whether it ran.
+fn finish_in_asm(
+    linear: &Linear<'_>,
+    a: &[i16],
+    stride: usize,
+    groups: usize,
+    out: &mut OutputSlice<'_>,
+    first: usize,
+    bounds: (i32, i32, i32),
+) -> bool {
+    let (rows, row_len) = (linear.rows, linear.row_len);
+    let (zero_point, low, high) = bounds;
+    let OutputSlice::Int8(out) = out else {
+        return false;
+    };
+    let shifts_fit = linear.shifts.get(..rows).is_some_and(|shifts| {
+        shifts
+            .iter()
+            .all(|&s| (MIN_SHIFT..=-2).contains(&(s as i8)))
+    });
+    let fits = rows % 2 == 0
+        && rows <= SUMS / 2
+        && groups > 0
+        && high == 127
+        && (-128..=127).contains(&low)
+        && shifts_fit
+        && linear.bias.len() >= 4 * rows
+        && linear.multipliers.len() >= 4 * rows
+        && linear.weights.len() >= rows * row_len
+        && a.len() >= stride + row_len;
+    let Some(outputs) = out.get_mut(first..first + 2 * rows) else {
+        return false;
+    };
+    if !fits {
+        return false;
+    }
+    let params = [
+        (2 * stride) as u32,
+        row_len as u32,
+        groups as u32,
+        (rows / 2) as u32,
+        (row_len - 4 * groups) as u32,
+        linear.bias.as_ptr() as u32,
+        linear.multipliers.as_ptr() as u32,
+        linear.shifts.as_ptr() as u32,
+        outputs.as_mut_ptr() as u32,
+        rows as u32,
+        zero_point as u32,
+        low as u32,
+    ];
+    // SAFETY: as in `pixel_pair` for the inputs (`a` holds both rows: `stride + row_len`
+    // elements, word-aligned) and the weights (`rows` rows of `row_len`), tail included (the
+    // `row_len - 4 * groups` elements after the whole groups of each row); per row it reads 4
+    // bytes of bias and of multiplier and one shift, within their slices (checked above); it
+    // writes `outputs[r]` and `outputs[rows + r]` for `r < rows`, within `outputs`
+    // (`2 * rows` long); the sums' address is unused with a bias.
+    unsafe {
+        wheelleg_dsp_dot_2x2(
+            a.as_ptr(),
+            linear.weights.as_ptr(),
+            params.as_ptr(),
+            core::ptr::null_mut(),
+        );
+    }
+    true
 }
 
 /// One pixel: input row `a[..row_len]`, outputs `out[..rows]`, four rows at a time.
