@@ -32,7 +32,7 @@
 #![allow(unsafe_code)]
 
 use super::kernel::{le_i32, output_bounds, Output, OutputSlice};
-use super::load::Linear;
+use super::load::{ConvLayer, Linear};
 use super::quant::{requantize_clamped, MAX_SHIFT, MIN_SHIFT};
 
 // The 2 x 2 loop over row pairs: `r0` input row a (input row b is `stride` bytes further),
@@ -404,6 +404,134 @@ pub fn permute(row: &mut [i16]) {
     }
 }
 
+/// Widens `src` minus `zero_point` into `out` in [`permute`]d order, 8 inputs per turn of an
+/// assembly loop (`SXTB16` pairs bytes 0 and 2, and 1 and 3, which is that order; `SSUB16`
+/// subtracts the zero point from both halves, exactly: the differences are within +-255),
+/// the last whole groups of four in Rust. `src.len()` must be a multiple of 4 and `out` word-
+/// aligned and as long; otherwise nothing is written and it returns `false`.
+#[inline(always)]
+fn widen_permuted(src: &[i8], zero_point: i8, out: &mut [i16]) -> bool {
+    if src.len() % 4 != 0 || out.len() != src.len() || out.as_ptr() as usize % 4 != 0 {
+        return false;
+    }
+    let eights = src.len() / 8 * 8;
+    let (head, rest) = src.split_at(eights);
+    let (out_head, out_rest) = out.split_at_mut(eights);
+    let pair = u32::from(i16::from(zero_point) as u16) * 0x1_0001;
+    if eights > 0 {
+        // SAFETY: reads `eights` bytes of `head` (word loads, unaligned allowed on the M4 for
+        // normal memory) and writes `eights` i16 of `out_head` (word-aligned: checked above,
+        // and `eights` is even, for STRD), both exactly their lengths.
+        unsafe {
+            core::arch::asm!(
+                "1:",
+                "ldr {w0}, [{src}], #4",
+                "ldr {w1}, [{src}], #4",
+                "sxtb16 {a}, {w0}",
+                "sxtb16 {b}, {w0}, ror #8",
+                "ssub16 {a}, {a}, {zp}",
+                "ssub16 {b}, {b}, {zp}",
+                "strd {a}, {b}, [{dst}], #8",
+                "sxtb16 {a}, {w1}",
+                "sxtb16 {b}, {w1}, ror #8",
+                "ssub16 {a}, {a}, {zp}",
+                "ssub16 {b}, {b}, {zp}",
+                "strd {a}, {b}, [{dst}], #8",
+                "cmp {src}, {end}",
+                "bne 1b",
+                src = inout(reg) head.as_ptr() => _,
+                dst = inout(reg) out_head.as_mut_ptr() => _,
+                end = in(reg) head.as_ptr().wrapping_add(eights),
+                zp = in(reg) pair,
+                w0 = out(reg) _,
+                w1 = out(reg) _,
+                a = out(reg) _,
+                b = out(reg) _,
+                options(nostack),
+            );
+        }
+    }
+    let zero_point = i16::from(zero_point);
+    for (x, y) in rest.chunks_exact(4).zip(out_rest.chunks_exact_mut(4)) {
+        if let (&[x0, x1, x2, x3], [y0, y1, y2, y3]) = (x, y) {
+            (*y0, *y1, *y2, *y3) = (
+                i16::from(x0) - zero_point,
+                i16::from(x2) - zero_point,
+                i16::from(x1) - zero_point,
+                i16::from(x3) - zero_point,
+            );
+        }
+    }
+    true
+}
+
+/// The patches of output pixels `first..` into `patches`, one every `stride` elements, as
+/// `infer`'s gather writes them and then [`permute`]d, in one pass: for input channels in
+/// multiples of 4 every run (and every padding run) is whole groups of four, so each is
+/// widened straight into the permuted order ([`widen_permuted`]). Returns `false`, having
+/// written nothing, for other layers, short buffers, or unaligned patches.
+pub fn gather_permuted(
+    conv: &ConvLayer<'_>,
+    src: &[i8],
+    first: usize,
+    patches: &mut [i16],
+    stride: usize,
+) -> bool {
+    let channels = conv.in_channels;
+    let side = usize::from(conv.record.kernel);
+    let step = usize::from(conv.record.stride);
+    let padding = usize::from(conv.record.padding);
+    let zero_point = conv.linear.input_zero_point;
+    let run = side * channels;
+    let cols = conv.out_cols.max(1);
+    if channels % 4 != 0
+        || stride % 2 != 0
+        || stride < side * run
+        || patches.as_ptr() as usize % 4 != 0
+    {
+        return false;
+    }
+    for (offset, patch) in patches.chunks_exact_mut(stride).enumerate() {
+        let pixel = first + offset;
+        let (y0, x0) = ((pixel / cols) * step, (pixel % cols) * step);
+        // Kernel columns inside the map: ix = x0 + kx - padding in [0, in_cols).
+        let first_col = padding.saturating_sub(x0).min(side);
+        let last_col = (conv.in_cols + padding)
+            .saturating_sub(x0)
+            .clamp(first_col, side);
+        for (ky, segment) in patch.chunks_exact_mut(run).take(side).enumerate() {
+            let source = (y0 + ky)
+                .checked_sub(padding)
+                .filter(|&iy| iy < conv.in_rows)
+                .and_then(|iy| {
+                    let ix = (x0 + first_col).checked_sub(padding)?;
+                    let start = (iy * conv.in_cols + ix) * channels;
+                    src.get(start..start + (last_col - first_col) * channels)
+                });
+            let split = source.and_then(|pixels| {
+                let (before, rest) = segment.split_at_mut_checked(first_col * channels)?;
+                let (inside, after) = rest.split_at_mut_checked(pixels.len())?;
+                Some((pixels, before, inside, after))
+            });
+            match split {
+                Some((pixels, before, inside, after)) => {
+                    if !before.is_empty() {
+                        before.fill(0);
+                    }
+                    if !widen_permuted(pixels, zero_point, inside) {
+                        inside.fill(0);
+                    }
+                    if !after.is_empty() {
+                        after.fill(0);
+                    }
+                }
+                None => segment.fill(0),
+            }
+        }
+    }
+    true
+}
+
 /// The dot product of a [`permute`]d input row and a weight row in natural order, in Rust:
 /// for the tails and leftovers the loops do not cover, and as the fallback.
 #[inline]
@@ -502,6 +630,7 @@ fn linear_batch_any(
     }
     let groups = row_len / 4;
     let whole = 4 * groups;
+    let in_asm = asm_finishes(linear, outputs, bounds);
     // Written by the loops before it is read; zero for rows too short for them.
     let mut sums = [0i32; SUMS];
     let mut pixel = 0;
@@ -518,7 +647,7 @@ fn linear_batch_any(
                 stride,
                 (groups, whole),
                 outputs,
-                first,
+                (first, in_asm),
                 &mut sums,
                 bounds,
             );
@@ -589,143 +718,50 @@ fn row_params<'a>(linear: &'a Linear<'_>) -> impl Iterator<Item = (i32, i32, i8)
 /// Sums one call of an assembly loop writes at most: 64 rows of two pixels, 128 of one.
 const SUMS: usize = 128;
 
-/// Two pixels: input rows `a[..row_len]` and `a[stride..][..row_len]`, outputs `out[..rows]`
-/// and `out[rows..2 * rows]`.
-#[allow(clippy::too_many_arguments)]
-fn pixel_pair(
-    linear: &Linear<'_>,
-    a: &[i16],
-    stride: usize,
-    (groups, whole): (usize, usize),
-    out: &mut OutputSlice<'_>,
-    first: usize,
-    sums: &mut [i32; SUMS],
-    bounds: (i32, i32, i32),
-) {
-    let (rows, row_len) = (linear.rows, linear.row_len);
-    let (Some(row_a), Some(row_b)) = (a.get(..row_len), a.get(stride..stride + row_len)) else {
-        return;
-    };
-    let (tail_a, tail_b) = (
-        row_a.get(whole..).unwrap_or(&[]),
-        row_b.get(whole..).unwrap_or(&[]),
-    );
-    if finish_in_asm(linear, a, stride, groups, out, first, bounds) {
-        return;
-    }
-    let paired = rows / 2 * 2;
-    let has_tail = whole < row_len;
-    let mut weight_rows = linear.weights.chunks_exact(row_len);
-    let mut requant = row_params(linear);
-    let mut outputs = first..first + rows;
-    let mut done = 0;
-    while done < paired {
-        let chunk = (paired - done).min(SUMS / 2);
-        let Some(weights) = linear.weights.get(done * row_len..(done + chunk) * row_len) else {
-            return;
-        };
-        if groups > 0 {
-            let params = [
-                (2 * stride) as u32,
-                row_len as u32,
-                groups as u32,
-                (chunk / 2) as u32,
-                0,
-                0,
-                0,
-                0,
-                0,
-                0,
-                0,
-                0,
-            ];
-            // SAFETY: for each of `chunk / 2` row pairs the loop reads `whole` (<= `row_len`)
-            // inputs from `row_a` and from `row_a + stride` (= `row_b`), both `row_len` long,
-            // and `whole` weights of each of the pair's rows, all within `weights` (`chunk`
-            // rows of `row_len`); `row_a` is word-aligned (`linear_batch_dsp` checked the
-            // input and the even stride), as its LDRDs need; it writes `2 * chunk <= SUMS`
-            // sums.
-            unsafe {
-                wheelleg_dsp_dot_2x2(
-                    row_a.as_ptr(),
-                    weights.as_ptr(),
-                    params.as_ptr(),
-                    sums.as_mut_ptr(),
-                );
-            }
-        }
-        for (pixels, ((w, p), ya)) in sums.chunks_exact(2).take(chunk).zip(
-            weight_rows
-                .by_ref()
-                .zip(requant.by_ref())
-                .zip(outputs.by_ref()),
-        ) {
-            let &[sum_a, sum_b] = pixels else {
-                return;
-            };
-            let (mut acc_a, mut acc_b) = (sum_a + p.0, sum_b + p.0);
-            if has_tail {
-                let tail_w = w.get(whole..).unwrap_or(&[]);
-                acc_a += tail_dot(tail_a, tail_w);
-                acc_b += tail_dot(tail_b, tail_w);
-            }
-            put(out, ya, requantize(acc_a, p.1, p.2, bounds));
-            put(out, ya + rows, requantize(acc_b, p.1, p.2, bounds));
-        }
-        done += chunk;
-    }
-    // The last row of an odd count.
-    for ((w, p), ya) in weight_rows.zip(requant).zip(outputs) {
-        put(
-            out,
-            ya,
-            requantize(dot_permuted(row_a, w) + p.0, p.1, p.2, bounds),
-        );
-        put(
-            out,
-            ya + rows,
-            requantize(dot_permuted(row_b, w) + p.0, p.1, p.2, bounds),
-        );
-    }
-}
-
-/// [`pixel_pair`] whole in `wheelleg_dsp_dot_2x2`, requantization included, where it can be:
-/// int8 outputs with the high bound 127 (what `SSAT` clamps to), an even number of rows of
-/// at most `SUMS / 2`, at least one group of four, and every row's shift at most -2 (a right
-/// shift of 33 or more: `requantize`'s 32-bit steps). Returns whether it ran.
-fn finish_in_asm(
-    linear: &Linear<'_>,
-    a: &[i16],
-    stride: usize,
-    groups: usize,
-    out: &mut OutputSlice<'_>,
-    first: usize,
-    bounds: (i32, i32, i32),
-) -> bool {
-    let (rows, row_len) = (linear.rows, linear.row_len);
-    let (zero_point, low, high) = bounds;
-    let OutputSlice::Int8(out) = out else {
-        return false;
-    };
+/// Whether [`pixel_pair`] can run whole in `wheelleg_dsp_dot_2x2`, requantization included
+/// ([`finish_in_asm`]): int8 outputs with the high bound 127 (what `SSAT` clamps to), an even
+/// number of rows of at most `SUMS / 2`, at least one group of four, and every row's shift at
+/// most -2 (a right shift of 33 or more: `requantize`'s 32-bit steps). Checked once per batch.
+fn asm_finishes(linear: &Linear<'_>, out: &OutputSlice<'_>, bounds: (i32, i32, i32)) -> bool {
+    let rows = linear.rows;
+    let (_, low, high) = bounds;
     let shifts_fit = linear.shifts.get(..rows).is_some_and(|shifts| {
         shifts
             .iter()
             .all(|&s| (MIN_SHIFT..=-2).contains(&(s as i8)))
     });
-    let fits = rows % 2 == 0
+    matches!(out, OutputSlice::Int8(_))
+        && rows % 2 == 0
         && rows <= SUMS / 2
-        && groups > 0
+        && linear.row_len >= 4
         && high == 127
         && (-128..=127).contains(&low)
         && shifts_fit
         && linear.bias.len() >= 4 * rows
         && linear.multipliers.len() >= 4 * rows
-        && linear.weights.len() >= rows * row_len
-        && a.len() >= stride + row_len;
+        && linear.weights.len() >= rows * linear.row_len
+}
+
+/// [`pixel_pair`] whole in `wheelleg_dsp_dot_2x2`, for a layer [`asm_finishes`] accepted.
+/// Returns whether it ran (not when the inputs or outputs are short: a caller bug).
+fn finish_in_asm(
+    linear: &Linear<'_>,
+    a: &[i16],
+    stride: usize,
+    out: &mut OutputSlice<'_>,
+    first: usize,
+    bounds: (i32, i32, i32),
+) -> bool {
+    let (rows, row_len) = (linear.rows, linear.row_len);
+    let groups = row_len / 4;
+    let (zero_point, low, _) = bounds;
+    let OutputSlice::Int8(out) = out else {
+        return false;
+    };
     let Some(outputs) = out.get_mut(first..first + 2 * rows) else {
         return false;
     };
-    if !fits {
+    if a.len() < stride + row_len {
         return false;
     }
     let params = [
@@ -742,10 +778,11 @@ fn finish_in_asm(
         zero_point as u32,
         low as u32,
     ];
-    // SAFETY: as in `pixel_pair` for the inputs (`a` holds both rows: `stride + row_len`
-    // elements, word-aligned) and the weights (`rows` rows of `row_len`), tail included (the
+    // SAFETY: as in `single_pixel` for the inputs (`a` holds both rows: `stride + row_len`
+    // elements, word-aligned: `linear_batch_any` checked the input and the even stride) and
+    // the weights (`rows` rows of `row_len`, `asm_finishes`), tail included (the
     // `row_len - 4 * groups` elements after the whole groups of each row); per row it reads 4
-    // bytes of bias and of multiplier and one shift, within their slices (checked above); it
+    // bytes of bias and of multiplier and one shift, within their slices (`asm_finishes`); it
     // writes `outputs[r]` and `outputs[rows + r]` for `r < rows`, within `outputs`
     // (`2 * rows` long); the sums' address is unused with a bias.
     unsafe {
@@ -757,6 +794,38 @@ fn finish_in_asm(
         );
     }
     true
+}
+
+/// Two pixels: input rows `a[..row_len]` and `a[stride..][..row_len]`, outputs `out[..rows]`
+/// and `out[rows..2 * rows]`: in `wheelleg_dsp_dot_2x2`, requantization included, for a layer
+/// [`asm_finishes`] accepted; otherwise one pixel after the other (no layer of the shipped
+/// network takes that path, so it shares [`single_pixel`]'s code rather than adding its own).
+#[allow(clippy::too_many_arguments)]
+fn pixel_pair(
+    linear: &Linear<'_>,
+    a: &[i16],
+    stride: usize,
+    (groups, whole): (usize, usize),
+    out: &mut OutputSlice<'_>,
+    (first, in_asm): (usize, bool),
+    sums: &mut [i32; SUMS],
+    bounds: (i32, i32, i32),
+) {
+    if in_asm && finish_in_asm(linear, a, stride, out, first, bounds) {
+        return;
+    }
+    single_pixel(linear, a, (groups, whole), out, first, sums, bounds);
+    if let Some(b) = a.get(stride..) {
+        single_pixel(
+            linear,
+            b,
+            (groups, whole),
+            out,
+            first + linear.rows,
+            sums,
+            bounds,
+        );
+    }
 }
 
 /// One pixel: input row `a[..row_len]`, outputs `out[..rows]`, four rows at a time.

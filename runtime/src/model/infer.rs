@@ -449,10 +449,18 @@ pub fn forward_in(
         for out in outputs.chunks_mut(batch * out_channels) {
             let count = out.len() / out_channels;
             let patches = row.get_mut(..count * stride).ok_or(InferError::Internal)?;
-            gather_patches(kernel, conv, src, first, patches, stride);
-            if kernel == Kernel::Dsp {
-                for patch in patches.chunks_exact_mut(stride) {
-                    prepare_row(kernel, patch.get_mut(..row_len).unwrap_or_default());
+            // The DSP kernel's gather widens multi-channel runs straight into its order.
+            #[cfg(all(target_arch = "arm", target_feature = "dsp"))]
+            let permuted = kernel == Kernel::Dsp
+                && super::dsp_m4::gather_permuted(conv, src, first, patches, stride);
+            #[cfg(not(all(target_arch = "arm", target_feature = "dsp")))]
+            let permuted = false;
+            if !permuted {
+                gather_patches(kernel, conv, src, first, patches, stride);
+                if kernel == Kernel::Dsp {
+                    for patch in patches.chunks_exact_mut(stride) {
+                        prepare_row(kernel, patch.get_mut(..row_len).unwrap_or_default());
+                    }
                 }
             }
             linear_batch(kernel, &conv.linear, patches, stride, out);

@@ -262,12 +262,73 @@ pub fn linear_batch_scalar<T: Output>(
     if linear.rows == 0 || stride == 0 {
         return;
     }
+    // On a controller one copy serves both output types (flash is scarce there): the type
+    // only decides the store.
+    #[cfg(target_arch = "arm")]
+    {
+        let (low, high) = output_bounds::<T>(linear);
+        linear_batch_scalar_any(linear, inputs, stride, T::slice(outputs), (low, high));
+    }
+    #[cfg(not(target_arch = "arm"))]
     for (pixel, output) in outputs.chunks_exact_mut(linear.rows).enumerate() {
         let start = pixel.saturating_mul(stride);
         let Some(input) = inputs.get(start..start.saturating_add(linear.row_len)) else {
             return;
         };
         linear_scalar(linear, input, output);
+    }
+}
+
+/// [`linear_batch_scalar`] for either output type, within `bounds` (the type's
+/// [`output_bounds`]): the same sums and requantization as [`linear_scalar`].
+#[cfg(target_arch = "arm")]
+#[inline(never)]
+fn linear_batch_scalar_any(
+    linear: &Linear<'_>,
+    inputs: &[i16],
+    stride: usize,
+    mut outputs: OutputSlice<'_>,
+    (low, high): (i16, i16),
+) {
+    let total = match &outputs {
+        OutputSlice::Int8(out) => out.len(),
+        OutputSlice::Int16(out) => out.len(),
+    };
+    let pixels = total / linear.rows;
+    for pixel in 0..pixels {
+        let start = pixel.saturating_mul(stride);
+        let Some(input) = inputs.get(start..start.saturating_add(linear.row_len)) else {
+            return;
+        };
+        let rows = linear
+            .weights
+            .chunks_exact(linear.row_len)
+            .zip(linear.bias.chunks_exact(4))
+            .zip(linear.multipliers.chunks_exact(4))
+            .zip(linear.shifts);
+        for (r, (((weights, bias), multiplier), &shift)) in rows.enumerate() {
+            let value = requantize_clamped(
+                dot_scalar(input, weights) + le_i32(bias),
+                le_i32(multiplier),
+                shift as i8,
+                linear.output_zero_point,
+                low,
+                high,
+            );
+            let index = pixel * linear.rows + r;
+            match &mut outputs {
+                OutputSlice::Int8(out) => {
+                    if let Some(slot) = out.get_mut(index) {
+                        *slot = value as i8;
+                    }
+                }
+                OutputSlice::Int16(out) => {
+                    if let Some(slot) = out.get_mut(index) {
+                        *slot = value;
+                    }
+                }
+            }
+        }
     }
 }
 
