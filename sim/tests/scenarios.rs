@@ -4,16 +4,17 @@
 use nalgebra::Point2;
 use rand::SeedableRng;
 use wheelleg_runtime::action::{Action, Step};
-use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::collision::{ObstacleSet, RobotParts};
-use wheelleg_sim::env::{Env, EnvConfig, Status};
+use wheelleg_sim::env::{Env, EnvConfig};
 use wheelleg_sim::generate::{generate_many, Behaviour, SceneKind};
 use wheelleg_sim::obstacle::ObstacleKind;
 use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig, FALLBACK_WEIGHT};
 use wheelleg_sim::scenario::Scenario;
 use wheelleg_sim::scenario_file::{self, ScenarioFileError};
-use wheelleg_sim::state::RobotState;
+
+mod common;
+use common::{fence_blocks, lattice_legs, prove_solvable, weighted, LegFilter};
 
 fn rng(seed: u64) -> rand_chacha::ChaCha8Rng {
     rand_chacha::ChaCha8Rng::seed_from_u64(seed)
@@ -105,76 +106,6 @@ fn bad_files_are_refused_naming_the_scenario_and_field() {
     refused("{\"scenarios\": [", &["malformed"]);
     let missing = scenario_file::load(std::path::Path::new("/nonexistent/scenes.json"), &WHEELLEG);
     assert!(matches!(missing, Err(ScenarioFileError::Io { .. })));
-}
-
-/// Which (clearance steps, track steps) leg configurations a test allows.
-type LegFilter = fn(i32, i32) -> bool;
-
-/// Leg configurations on the action lattice that the legs can reach, filtered.
-fn lattice_legs(keep: impl Fn(i32, i32) -> bool) -> Vec<LegConfig> {
-    let mut out = Vec::new();
-    for clearance_steps in -4..=6 {
-        for track_steps in -10..=10 {
-            let legs = LegConfig {
-                clearance_m: 0.12 + 0.02 * clearance_steps as f32,
-                track_m: 0.36 + 0.02 * track_steps as f32,
-            };
-            if keep(clearance_steps, track_steps) && WHEELLEG.is_reachable(legs) {
-                out.push(legs);
-            }
-        }
-    }
-    out
-}
-
-/// Whether the fence is a barrier for the allowed leg configurations. Any way across the fence
-/// carries the robot's front axle across the fence's first row, and its centre across the
-/// fence's middle. If, with either of those points anywhere in a band one step wide around its
-/// line, every lateral position across the arena (5 mm apart), every yaw and every allowed leg
-/// configuration collides, no sequence of steps gets across.
-fn fence_blocks(scene: &Scenario, legs: &[LegConfig]) -> bool {
-    let first_x = scene
-        .obstacles
-        .iter()
-        .map(|o| o.centre.x)
-        .fold(f32::NAN, f32::min);
-    let last_x = scene
-        .obstacles
-        .iter()
-        .map(|o| o.centre.x)
-        .fold(f32::NAN, f32::max);
-    free_pose_near_line(scene, legs, first_x, WHEELLEG.hip_x_m).is_none()
-        || free_pose_near_line(scene, legs, 0.5 * (first_x + last_x), 0.0).is_none()
-}
-
-/// A pose that does not collide with the robot's point `ahead_m` in front of its centre within
-/// 4 cm of the line x = `line_x`, if any: (that point's x, body centre y, yaw in degrees, legs).
-fn free_pose_near_line(
-    scene: &Scenario,
-    legs: &[LegConfig],
-    line_x: f32,
-    ahead_m: f32,
-) -> Option<(f32, f32, f32, LegConfig)> {
-    let obstacles = ObstacleSet::new(&scene.obstacles);
-    let y0 = scene.start.position.y;
-    for dx in -4..=4 {
-        let x = line_x + 0.01 * dx as f32;
-        for dy in -120..=120 {
-            let y = y0 + 0.005 * dy as f32;
-            for yaw_steps in 0..72 {
-                let yaw = (yaw_steps as f32 * 5.0).to_radians();
-                let centre = Point2::new(x - ahead_m * yaw.cos(), y - ahead_m * yaw.sin());
-                for &l in legs {
-                    let free = RobotParts::new(&WHEELLEG, centre, yaw, l)
-                        .is_ok_and(|p| !obstacles.collides(&p));
-                    if free {
-                        return Some((x, centre.y, yaw_steps as f32 * 5.0, l));
-                    }
-                }
-            }
-        }
-    }
-    None
 }
 
 #[test]
@@ -321,67 +252,6 @@ fn generated_spread_scenes_are_solvable() {
                 scene.name, found.expansions
             ),
         }
-    }
-}
-
-/// Proves every scene solvable: `prefix` (actions taken first, each of which must be valid),
-/// then a plan by the weighted search with `config` (the planner replays what it returns in
-/// the simulator), and the whole sequence replayed to success in a fresh episode. Panics on a
-/// scene it does not solve; returns per scene the states the plan passes through, start
-/// included.
-fn prove_solvable(
-    scenes: &[Scenario],
-    prefix: impl Fn(&Scenario) -> Vec<Action>,
-    config: &PlannerConfig,
-) -> Vec<Vec<RobotState>> {
-    let mut paths = Vec::new();
-    let mut most = (0, String::new());
-    let clock = std::time::Instant::now();
-    for scene in scenes {
-        let fresh = Env::new(scene, EnvConfig::default()).unwrap();
-        let mut env = fresh.clone();
-        let mut actions = prefix(scene);
-        for (i, &action) in actions.iter().enumerate() {
-            let outcome = env.step(action).unwrap();
-            assert_eq!(outcome.invalid, None, "{}: prefix step {i}", scene.name);
-        }
-        let found = plan(&env, config);
-        match found.outcome {
-            PlanOutcome::Solved { actions: rest, .. } => actions.extend(rest),
-            other => panic!(
-                "{}: {other:?} after {} expansions",
-                scene.name, found.expansions
-            ),
-        }
-        if found.expansions >= most.0 {
-            most = (found.expansions, scene.name.clone());
-        }
-        let mut replay = fresh;
-        let mut path = vec![*replay.state()];
-        for &action in &actions {
-            let outcome = replay.step(action).unwrap();
-            assert_eq!(outcome.invalid, None, "{}", scene.name);
-            path.push(*replay.state());
-        }
-        assert_eq!(replay.status(), Status::Success, "{}", scene.name);
-        paths.push(path);
-    }
-    println!(
-        "{} scenes in {:.1} s; most expansions {} ({})",
-        scenes.len(),
-        clock.elapsed().as_secs_f32(),
-        most.0,
-        most.1
-    );
-    paths
-}
-
-/// The weighted search's settings for the proofs below.
-fn weighted(weight: f32) -> PlannerConfig {
-    PlannerConfig {
-        max_expansions: 20_000,
-        heuristic_weight: weight,
-        ..PlannerConfig::default()
     }
 }
 

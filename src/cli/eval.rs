@@ -274,5 +274,26 @@ pub fn run(args: Args) -> CliResult {
             pct(b.collision_free)
         );
     }
+    // One family is the whole evaluation again: the split shows from two on.
+    for (title, groups, shown_from) in [
+        ("scene family", &report.by_family, 2),
+        ("composed variant", &report.by_composed_variant, 1),
+    ] {
+        if groups.len() < shown_from {
+            continue;
+        }
+        outln!();
+        outln!("{title:<20} scenarios  success  coll-free");
+        for g in groups {
+            let pct = |n: usize| 100.0 * n as f32 / g.scenarios.max(1) as f32;
+            outln!(
+                "  {:<18} {:>9} {:>7.1}% {:>9.1}%",
+                g.name,
+                g.scenarios,
+                pct(g.successes),
+                pct(g.collision_free)
+            );
+        }
+    }
     Ok(())
 }

@@ -88,10 +88,11 @@ impl Default for NetworkConfig {
     }
 }
 
-/// `run` keys a resumed run may change: its budget, and the re-sampling of failed scenes
-/// (which only changes which scenes come next).
-const RESUMABLE_CHANGES: [&str; 3] = [
+/// `run` keys a resumed run may change: its budget, the re-sampling of failed scenes and the
+/// share of composed scenes (which only change which scenes come next).
+const RESUMABLE_CHANGES: [&str; 4] = [
     "total_env_steps",
+    "composed_share",
     "failure_resample_probability",
     "failure_memory_per_env",
 ];
@@ -143,6 +144,10 @@ pub struct RunConfig {
     pub failure_resample_probability: f64,
     /// Failed scenes each environment remembers (the oldest is forgotten first).
     pub failure_memory_per_env: usize,
+    /// Share of episodes drawn as composed scenes (one or two fences amid clutter,
+    /// `wheelleg_sim::generate::SceneKind::Composed`) instead of `scene_kind`. 0, the default,
+    /// draws `scene_kind` alone. A finished run may be continued with it changed (`--resume`).
+    pub composed_share: f64,
 }
 
 impl Default for RunConfig {
@@ -164,6 +169,7 @@ impl Default for RunConfig {
             start_stage_window: 3,
             failure_resample_probability: 0.0,
             failure_memory_per_env: 8,
+            composed_share: 0.0,
         }
     }
 }
@@ -363,7 +369,11 @@ impl TrainConfig {
         let check = |ok: bool, what: &str| if ok { Ok(()) } else { Err(what.to_string()) };
         check(
             wheelleg_sim::generate::SceneKind::from_name(&r.scene_kind).is_some(),
-            "run.scene_kind must be one of straight, around, lift, spread, squeeze, astride, complex",
+            "run.scene_kind must be one of straight, around, lift, spread, squeeze, astride, complex, composed",
+        )?;
+        check(
+            (0.0..=1.0).contains(&r.composed_share),
+            "run.composed_share must be between 0 and 1",
         )?;
         check(r.num_envs >= 1, "run.num_envs must be at least 1")?;
         check(

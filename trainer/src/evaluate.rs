@@ -21,6 +21,7 @@ use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
 use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::env::{Env, EnvConfig, GuardMap, Observation, Status};
+use wheelleg_sim::generate::{ComposedVariant, SceneKind};
 use wheelleg_sim::height_map::MapGrid;
 use wheelleg_sim::local_plan::{LastMetres, LastMetresConfig};
 use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig};
@@ -97,6 +98,55 @@ pub struct TargetBeside {
     pub collision_free: usize,
 }
 
+/// Results of one group of scenarios (a scene family, a composed variant).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct GroupResult {
+    /// The group's name.
+    pub name: String,
+    /// Scenarios.
+    pub scenarios: usize,
+    /// Of them reached.
+    pub successes: usize,
+    /// Of them reached without collision.
+    pub collision_free: usize,
+}
+
+/// A scenario's family: its name up to the first `-`, as the generators name their scenes
+/// (`complex-3`, `composed-7-spread+lift-beyond`, `squeeze-12`); a name without one is its own
+/// family.
+pub fn scene_family(name: &str) -> &str {
+    name.split_once('-').map_or(name, |(family, _)| family)
+}
+
+/// `results` split by `key`, groups in the order they first appear; scenarios without a key
+/// are left out.
+fn split_by(
+    results: &[ScenarioResult],
+    key: impl Fn(&ScenarioResult) -> Option<String>,
+) -> Vec<GroupResult> {
+    let mut groups: Vec<GroupResult> = Vec::new();
+    for r in results {
+        let Some(name) = key(r) else { continue };
+        let at = match groups.iter().position(|g| g.name == name) {
+            Some(at) => at,
+            None => {
+                groups.push(GroupResult {
+                    name,
+                    scenarios: 0,
+                    successes: 0,
+                    collision_free: 0,
+                });
+                groups.len() - 1
+            }
+        };
+        let g = &mut groups[at];
+        g.scenarios += 1;
+        g.successes += usize::from(r.success);
+        g.collision_free += usize::from(r.collision_free);
+    }
+    groups
+}
+
 /// The kind of the obstacle nearest `scenario`'s target, if within [`BESIDE_TARGET_M`].
 pub fn target_beside(scenario: &Scenario) -> Option<&'static str> {
     scenario
@@ -144,6 +194,12 @@ pub struct EvalReport {
     /// The results split by what stands beside the target (nothing first, then bar, slab,
     /// block): where the failures are.
     pub by_target_beside: Vec<TargetBeside>,
+    /// The results split by scene family ([`scene_family`]), in the order they first appear.
+    pub by_family: Vec<GroupResult>,
+    /// The composed scenes' results split by variant (fences and ending,
+    /// `wheelleg_sim::generate::ComposedVariant`), sorted by name; empty without composed
+    /// scenes.
+    pub by_composed_variant: Vec<GroupResult>,
     /// Per scenario.
     pub scenarios: Vec<ScenarioResult>,
 }
@@ -587,6 +643,13 @@ pub fn evaluate(
         })
         .filter(|b| b.scenarios > 0)
         .collect();
+    let by_family = split_by(&results, |r| Some(scene_family(&r.name).to_owned()));
+    let mut by_composed_variant = split_by(&results, |r| {
+        (scene_family(&r.name) == SceneKind::Composed.name())
+            .then(|| ComposedVariant::of_name(&r.name).map(|v| v.name()))
+            .flatten()
+    });
+    by_composed_variant.sort_by(|a, b| a.name.cmp(&b.name));
     Ok(EvalReport {
         decision: options.decision,
         guard_margin_m: options.guard_margin_m,
@@ -630,6 +693,8 @@ pub fn evaluate(
             0
         },
         by_target_beside,
+        by_family,
+        by_composed_variant,
         scenarios: results,
     })
 }

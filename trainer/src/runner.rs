@@ -16,7 +16,7 @@ use crate::storage::RolloutStorage;
 use crate::trajectory::batch_file::{partial_path, TrajectoryBatch};
 use crate::trajectory::randomize::{randomize_batch_with, RandomizeConfig};
 use crate::trajectory::{Origin, Trajectory};
-use crate::vec_env::{EpisodeStats, SolvedEpisode, VecEnv};
+use crate::vec_env::{EpisodeStats, Scenes, SolvedEpisode, VecEnv};
 use indicatif::{ProgressBar, ProgressStyle};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -169,15 +169,13 @@ pub fn train_stage(
         .wrapping_mul(0x9E37_79B9_7F4A_7C15)
         .wrapping_add(3);
     let mut schedule = StartStageSchedule::of_run(run);
-    let mut envs = VecEnv::with_stage(
+    let scenes = Scenes {
         kind,
-        config.start_yaw(),
-        schedule.as_ref().map_or(1.0, StartStageSchedule::stage),
-        n,
-        env_seed,
-        env_config,
-        run.threads,
-    )?;
+        start_yaw: config.start_yaw(),
+        stage: schedule.as_ref().map_or(1.0, StartStageSchedule::stage),
+        composed_share: run.composed_share,
+    };
+    let mut envs = VecEnv::with_scenes(scenes, n, env_seed, env_config, run.threads)?;
     if run.failure_resample_probability > 0.0 {
         envs.set_failure_memory(run.failure_memory_per_env, run.failure_resample_probability);
     }

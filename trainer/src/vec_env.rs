@@ -5,7 +5,7 @@
 //! = env index) and its slot in the output buffers; threads only split the slice of envs, so
 //! the result does not depend on thread count or scheduling.
 
-use rand::SeedableRng;
+use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use wheelleg_runtime::action::{Action, DIMS};
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
@@ -84,33 +84,55 @@ pub struct EnvSnapshot {
     pub episodes_started: u64,
 }
 
-/// Lock-step environments on fresh scenes of one kind.
+/// Lock-step environments on fresh scenes of one kind (or a mix with composed scenes).
 pub struct VecEnv {
     slots: Vec<EnvSlot>,
-    kind: SceneKind,
-    start_yaw: StartYaw,
-    /// Start stage of the scenes drawn from now on.
-    stage: f32,
+    /// How the scenes from now on are drawn (the start stage changes during a run).
+    scenes: Scenes,
     config: EnvConfig,
     threads: usize,
 }
 
 /// How new scenes are drawn.
-#[derive(Clone, Copy, Debug)]
-struct Scenes {
-    kind: SceneKind,
-    start_yaw: StartYaw,
-    stage: f32,
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Scenes {
+    /// The kind of scene.
+    pub kind: SceneKind,
+    /// How the start yaw is drawn.
+    pub start_yaw: StartYaw,
+    /// Start stage (`wheelleg_sim::generate::generate_staged`; 1 is the task as specified).
+    pub stage: f32,
+    /// Share of episodes on composed scenes instead of `kind` (`run.composed_share`).
+    pub composed_share: f64,
+}
+
+impl Scenes {
+    /// Scenes of `kind` as specified: any yaw, stage 1, no composed scenes.
+    pub fn of_kind(kind: SceneKind) -> Scenes {
+        Scenes {
+            kind,
+            start_yaw: StartYaw::Any,
+            stage: 1.0,
+            composed_share: 0.0,
+        }
+    }
 }
 
 fn new_scene(scenes: Scenes, rng: &mut ChaCha8Rng, env: usize, episode: u64) -> Scenario {
+    // Without composed scenes nothing extra is drawn, so such a run sees exactly the scenes it
+    // saw before the mix existed.
+    let kind = if scenes.composed_share > 0.0 && rng.random_bool(scenes.composed_share.min(1.0)) {
+        SceneKind::Composed
+    } else {
+        scenes.kind
+    };
     // At stage 1 this is `generate_with_start`, draw for draw.
     generate_staged(
-        scenes.kind,
+        kind,
         scenes.start_yaw,
         scenes.stage,
         rng,
-        format!("{}-e{env}-{episode}", scenes.kind.name()),
+        format!("{}-e{env}-{episode}", kind.name()),
     )
 }
 
@@ -264,20 +286,31 @@ impl VecEnv {
             kind,
             start_yaw,
             stage,
+            composed_share: 0.0,
         };
+        VecEnv::with_scenes(scenes, num_envs, seed, config, threads)
+    }
+
+    /// `num_envs` environments on scenes drawn as `scenes`; env `i` draws its scenes from
+    /// ChaCha8 seeded with `seed` on stream `i`.
+    pub fn with_scenes(
+        scenes: Scenes,
+        num_envs: usize,
+        seed: u64,
+        config: EnvConfig,
+        threads: usize,
+    ) -> Result<VecEnv, String> {
         let slots = (0..num_envs)
             .map(|i| {
                 let mut rng = ChaCha8Rng::seed_from_u64(seed);
                 rng.set_stream(i as u64);
                 let scenario = new_scene(scenes, &mut rng, i, 0);
-                EnvSlot::start(scenario, config, rng, 0, stage)
+                EnvSlot::start(scenario, config, rng, 0, scenes.stage)
             })
             .collect::<Result<Vec<_>, _>>()?;
         Ok(VecEnv {
             slots,
-            kind,
-            start_yaw,
-            stage,
+            scenes,
             config,
             threads: threads.max(1),
         })
@@ -325,12 +358,12 @@ impl VecEnv {
 
     /// Start stage of the scenes drawn from now on.
     pub fn stage(&self) -> f32 {
-        self.stage
+        self.scenes.stage
     }
 
     /// Draws the following scenes at start stage `stage`; running episodes keep theirs.
     pub fn set_stage(&mut self, stage: f32) {
-        self.stage = stage;
+        self.scenes.stage = stage;
     }
 
     /// The start stage each env's current scene was drawn at (for checkpoints).
@@ -387,11 +420,7 @@ impl VecEnv {
         states: &mut [f32],
     ) -> Vec<StepResult> {
         let chunk = self.slots.len().div_ceil(self.threads);
-        let scenes = Scenes {
-            kind: self.kind,
-            start_yaw: self.start_yaw,
-            stage: self.stage,
-        };
+        let scenes = self.scenes;
         let config = self.config;
         let mut results = vec![
             StepResult {

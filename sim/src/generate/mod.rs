@@ -21,6 +21,12 @@
 //!   way ends with the robot stopped astride or right next to a slab. The primary policy's
 //!   misses on complex scenes are nearly all such endings (docs/results.md, "Nearly every failure
 //!   is a target beside an obstacle"), and no fence scene ever ends on an obstacle.
+//!
+//! Composed scenes (`composed.rs`) put those fences amid clutter: one or two fences, mixed kinds,
+//! clutter off the passage's lane, targets in and beyond the passages.
+
+mod composed;
+pub use composed::{ComposedEnding, ComposedVariant, COMPOSED_PAIRS};
 
 use crate::obstacle::{cell_centre_m, Obstacle, ObstacleKind, ObstacleYaw, GRID_CELL_M};
 use crate::scenario::Scenario;
@@ -79,11 +85,14 @@ pub enum SceneKind {
     Behaviour(Behaviour),
     /// A complex scene: 1 to 8 obstacles of any kind.
     Complex,
+    /// One or two fences amid clutter (`composed.rs`): a behaviour needed where other
+    /// obstacles stand.
+    Composed,
 }
 
 impl SceneKind {
     /// All kinds, behaviours first.
-    pub const ALL: [SceneKind; 7] = [
+    pub const ALL: [SceneKind; 8] = [
         SceneKind::Behaviour(Behaviour::Straight),
         SceneKind::Behaviour(Behaviour::Around),
         SceneKind::Behaviour(Behaviour::LiftOver),
@@ -91,6 +100,7 @@ impl SceneKind {
         SceneKind::Behaviour(Behaviour::Squeeze),
         SceneKind::Behaviour(Behaviour::Astride),
         SceneKind::Complex,
+        SceneKind::Composed,
     ];
 
     /// Name used on the command line.
@@ -98,6 +108,7 @@ impl SceneKind {
         match self {
             SceneKind::Behaviour(b) => b.name(),
             SceneKind::Complex => "complex",
+            SceneKind::Composed => "composed",
         }
     }
 
@@ -210,6 +221,7 @@ pub fn generate_with_start(
         let scenario = match kind {
             SceneKind::Behaviour(b) => behaviour_scene(b, rng, name.clone(), start_yaw).0,
             SceneKind::Complex => complex_scene(rng, name.clone(), start_yaw),
+            SceneKind::Composed => composed::composed_scene(rng, name.clone(), start_yaw),
         };
         if scenario.validate(&WHEELLEG).is_ok() && target_is_free(&scenario) {
             return scenario;
