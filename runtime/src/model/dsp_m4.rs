@@ -35,25 +35,27 @@ use super::kernel::{le_i32, output_bounds, Output, OutputSlice};
 use super::load::{ConvLayer, Linear};
 use super::quant::{requantize_clamped, MAX_SHIFT, MIN_SHIFT};
 
-// The 2 x 2 loop over row pairs: `r0` input row a (input row b is `stride` bytes further),
-// `r1` the first weight row, `r2` parameters [stride in bytes, weight row length in bytes,
-// groups of four per row, row pairs, tail, bias, multipliers, shifts, outputs, rows, zero
-// point, low bound], `r3` where to store the sums, 4 per row pair (row A pixel a, A b, B a,
-// B b). Input rows must be word-aligned (LDRD).
+// The 2 x 2 loop over row pairs, requantization included: `r0` input row a (input row b is
+// `stride` bytes further), `r1` the first weight row, `r2` parameters [stride in bytes,
+// weight row length in bytes, groups of four per row, row pairs, tail, row table, -, -,
+// outputs, rows, 2 * zero point + 1, low bound]; `r3` is unused. Input rows must be
+// word-aligned (LDRD).
 //
-// With a null bias the loop stores the sums for Rust to finish (the tail parameter must then
-// be 0). Otherwise it finishes each row pair itself, as `requantize` does for a right shift of
-// 33 or more (the caller checked every row's shift for it) into int8 outputs with the high
-// bound 127: the `tail` (0 to 3) elements after the whole groups, in natural order, by `MLA`;
-// the bias; `SMMUL` (the high word of the 64-bit product); the arithmetic shift by
-// `-2 - shift`, plus one, halved into the zero point (`ADD` with `ASR #1`); `SSAT` to int8 and
-// the low bound (ReLU). Pixel a's outputs go to `outputs[row]`, pixel b's `rows` bytes on.
+// It finishes each row pair as `requantize` does for a right shift of 33 or more (the caller
+// checked every row's shift for it) into int8 outputs with the high bound 127: the `tail`
+// (0 to 3) elements after the whole groups, in natural order, by `MLA`; then from the row
+// table (`row_table`: bias, multiplier, shift per row, one `LDM` a row) the bias, `SMMUL`
+// (the high word of the 64-bit product), the arithmetic shift by `-2 - shift`; then
+// `(t + 1) / 2 + zero point` as `(t + 1 + 2 * zero point) / 2` (exact: the added term is
+// even, and `|t|` is below 2^30) by `ADD` and `SSAT`'s `ASR #1`, which also clamps to int8;
+// last the low bound (ReLU). Pixel a's outputs go to `outputs[row]`, pixel b's `rows` bytes
+// on. Per row pair after the sums: 47 instructions for 4 outputs.
 //
-// Stack frame: [sp] the sums' (or outputs') address, [sp, #4] input a's end of the unrolled
-// turns, [sp, #8] groups, [sp, #12] input row a, [sp, #16] row pairs left, [sp, #20] from
-// one row pair's weights (after the loop and the tail) to the next, [sp, #24] stride,
-// [sp, #28] tail, [sp, #32] bias, [sp, #36] multipliers, [sp, #40] shifts, [sp, #44] rows,
-// [sp, #48] zero point, [sp, #52] low bound.
+// Stack frame: [sp] the outputs' address, [sp, #4] input a's end of the unrolled turns,
+// [sp, #8] groups, [sp, #12] input row a, [sp, #16] row pairs left, [sp, #20] from one row
+// pair's weights (after the loop and the tail) to the next, [sp, #24] stride, [sp, #28]
+// tail, [sp, #32] the row table, [sp, #44] rows, [sp, #48] 2 * zero point + 1, [sp, #52]
+// low bound.
 core::arch::global_asm!(
     ".syntax unified",
     ".thumb",
@@ -64,7 +66,6 @@ core::arch::global_asm!(
     "wheelleg_dsp_dot_2x2:",
     "push {{r4-r11, lr}}",
     "sub sp, sp, #60",
-    "str r3, [sp]",
     "str r0, [sp, #12]",
     "ldr r12, [r2, #8]",
     "str r12, [sp, #8]",
@@ -82,10 +83,6 @@ core::arch::global_asm!(
     "str r5, [sp, #20]",
     "ldr r4, [r2]",
     "str r4, [sp, #24]",
-    "ldr r4, [r2, #24]",
-    "str r4, [sp, #36]",
-    "ldr r4, [r2, #28]",
-    "str r4, [sp, #40]",
     "ldr r4, [r2, #36]",
     "str r4, [sp, #44]",
     "ldr r4, [r2, #40]",
@@ -94,10 +91,8 @@ core::arch::global_asm!(
     "str r4, [sp, #52]",
     "ldr r4, [r2, #20]",
     "str r4, [sp, #32]",
-    "cbz r4, 6f",
     "ldr r4, [r2, #32]",
     "str r4, [sp]",
-    "6:",
     "ldr r4, [sp, #16]",
     "cmp r4, #0",
     "beq 9f",
@@ -185,54 +180,31 @@ core::arch::global_asm!(
     "bne 7b",
     "4:",
     "ldr r12, [sp, #32]",
-    "cmp r12, #0",
-    "bne 8f",
-    "ldr r12, [sp]",
-    "stm r12!, {{r4-r7}}",
-    "str r12, [sp]",
-    "b 10f",
-    "8:",
-    "ldr r8, [r12], #4",
-    "ldr r9, [r12], #4",
-    "str r12, [sp, #32]",
+    "ldm r12!, {{r8, r9, r10}}",
     "add r4, r4, r8",
     "add r5, r5, r8",
-    "add r6, r6, r9",
-    "add r7, r7, r9",
-    "ldr r12, [sp, #36]",
-    "ldr r8, [r12], #4",
-    "ldr r9, [r12], #4",
-    "str r12, [sp, #36]",
-    "smmul r4, r4, r8",
-    "smmul r5, r5, r8",
+    "smmul r4, r4, r9",
+    "smmul r5, r5, r9",
+    "asr r4, r4, r10",
+    "asr r5, r5, r10",
+    "ldm r12!, {{r8, r9, r10}}",
+    "str r12, [sp, #32]",
+    "add r6, r6, r8",
+    "add r7, r7, r8",
     "smmul r6, r6, r9",
     "smmul r7, r7, r9",
-    "ldr r12, [sp, #40]",
-    "ldrsb r8, [r12], #1",
-    "ldrsb r9, [r12], #1",
-    "str r12, [sp, #40]",
-    "mvn r8, r8",
-    "sub r8, r8, #1",
-    "mvn r9, r9",
-    "sub r9, r9, #1",
-    "asr r4, r4, r8",
-    "asr r5, r5, r8",
-    "asr r6, r6, r9",
-    "asr r7, r7, r9",
-    "add r4, r4, #1",
-    "add r5, r5, #1",
-    "add r6, r6, #1",
-    "add r7, r7, #1",
+    "asr r6, r6, r10",
+    "asr r7, r7, r10",
     "ldr r10, [sp, #48]",
     "ldr r11, [sp, #52]",
-    "add r4, r10, r4, asr #1",
-    "add r5, r10, r5, asr #1",
-    "add r6, r10, r6, asr #1",
-    "add r7, r10, r7, asr #1",
-    "ssat r4, #8, r4",
-    "ssat r5, #8, r5",
-    "ssat r6, #8, r6",
-    "ssat r7, #8, r7",
+    "add r4, r4, r10",
+    "add r5, r5, r10",
+    "add r6, r6, r10",
+    "add r7, r7, r10",
+    "ssat r4, #8, r4, asr #1",
+    "ssat r5, #8, r5, asr #1",
+    "ssat r6, #8, r6, asr #1",
+    "ssat r7, #8, r7, asr #1",
     "cmp r4, r11",
     "it lt",
     "movlt r4, r11",
@@ -254,7 +226,6 @@ core::arch::global_asm!(
     "strb r7, [r10, #1]",
     "add r12, r12, #2",
     "str r12, [sp]",
-    "10:",
     "ldr r12, [sp, #20]",
     "add r1, r1, r12",
     "ldr r12, [sp, #16]",
@@ -631,8 +602,12 @@ fn linear_batch_any(
     let groups = row_len / 4;
     let whole = 4 * groups;
     let in_asm = asm_finishes(linear, outputs, bounds);
-    // Written by the loops before it is read; zero for rows too short for them.
+    // Written by the loops before it is read; zero for rows too short for them. Where the
+    // assembly finishes the rows it holds their table instead (`row_table`).
     let mut sums = [0i32; SUMS];
+    if in_asm {
+        row_table(linear, &mut sums);
+    }
     let mut pixel = 0;
     while pixel < pixels {
         let pair = pixel + 1 < pixels;
@@ -732,7 +707,7 @@ fn asm_finishes(linear: &Linear<'_>, out: &OutputSlice<'_>, bounds: (i32, i32, i
     });
     matches!(out, OutputSlice::Int8(_))
         && rows % 2 == 0
-        && rows <= SUMS / 2
+        && 3 * rows <= SUMS
         && linear.row_len >= 4
         && high == 127
         && (-128..=127).contains(&low)
@@ -742,14 +717,26 @@ fn asm_finishes(linear: &Linear<'_>, out: &OutputSlice<'_>, bounds: (i32, i32, i
         && linear.weights.len() >= rows * linear.row_len
 }
 
-/// [`pixel_pair`] whole in `wheelleg_dsp_dot_2x2`, for a layer [`asm_finishes`] accepted.
-/// Returns whether it ran (not when the inputs or outputs are short: a caller bug).
+/// What `wheelleg_dsp_dot_2x2` reads per row to finish it, in `table` (3 words a row, for
+/// `LDM`): the bias, the multiplier, and the right shift of `requantize`'s high word,
+/// `right - 33 = -2 - shift` (at least 0: [`asm_finishes`]).
+fn row_table(linear: &Linear<'_>, table: &mut [i32; SUMS]) {
+    for (entry, (bias, multiplier, shift)) in table.chunks_exact_mut(3).zip(row_params(linear)) {
+        if let [b, m, s] = entry {
+            (*b, *m, *s) = (bias, multiplier, -2 - i32::from(shift));
+        }
+    }
+}
+
+/// [`pixel_pair`] whole in `wheelleg_dsp_dot_2x2`, for a layer [`asm_finishes`] accepted,
+/// with its [`row_table`] in `table`. Returns whether it ran (not when the inputs or outputs
+/// are short: a caller bug).
 fn finish_in_asm(
     linear: &Linear<'_>,
     a: &[i16],
     stride: usize,
     out: &mut OutputSlice<'_>,
-    first: usize,
+    (first, table): (usize, &[i32; SUMS]),
     bounds: (i32, i32, i32),
 ) -> bool {
     let (rows, row_len) = (linear.rows, linear.row_len);
@@ -770,21 +757,22 @@ fn finish_in_asm(
         groups as u32,
         (rows / 2) as u32,
         (row_len - 4 * groups) as u32,
-        linear.bias.as_ptr() as u32,
-        linear.multipliers.as_ptr() as u32,
-        linear.shifts.as_ptr() as u32,
+        table.as_ptr() as u32,
+        0,
+        0,
         outputs.as_mut_ptr() as u32,
         rows as u32,
-        zero_point as u32,
+        // (t + 1) / 2 + zero point = (t + 1 + 2 zero point) / 2, floored: `SSAT`'s `ASR #1`.
+        (2 * zero_point + 1) as u32,
         low as u32,
     ];
     // SAFETY: as in `single_pixel` for the inputs (`a` holds both rows: `stride + row_len`
     // elements, word-aligned: `linear_batch_any` checked the input and the even stride) and
     // the weights (`rows` rows of `row_len`, `asm_finishes`), tail included (the
-    // `row_len - 4 * groups` elements after the whole groups of each row); per row it reads 4
-    // bytes of bias and of multiplier and one shift, within their slices (`asm_finishes`); it
-    // writes `outputs[r]` and `outputs[rows + r]` for `r < rows`, within `outputs`
-    // (`2 * rows` long); the sums' address is unused with a bias.
+    // `row_len - 4 * groups` elements after the whole groups of each row); per row it reads 3
+    // words of `table` (`3 * rows <= SUMS`: `asm_finishes`); it writes `outputs[r]` and
+    // `outputs[rows + r]` for `r < rows`, within `outputs` (`2 * rows` long); its last
+    // argument is unused.
     unsafe {
         wheelleg_dsp_dot_2x2(
             a.as_ptr(),
@@ -811,7 +799,7 @@ fn pixel_pair(
     sums: &mut [i32; SUMS],
     bounds: (i32, i32, i32),
 ) {
-    if in_asm && finish_in_asm(linear, a, stride, out, first, bounds) {
+    if in_asm && finish_in_asm(linear, a, stride, out, (first, sums), bounds) {
         return;
     }
     single_pixel(linear, a, (groups, whole), out, first, sums, bounds);
