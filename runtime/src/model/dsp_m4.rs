@@ -31,6 +31,7 @@
 //! more unless they hit the flash accelerator's prefetch and cache, which sequential loads do.
 #![allow(unsafe_code)]
 
+use super::format::InputQuantRecord;
 use super::kernel::{le_i32, output_bounds, Output, OutputSlice};
 use super::load::{ConvLayer, Linear};
 use super::quant::{requantize_clamped, MAX_SHIFT, MIN_SHIFT};
@@ -455,6 +456,17 @@ pub fn gather_permuted(
     let zero_point = conv.linear.input_zero_point;
     let run = side * channels;
     let cols = conv.out_cols.max(1);
+    if channels == 1 && side == 3 && stride >= 9 {
+        // The first layer: interior patches straight into the permuted order, border ones
+        // as `infer` gathers them, then permuted.
+        for (offset, patch) in patches.chunks_exact_mut(stride).enumerate() {
+            if gather_3x3_interior(conv, src, first + offset, patch).is_none() {
+                super::infer::gather_pixels(conv, src, first + offset, patch, stride);
+                permute(patch.get_mut(..9).unwrap_or_default());
+            }
+        }
+        return true;
+    }
     if channels % 4 != 0
         || stride % 2 != 0
         || stride < side * run
@@ -501,6 +513,70 @@ pub fn gather_permuted(
         }
     }
     true
+}
+
+/// [`super::kernel::quantize_inputs_scalar`] in 32-bit steps where the input's shift allows:
+/// for a right shift of 33 or more as in [`requantize`], for exactly 32 the high word of the
+/// product plus 2^31 (`SMMULR`'s rounding, the same formula); the scalar kernel's otherwise.
+pub fn quantize_inputs_dsp(quant: &InputQuantRecord, values_mm: &[i16], out: &mut [i8]) {
+    let right = 31 - i32::from(quant.shift.clamp(MIN_SHIFT, MAX_SHIFT));
+    let multiplier = i64::from(quant.multiplier);
+    let zero_point = i32::from(quant.zero_point);
+    let pairs = out.iter_mut().zip(values_mm);
+    if right >= 33 {
+        let shift = right - 33;
+        for (q, &mm) in pairs {
+            let high_word = ((i64::from(mm) * multiplier) >> 32) as i32;
+            *q = ((((high_word >> shift) + 1) >> 1) + zero_point).clamp(-128, 127) as i8;
+        }
+    } else if right == 32 {
+        for (q, &mm) in pairs {
+            let value = ((i64::from(mm) * multiplier + (1 << 31)) >> 32) as i32;
+            *q = (value + zero_point).clamp(-128, 127) as i8;
+        }
+    } else {
+        super::kernel::quantize_inputs_scalar(quant, values_mm, out);
+    }
+}
+
+/// The patch of output pixel `pixel` of a one-channel 3 x 3 conv whose patch lies inside the
+/// map, widened straight into the [`permute`]d order `x0 x2 x1 x3 x4 x6 x5 x7 x8`; `None`
+/// (nothing written) for a border pixel or another layer.
+#[inline(always)]
+fn gather_3x3_interior(
+    conv: &ConvLayer<'_>,
+    src: &[i8],
+    pixel: usize,
+    patch: &mut [i16],
+) -> Option<()> {
+    let step = usize::from(conv.record.stride);
+    let padding = usize::from(conv.record.padding);
+    let cols = conv.out_cols.max(1);
+    let (y0, x0) = ((pixel / cols) * step, (pixel % cols) * step);
+    if y0 < padding
+        || x0 < padding
+        || y0 + 3 > conv.in_rows + padding
+        || x0 + 3 > conv.in_cols + padding
+    {
+        return None;
+    }
+    let pitch = conv.in_cols;
+    let base = (y0 - padding) * pitch + (x0 - padding);
+    let zp = i16::from(conv.linear.input_zero_point);
+    let row = |ky: usize| -> Option<[i16; 3]> {
+        match src.get(base + ky * pitch..base + ky * pitch + 3)? {
+            &[a, b, c] => Some([i16::from(a) - zp, i16::from(b) - zp, i16::from(c) - zp]),
+            _ => None,
+        }
+    };
+    let ([x0, x1, x2], [x3, x4, x5], [x6, x7, x8]) = (row(0)?, row(1)?, row(2)?);
+    match patch.get_mut(..9)? {
+        [p0, p1, p2, p3, p4, p5, p6, p7, p8] => {
+            (*p0, *p1, *p2, *p3, *p4, *p5, *p6, *p7, *p8) = (x0, x2, x1, x3, x4, x6, x5, x7, x8);
+            Some(())
+        }
+        _ => None,
+    }
 }
 
 /// The dot product of a [`permute`]d input row and a weight row in natural order, in Rust:

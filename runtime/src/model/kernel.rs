@@ -345,6 +345,8 @@ pub fn quantize_inputs(
     match kernel {
         #[cfg(target_arch = "x86_64")]
         Kernel::Avx2 => super::simd_x86::quantize_inputs_avx2(quant, values_mm, out),
+        #[cfg(all(target_arch = "arm", target_feature = "dsp"))]
+        Kernel::Dsp => super::dsp_m4::quantize_inputs_dsp(quant, values_mm, out),
         _ => quantize_inputs_scalar(quant, values_mm, out),
     }
 }
