@@ -5,28 +5,43 @@
 //! in two more: four multiply-accumulates in four instructions, plus the loads.
 //!
 //! `SXTB16` pairs weights 0 with 2 and 1 with 3, so the inputs must come in that order: every
-//! whole group of four inputs `x0 x1 x2 x3` is stored as `x0 x2 x1 x3` ([`permute`], which
-//! `infer` applies to each row once, after gathering it, for every output row that reads it).
-//! Elements after the last whole group stay in order.
+//! whole group of four inputs `x0 x1 x2 x3` is stored as `x0 x2 x1 x3`. Conv patches are
+//! gathered straight into it ([`gather_permuted`]: `SXTB16` widens input bytes 0 and 2, then
+//! 1 and 3, which is that order, and `SSUB16` subtracts the zero point from both halves);
+//! other rows are [`permute`]d once after they are written. Elements after the last whole
+//! group stay in order.
 //!
 //! Two inner loops, hand-scheduled in assembly (`global_asm!`, AAPCS functions) so that the
 //! accumulators, inputs and weights stay in registers:
-//! - `wheelleg_dsp_dot_2x2`: two input rows (two conv pixels) by two weight rows: each input pair loaded
-//!   serves two rows and each weight pair two pixels, 16 MACs in 16 instructions;
-//! - `wheelleg_dsp_dot_1x4`: one input row by four weight rows (the dense layers), 16 MACs in 21.
+//! - `wheelleg_dsp_dot_2x2`: two input rows (two conv pixels) by two weight rows: each input
+//!   pair loaded serves two rows and each weight pair two pixels, 16 MACs in 16 instructions,
+//!   four groups of four per loop turn; it also requantizes each row pair into int8 outputs
+//!   (`SMMUL`, `SSAT`: 47 instructions per 4 outputs), so conv layers never leave assembly;
+//! - `wheelleg_dsp_dot_1x4`: one input row by four weight rows (the dense layers), 16 MACs in
+//!   21, two groups per turn, its sums finished in Rust ([`requantize`]).
 //!
-//! Each loop turn handles two groups of four (unrolled once), then a compare and a branch.
 //! Integer sums are exact in any order (the loader bounds every partial sum within an i32),
-//! and requantization is the scalar kernel's own ([`super::kernel::finish`]), so the results
-//! are the scalar kernel's bit for bit; `runtime/tests` cannot run this on the host, so
-//! scripts/mcu.sh checks it in QEMU against the host's decisions.
+//! and requantization is the scalar kernel's formula ([`super::kernel::finish`]) in 32-bit
+//! steps that give the same integers, so the results are the scalar kernel's bit for bit;
+//! `runtime/tests` cannot run this on the host, so scripts/mcu.sh checks it in QEMU against
+//! the scalar kernel on every decision and against the host's decisions.
 //!
-//! Cycle estimate of the inner loops (Cortex-M4 Technical Reference Manual, instruction
-//! timings): `SMLAD` and `SXTB16` 1 cycle each, `LDR` 2 cycles (1 when pipelined with the next
-//! load or store), `LDRD` 3 cycles, a taken branch 2 to 4 (1 + pipeline refill). `dot_2x2`'s
-//! turn of 32 MACs: 4 `LDRD` (12) + 4 `LDR` (8) + 8 `SXTB16` (8) + 16 `SMLAD` (16) + `LDR`,
-//! `CMP`, `BNE` (2 + 1 + 3) = 50 cycles, 1.56 cycles per MAC; `dot_1x4`'s: 2 `LDRD` (6) +
-//! 8 `LDR` (16) + 16 `SXTB16` (16) + 16 `SMLAD` (16) + `CMP`, `BNE` (4) = 58, 1.81 per MAC.
+//! Cycle estimate (Cortex-M4 Technical Reference Manual, instruction timings): `SMLAD`,
+//! `SXTB16`, `SSUB16`, `SMMUL`, `SSAT`, `MLA` and other ALU operations 1 cycle each, `LDR`
+//! 2 cycles (1 when pipelined with the next load or store), `LDRD` and `STRD` 3, `LDM` of 3
+//! registers 4, `STR`/`STRB` 1, a taken branch 2 to 4 (1 + pipeline refill):
+//! - `dot_2x2`'s turn of 64 MACs: 8 `LDRD` (24) + 8 `LDR` (16) + 16 `SXTB16` (16) + 32
+//!   `SMLAD` (32) + `LDR`, `CMP`, `BNE` (2 + 1 + 3) = 94 cycles, 1.47 cycles per MAC (67
+//!   instructions);
+//! - its requantization of a row pair (4 outputs): 2 `LDM` (8) + 5 `LDR` (10) + 2 `STR`
+//!   and 4 `STRB` (6) + 34 ALU (34: bias, `SMMUL`, shift, zero point, `SSAT`, the ReLU's
+//!   `CMP`/`IT`/`MOV`) = 58 cycles, 14.5 per output; a tail element (the first conv's 9th
+//!   input) 4 loads (5), 4 `MLA` (4), `SUBS`, `BNE` (4) = 13 cycles;
+//! - [`widen_permuted`]'s turn of 8 inputs: 2 `LDR` (3) + 4 `SXTB16` + 4 `SSUB16` (8) + 2
+//!   `STRD` (6) + `CMP`, `BNE` (4) = 21 cycles, 2.6 per input;
+//! - `dot_1x4`'s turn of 32 MACs: 2 `LDRD` (6) + 8 `LDR` (16) + 16 `SXTB16` (16) + 16
+//!   `SMLAD` (16) + `CMP`, `BNE` (4) = 58, 1.81 per MAC.
+//!
 //! On a part with flash wait states (170 MHz: 4 on an STM32G4) the weights' loads may cost
 //! more unless they hit the flash accelerator's prefetch and cache, which sequential loads do.
 #![allow(unsafe_code)]
@@ -529,7 +544,15 @@ pub fn gather_permuted(
         // as `infer` gathers them, then permuted.
         for (offset, patch) in patches.chunks_exact_mut(stride).enumerate() {
             if gather_3x3_interior(conv, src, first + offset, patch).is_none() {
-                super::infer::gather_pixels(conv, src, first + offset, patch, stride);
+                // The portable gather's one copy (flash), one pixel.
+                super::infer::gather_patches(
+                    super::kernel::Kernel::Dsp,
+                    conv,
+                    src,
+                    first + offset,
+                    patch,
+                    stride,
+                );
                 permute(patch.get_mut(..9).unwrap_or_default());
             }
         }

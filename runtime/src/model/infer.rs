@@ -263,7 +263,7 @@ fn first_layer<T: Output>(
 /// Gathers the patches of output pixels `first..` into `patches`, one every `stride` elements
 /// (as many as fit), with the kernel's instruction set: the same code, compiled for AVX2 by
 /// [`super::simd_x86::gather_avx2`], widens 16 inputs per instruction.
-fn gather_patches(
+pub(super) fn gather_patches(
     kernel: Kernel,
     conv: &ConvLayer<'_>,
     src: &[i8],
