@@ -115,7 +115,7 @@ calibration=$(field calibration_instructions)
 calibration_expected=$(field calibration_expected)
 boot=$(field instructions_boot_check)
 # A decision's count is the policy's (height map and state in, logits out: what the MACs are
-# in, the issue's anchors' measure); the decision rule, guard and arrival are counted apart.
+# in, the anchors' measure); the decision rule, guard and arrival are counted apart.
 per_decision=$((infer / decided))
 per_rule=$((decide / decided))
 scalar=$(field scalar_infer_instructions)
