@@ -16,7 +16,7 @@
 //! - `wheelleg_dsp_dot_2x2`: two input rows (two conv pixels) by two weight rows: each input
 //!   pair loaded serves two rows and each weight pair two pixels, 16 MACs in 16 instructions,
 //!   four groups of four per loop turn; it also requantizes each row pair into int8 outputs
-//!   (`SMMUL`, `SSAT`: 47 instructions per 4 outputs), so conv layers never leave assembly;
+//!   (`SMMUL`, `SSAT`, `SEL`: 38 instructions per 4 outputs), so conv layers never leave assembly;
 //! - `wheelleg_dsp_dot_1x4`: one input row by four weight rows (the dense layers), 16 MACs in
 //!   21, two groups per turn, its sums finished in Rust ([`requantize`]).
 //!
@@ -27,15 +27,15 @@
 //! the scalar kernel on every decision and against the host's decisions.
 //!
 //! Cycle estimate (Cortex-M4 Technical Reference Manual, instruction timings): `SMLAD`,
-//! `SXTB16`, `SSUB16`, `SMMUL`, `SSAT`, `MLA` and other ALU operations 1 cycle each, `LDR`
+//! `SXTB16`, `SSUB16`, `SSUB8`, `SEL`, `SMMUL`, `SSAT`, `BFI`, `MLA` and other ALU operations 1 cycle each, `LDR`
 //! 2 cycles (1 when pipelined with the next load or store), `LDRD` and `STRD` 3, `LDM` of 3
 //! registers 4, `STR`/`STRB` 1, a taken branch 2 to 4 (1 + pipeline refill):
 //! - `dot_2x2`'s turn of 64 MACs: 8 `LDRD` (24) + 8 `LDR` (16) + 16 `SXTB16` (16) + 32
 //!   `SMLAD` (32) + `LDR`, `CMP`, `BNE` (2 + 1 + 3) = 94 cycles, 1.47 cycles per MAC (67
 //!   instructions);
 //! - its requantization of a row pair (4 outputs): 2 `LDM` (8) + 5 `LDR` (10) + 2 `STR`
-//!   and 4 `STRB` (6) + 34 ALU (34: bias, `SMMUL`, shift, zero point, `SSAT`, the ReLU's
-//!   `CMP`/`IT`/`MOV`) = 58 cycles, 14.5 per output; a tail element (the first conv's 9th
+//!   and 2 `STRH` (4) + 27 ALU (27: bias, `SMMUL`, shift, zero point, `SSAT`, `BFI`, the
+//!   ReLU's `SSUB8`/`SEL`) = 49 cycles, 12.3 per output; a tail element (the first conv's 9th
 //!   input) 4 loads (5), 4 `MLA` (4), `SUBS`, `BNE` (4) = 13 cycles;
 //! - [`widen_permuted`]'s turn of 8 inputs: 2 `LDR` (3) + 4 `SXTB16` + 4 `SSUB16` (8) + 2
 //!   `STRD` (6) + `CMP`, `BNE` (4) = 21 cycles, 2.6 per input;
@@ -54,7 +54,7 @@ use super::quant::{requantize_clamped, MAX_SHIFT, MIN_SHIFT};
 // The 2 x 2 loop over row pairs, requantization included: `r0` input row a (input row b is
 // `stride` bytes further), `r1` the first weight row, `r2` parameters [stride in bytes,
 // weight row length in bytes, groups of four per row, row pairs, tail, row table, -, -,
-// outputs, rows, 2 * zero point + 1, low bound]; `r3` is unused. Input rows must be
+// outputs, rows, 2 * zero point + 1, low bound in each byte]; `r3` is unused. Input rows must be
 // word-aligned (LDRD).
 //
 // It finishes each row pair as `requantize` does for a right shift of 33 or more (the caller
@@ -64,14 +64,16 @@ use super::quant::{requantize_clamped, MAX_SHIFT, MIN_SHIFT};
 // (the high word of the 64-bit product), the arithmetic shift by `-2 - shift`; then
 // `(t + 1) / 2 + zero point` as `(t + 1 + 2 * zero point) / 2` (exact: the added term is
 // even, and `|t|` is below 2^30) by `ADD` and `SSAT`'s `ASR #1`, which also clamps to int8;
-// last the low bound (ReLU). Pixel a's outputs go to `outputs[row]`, pixel b's `rows` bytes
-// on. Per row pair after the sums: 47 instructions for 4 outputs.
+// last the four bytes packed into a word (`BFI`) and the low bound (ReLU) as their byte-wise
+// maximum with it (`SSUB8` sets a lane's flag where the output is not below it, `SEL` keeps
+// those). Pixel a's outputs (rows A, B) go to `outputs[row..]` and pixel b's `rows` bytes on,
+// each pair by one `STRH`. Per row pair after the sums: 38 instructions for 4 outputs.
 //
 // Stack frame: [sp] the outputs' address, [sp, #4] input a's end of the unrolled turns,
 // [sp, #8] groups, [sp, #12] input row a, [sp, #16] row pairs left, [sp, #20] from one row
 // pair's weights (after the loop and the tail) to the next, [sp, #24] stride, [sp, #28]
 // tail, [sp, #32] the row table, [sp, #44] rows, [sp, #48] 2 * zero point + 1, [sp, #52]
-// low bound.
+// the low bound in each byte.
 core::arch::global_asm!(
     ".syntax unified",
     ".thumb",
@@ -289,25 +291,16 @@ core::arch::global_asm!(
     "ssat r5, #8, r5, asr #1",
     "ssat r6, #8, r6, asr #1",
     "ssat r7, #8, r7, asr #1",
-    "cmp r4, r11",
-    "it lt",
-    "movlt r4, r11",
-    "cmp r5, r11",
-    "it lt",
-    "movlt r5, r11",
-    "cmp r6, r11",
-    "it lt",
-    "movlt r6, r11",
-    "cmp r7, r11",
-    "it lt",
-    "movlt r7, r11",
+    "bfi r4, r6, #8, #8",
+    "bfi r4, r5, #16, #8",
+    "bfi r4, r7, #24, #8",
+    "ssub8 r8, r4, r11",
+    "sel r4, r4, r11",
     "ldr r12, [sp]",
     "ldr r10, [sp, #44]",
-    "strb r4, [r12]",
-    "strb r6, [r12, #1]",
-    "strb r5, [r12, r10]",
-    "add r10, r10, r12",
-    "strb r7, [r10, #1]",
+    "strh r4, [r12]",
+    "lsr r8, r4, #16",
+    "strh r8, [r12, r10]",
     "add r12, r12, #2",
     "str r12, [sp]",
     "ldr r12, [sp, #20]",
@@ -931,7 +924,8 @@ fn finish_in_asm(
         rows as u32,
         // (t + 1) / 2 + zero point = (t + 1 + 2 zero point) / 2, floored: `SSAT`'s `ASR #1`.
         (2 * zero_point + 1) as u32,
-        low as u32,
+        // Four copies, for the byte-wise maximum (`SSUB8`, `SEL`).
+        u32::from(low as u8) * 0x0101_0101,
     ];
     // SAFETY: as in `single_pixel` for the inputs (`a` holds both rows: `stride + row_len`
     // elements, word-aligned: `linear_batch_any` checked the input and the even stride) and
