@@ -54,7 +54,9 @@ use super::quant::{requantize_clamped, MAX_SHIFT, MIN_SHIFT};
 // The 2 x 2 loop over row pairs, requantization included: `r0` input row a (input row b is
 // `stride` bytes further), `r1` the first weight row, `r2` parameters [stride in bytes,
 // weight row length in bytes, groups of four per row, row pairs, tail, row table, -, -,
-// outputs, rows, 2 * zero point + 1, low bound in each byte]; `r3` is unused. Input rows must be
+// outputs, rows, 2 * zero point + 1, low bound in each byte, pixel pairs]; `r3` is unused.
+// Pixel pair `k` reads input rows `2k` and `2k + 1` (`2 * k * stride` bytes on) and writes
+// its outputs `2 * k * rows` bytes on. Input rows must be
 // word-aligned (LDRD).
 //
 // It finishes each row pair as `requantize` does for a right shift of 33 or more (the caller
@@ -73,7 +75,8 @@ use super::quant::{requantize_clamped, MAX_SHIFT, MIN_SHIFT};
 // [sp, #8] groups, [sp, #12] input row a, [sp, #16] row pairs left, [sp, #20] from one row
 // pair's weights (after the loop and the tail) to the next, [sp, #24] stride, [sp, #28]
 // tail, [sp, #32] the row table, [sp, #44] rows, [sp, #48] 2 * zero point + 1, [sp, #52]
-// the low bound in each byte.
+// the low bound in each byte, [sp, #56] row pairs, [sp, #60] pixel pairs left, [sp, #64]
+// the first weight row, [sp, #68] the row table.
 core::arch::global_asm!(
     ".syntax unified",
     ".thumb",
@@ -83,7 +86,7 @@ core::arch::global_asm!(
     ".thumb_func",
     "wheelleg_dsp_dot_2x2:",
     "push {{r4-r11, lr}}",
-    "sub sp, sp, #60",
+    "sub sp, sp, #72",
     "str r0, [sp, #12]",
     "ldr r12, [r2, #8]",
     "str r12, [sp, #8]",
@@ -109,8 +112,17 @@ core::arch::global_asm!(
     "str r4, [sp, #52]",
     "ldr r4, [r2, #20]",
     "str r4, [sp, #32]",
+    "str r4, [sp, #68]",
     "ldr r4, [r2, #32]",
     "str r4, [sp]",
+    "ldr r4, [r2, #48]",
+    "str r4, [sp, #60]",
+    "str r1, [sp, #64]",
+    "ldr r4, [r2, #12]",
+    "str r4, [sp, #56]",
+    "ldr r4, [sp, #60]",
+    "cmp r4, #0",
+    "beq 9f",
     "ldr r4, [sp, #16]",
     "cmp r4, #0",
     "beq 9f",
@@ -309,8 +321,29 @@ core::arch::global_asm!(
     "subs r12, r12, #1",
     "str r12, [sp, #16]",
     "bne 5b",
+    "ldr r12, [sp, #60]",
+    "subs r12, r12, #1",
+    "beq 9f",
+    "str r12, [sp, #60]",
+    "ldr r12, [sp, #56]",
+    "str r12, [sp, #16]",
+    "ldr r1, [sp, #64]",
+    "ldr r12, [sp, #68]",
+    "str r12, [sp, #32]",
+    "ldr r12, [sp, #24]",
+    "ldr r10, [sp, #12]",
+    "add r10, r10, r12, lsl #1",
+    "str r10, [sp, #12]",
+    "ldr r10, [sp, #4]",
+    "add r10, r10, r12, lsl #1",
+    "str r10, [sp, #4]",
+    "ldr r12, [sp]",
+    "ldr r10, [sp, #44]",
+    "add r12, r12, r10",
+    "str r12, [sp]",
+    "b 5b",
     "9:",
-    "add sp, sp, #60",
+    "add sp, sp, #72",
     "pop {{r4-r11, pc}}",
     ".size wheelleg_dsp_dot_2x2, . - wheelleg_dsp_dot_2x2",
 );
@@ -769,6 +802,9 @@ fn linear_batch_any(
         row_table(linear, &mut sums);
     }
     let mut pixel = 0;
+    if in_asm && finish_in_asm(linear, inputs, stride, outputs, (pixels / 2, &sums), bounds) {
+        pixel = pixels / 2 * 2;
+    }
     while pixel < pixels {
         let pair = pixel + 1 < pixels;
         let Some(a) = inputs.get(pixel * stride..) else {
@@ -782,7 +818,7 @@ fn linear_batch_any(
                 stride,
                 (groups, whole),
                 outputs,
-                (first, in_asm),
+                first,
                 &mut sums,
                 bounds,
             );
@@ -888,15 +924,16 @@ fn row_table(linear: &Linear<'_>, table: &mut [i32; SUMS]) {
     }
 }
 
-/// [`pixel_pair`] whole in `wheelleg_dsp_dot_2x2`, for a layer [`asm_finishes`] accepted,
-/// with its [`row_table`] in `table`. Returns whether it ran (not when the inputs or outputs
-/// are short: a caller bug).
+/// The first `2 * pairs` pixels of the batch (inputs from `a`, outputs from the slice's start)
+/// whole in one call of `wheelleg_dsp_dot_2x2`, for a layer [`asm_finishes`] accepted, with
+/// its [`row_table`] in `table`. Returns whether it ran (not when the inputs or outputs are
+/// short: a caller bug).
 fn finish_in_asm(
     linear: &Linear<'_>,
     a: &[i16],
     stride: usize,
     out: &mut OutputSlice<'_>,
-    (first, table): (usize, &[i32; SUMS]),
+    (pairs, table): (usize, &[i32; SUMS]),
     bounds: (i32, i32, i32),
 ) -> bool {
     let (rows, row_len) = (linear.rows, linear.row_len);
@@ -905,10 +942,10 @@ fn finish_in_asm(
     let OutputSlice::Int8(out) = out else {
         return false;
     };
-    let Some(outputs) = out.get_mut(first..first + 2 * rows) else {
+    let Some(outputs) = out.get_mut(..2 * pairs * rows) else {
         return false;
     };
-    if a.len() < stride + row_len {
+    if pairs == 0 || a.len() < (2 * pairs - 1) * stride + row_len {
         return false;
     }
     let params = [
@@ -926,14 +963,16 @@ fn finish_in_asm(
         (2 * zero_point + 1) as u32,
         // Four copies, for the byte-wise maximum (`SSUB8`, `SEL`).
         u32::from(low as u8) * 0x0101_0101,
+        pairs as u32,
     ];
-    // SAFETY: as in `single_pixel` for the inputs (`a` holds both rows: `stride + row_len`
-    // elements, word-aligned: `linear_batch_any` checked the input and the even stride) and
-    // the weights (`rows` rows of `row_len`, `asm_finishes`), tail included (the
-    // `row_len - 4 * groups` elements after the whole groups of each row); per row it reads 3
-    // words of `table` (`3 * rows <= SUMS`: `asm_finishes`); it writes `outputs[r]` and
-    // `outputs[rows + r]` for `r < rows`, within `outputs` (`2 * rows` long); its last
-    // argument is unused.
+    // SAFETY: as in `single_pixel` for the inputs (`a` holds the `2 * pairs` rows, the last
+    // ending at `(2 * pairs - 1) * stride + row_len`, checked above; word-aligned:
+    // `linear_batch_any` checked the input and the even stride) and the weights (`rows` rows
+    // of `row_len`, `asm_finishes`), tail included (the `row_len - 4 * groups` elements after
+    // the whole groups of each row); per row it reads 3 words of `table` (`3 * rows <= SUMS`:
+    // `asm_finishes`); it writes `outputs[2 * k * rows + p * rows + r]` for pair `k <
+    // pairs`, pixel `p < 2`, row `r < rows`, within `outputs` (`2 * pairs * rows` long); its
+    // last argument is unused.
     unsafe {
         wheelleg_dsp_dot_2x2(
             a.as_ptr(),
@@ -946,9 +985,9 @@ fn finish_in_asm(
 }
 
 /// Two pixels: input rows `a[..row_len]` and `a[stride..][..row_len]`, outputs `out[..rows]`
-/// and `out[rows..2 * rows]`: in `wheelleg_dsp_dot_2x2`, requantization included, for a layer
-/// [`asm_finishes`] accepted; otherwise one pixel after the other (no layer of the shipped
-/// network takes that path, so it shares [`single_pixel`]'s code rather than adding its own).
+/// and `out[rows..2 * rows]`, where `wheelleg_dsp_dot_2x2` cannot finish them
+/// ([`asm_finishes`]): one pixel after the other (no layer of the shipped network takes that
+/// path, so it shares [`single_pixel`]'s code rather than adding its own).
 #[allow(clippy::too_many_arguments)]
 fn pixel_pair(
     linear: &Linear<'_>,
@@ -956,13 +995,10 @@ fn pixel_pair(
     stride: usize,
     (groups, whole): (usize, usize),
     out: &mut OutputSlice<'_>,
-    (first, in_asm): (usize, bool),
+    first: usize,
     sums: &mut [i32; SUMS],
     bounds: (i32, i32, i32),
 ) {
-    if in_asm && finish_in_asm(linear, a, stride, out, (first, sums), bounds) {
-        return;
-    }
     single_pixel(linear, a, (groups, whole), out, first, sums, bounds);
     if let Some(b) = a.get(stride..) {
         single_pixel(
