@@ -16,7 +16,8 @@
 //! - `wheelleg_dsp_dot_2x2`: two input rows (two conv pixels) by two weight rows: each input
 //!   pair loaded serves two rows and each weight pair two pixels, 16 MACs in 16 instructions,
 //!   four groups of four per loop turn; it also requantizes each row pair into int8 outputs
-//!   (`SMMUL`, `SSAT`, `SEL`: 38 instructions per 4 outputs), so conv layers never leave assembly;
+//!   (`SMMUL`, `SSAT`, `SEL`: 34 instructions per 4 outputs), so conv layers never leave
+//!   assembly;
 //! - `wheelleg_dsp_dot_1x4`: one input row by four weight rows (the dense layers), 16 MACs in
 //!   21, two groups per turn, its sums finished in Rust ([`requantize`]).
 //!
@@ -34,8 +35,8 @@
 //!   `SMLAD` (32) + `LDR`, `CMP`, `BNE` (2 + 1 + 3) = 94 cycles, 1.47 cycles per MAC (67
 //!   instructions);
 //! - its requantization of a row pair (4 outputs): 2 `LDM` (8) + 5 `LDR` (10) + 2 `STR`
-//!   and 2 `STRH` (4) + 27 ALU (27: bias, `SMMUL`, shift, zero point, `SSAT`, `BFI`, the
-//!   ReLU's `SSUB8`/`SEL`) = 49 cycles, 12.3 per output; a tail element (the first conv's 9th
+//!   and 2 `STRH` (4) + 23 ALU (23: `SMMUL`, shift, zero point, `SSAT`, `BFI`, the ReLU's
+//!   `SSUB8`/`SEL`) = 45 cycles, 11.3 per output (the bias is where the sums start); a tail element (the first conv's 9th
 //!   input) 4 loads (5), 4 `MLA` (4), `SUBS`, `BNE` (4) = 13 cycles;
 //! - [`widen_permuted`]'s turn of 8 inputs: 2 `LDR` (3) + 4 `SXTB16` + 4 `SSUB16` (8) + 2
 //!   `STRD` (6) + `CMP`, `BNE` (4) = 21 cycles, 2.6 per input;
@@ -62,14 +63,15 @@ use super::quant::{requantize_clamped, MAX_SHIFT, MIN_SHIFT};
 // It finishes each row pair as `requantize` does for a right shift of 33 or more (the caller
 // checked every row's shift for it) into int8 outputs with the high bound 127: the `tail`
 // (0 to 3) elements after the whole groups, in natural order, by `MLA`; then from the row
-// table (`row_table`: bias, multiplier, shift per row, one `LDM` a row) the bias, `SMMUL`
+// table (`row_table`: bias, multiplier, shift per row, one `LDM` a row; the accumulators
+// start from the bias) `SMMUL`
 // (the high word of the 64-bit product), the arithmetic shift by `-2 - shift`; then
 // `(t + 1) / 2 + zero point` as `(t + 1 + 2 * zero point) / 2` (exact: the added term is
 // even, and `|t|` is below 2^30) by `ADD` and `SSAT`'s `ASR #1`, which also clamps to int8;
 // last the four bytes packed into a word (`BFI`) and the low bound (ReLU) as their byte-wise
 // maximum with it (`SSUB8` sets a lane's flag where the output is not below it, `SEL` keeps
 // those). Pixel a's outputs (rows A, B) go to `outputs[row..]` and pixel b's `rows` bytes on,
-// each pair by one `STRH`. Per row pair after the sums: 38 instructions for 4 outputs.
+// each pair by one `STRH`. Per row pair after the sums: 34 instructions for 4 outputs.
 //
 // Stack frame: [sp] the outputs' address, [sp, #4] input a's end of the unrolled turns,
 // [sp, #8] groups, [sp, #12] input row a, [sp, #16] row pairs left, [sp, #20] from one row
@@ -130,10 +132,11 @@ core::arch::global_asm!(
     "ldr r0, [sp, #12]",
     "ldr r2, [sp, #24]",
     "add r2, r2, r0",
-    "movs r4, #0",
-    "movs r5, #0",
-    "movs r6, #0",
-    "movs r7, #0",
+    "ldr r12, [sp, #32]",
+    "ldr r4, [r12]",
+    "ldr r6, [r12, #12]",
+    "mov r5, r4",
+    "mov r7, r6",
     "ldr lr, [sp, #4]",
     "cmp r0, lr",
     "beq 2f",
@@ -279,16 +282,12 @@ core::arch::global_asm!(
     "4:",
     "ldr r12, [sp, #32]",
     "ldm r12!, {{r8, r9, r10}}",
-    "add r4, r4, r8",
-    "add r5, r5, r8",
     "smmul r4, r4, r9",
     "smmul r5, r5, r9",
     "asr r4, r4, r10",
     "asr r5, r5, r10",
     "ldm r12!, {{r8, r9, r10}}",
     "str r12, [sp, #32]",
-    "add r6, r6, r8",
-    "add r7, r7, r8",
     "smmul r6, r6, r9",
     "smmul r7, r7, r9",
     "asr r6, r6, r10",
