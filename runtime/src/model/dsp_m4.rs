@@ -888,10 +888,11 @@ fn row_params<'a>(linear: &'a Linear<'_>) -> impl Iterator<Item = (i32, i32, i8)
 /// Sums one call of an assembly loop writes at most: 64 rows of two pixels, 128 of one.
 const SUMS: usize = 128;
 
-/// Whether [`pixel_pair`] can run whole in `wheelleg_dsp_dot_2x2`, requantization included
-/// ([`finish_in_asm`]): int8 outputs with the high bound 127 (what `SSAT` clamps to), an even
-/// number of rows of at most `SUMS / 2`, at least one group of four, and every row's shift at
-/// most -2 (a right shift of 33 or more: `requantize`'s 32-bit steps). Checked once per batch.
+/// Whether a batch's pixel pairs can run whole in `wheelleg_dsp_dot_2x2`, requantization
+/// included ([`finish_in_asm`]): int8 outputs with the high bound 127 (what `SSAT` clamps to),
+/// an even number of rows whose [`row_table`] fits the sums' buffer (at most `SUMS / 3`), at
+/// least one group of four, and every row's shift at most -2 (a right shift of 33 or more:
+/// `requantize`'s 32-bit steps). Checked once per batch.
 fn asm_finishes(linear: &Linear<'_>, out: &OutputSlice<'_>, bounds: (i32, i32, i32)) -> bool {
     let rows = linear.rows;
     let (_, low, high) = bounds;
