@@ -12,9 +12,10 @@
 //! (`composed-7-spread+lift-beyond`), so that an evaluation can split its results by variant
 //! ([`ComposedVariant::of_name`]).
 
-use super::{cell_index, fence_cells, layout, on_robot_lattice, robot_lattice_index, StartYaw};
+use super::{cell_index, fence_cells, layout, on_robot_lattice, random_obstacle};
+use super::{robot_lattice_index, StartYaw};
 use super::{Behaviour, Layout};
-use crate::obstacle::{cell_centre_m, Obstacle, ObstacleKind, ObstacleYaw, GRID_CELL_M};
+use crate::obstacle::{cell_centre_m, Obstacle, ObstacleYaw, GRID_CELL_M};
 use crate::scenario::Scenario;
 use nalgebra::Point2;
 use rand::Rng;
@@ -236,20 +237,10 @@ pub(super) fn composed_scene(rng: &mut impl Rng, name: String, start_yaw: StartY
         if placed == clutter {
             break;
         }
-        let kind = ObstacleKind::ALL[rng.random_range(0..ObstacleKind::ALL.len())];
-        let yaw = if rng.random_bool(0.5) {
-            ObstacleYaw::Deg0
-        } else {
-            ObstacleYaw::Deg90
-        };
-        let cell = (
-            rng.random_range(x0..=x1),
-            rng.random_range(path_cell - 4..=path_cell + 4),
-        );
-        if fence_row(cell.0) {
+        let candidate = random_obstacle(rng, x0..=x1, path_cell - 4..=path_cell + 4);
+        if fence_row(cell_index(candidate.centre.x)) {
             continue;
         }
-        let candidate = Obstacle::new(kind, cell_centre_m(cell.0), cell_centre_m(cell.1), yaw);
         let footprint = candidate.ground_box();
         if obstacles.iter().any(|o| o.centre == candidate.centre)
             || lane

@@ -559,17 +559,7 @@ fn complex_scene(rng: &mut impl Rng, name: String, start_yaw: StartYaw) -> Scena
     let mut attempts = 0;
     while obstacles.len() < count && attempts < 100 {
         attempts += 1;
-        let kind = ObstacleKind::ALL[rng.random_range(0..3)];
-        let yaw = if rng.random_bool(0.5) {
-            ObstacleYaw::Deg0
-        } else {
-            ObstacleYaw::Deg90
-        };
-        let cell = (
-            rng.random_range(x0..=x1),
-            rng.random_range(y_mid - 3..=y_mid + 3),
-        );
-        let candidate = Obstacle::new(kind, cell_centre_m(cell.0), cell_centre_m(cell.1), yaw);
+        let candidate = random_obstacle(rng, x0..=x1, y_mid - 3..=y_mid + 3);
         if obstacles
             .iter()
             .any(|o: &Obstacle| o.centre == candidate.centre)
@@ -587,4 +577,20 @@ fn complex_scene(rng: &mut impl Rng, name: String, start_yaw: StartYaw) -> Scena
         target: lay.target,
         obstacles,
     }
+}
+
+/// An obstacle of random kind and yaw on a random cell of `cells_x` x `cells_y` (cell indices).
+fn random_obstacle(
+    rng: &mut impl Rng,
+    cells_x: std::ops::RangeInclusive<i32>,
+    cells_y: std::ops::RangeInclusive<i32>,
+) -> Obstacle {
+    let kind = ObstacleKind::ALL[rng.random_range(0..ObstacleKind::ALL.len())];
+    let yaw = if rng.random_bool(0.5) {
+        ObstacleYaw::Deg0
+    } else {
+        ObstacleYaw::Deg90
+    };
+    let cell = (rng.random_range(cells_x), rng.random_range(cells_y));
+    Obstacle::new(kind, cell_centre_m(cell.0), cell_centre_m(cell.1), yaw)
 }
