@@ -31,9 +31,10 @@ pub const WINDOW_CELLS: usize = 5_376;
 pub const WINDOW_BYTES: usize = 2 * WINDOW_CELLS;
 /// int8 elements of each activation buffer (the first conv layer's 16 x 16 x 16 output).
 pub const ACTIVATION_ELEMENTS: usize = 4_096;
-/// int16 elements of the row buffer: the longest row (the dense layer's 516 inputs) padded to
-/// whole 16-element blocks, or two conv 3 patches of 288.
-pub const ROW_ELEMENTS: usize = 576;
+/// int16 elements of the row buffer: four conv 3 patches of 288 (eight of conv 2, 72 of
+/// conv 1), at least the longest row (the dense layer's 516 inputs) padded to whole 16-element
+/// blocks. Each conv batch has a fixed set-up cost, so fewer, larger batches are faster.
+pub const ROW_ELEMENTS: usize = 1_152;
 /// The work area: inference's two activation buffers, then (after inference) the fine
 /// window, in the same bytes.
 pub const WORK_BYTES: usize = if WINDOW_BYTES > 2 * ACTIVATION_ELEMENTS {
