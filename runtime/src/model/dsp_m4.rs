@@ -631,6 +631,61 @@ pub fn gather_permuted(
     true
 }
 
+/// A conv layer on the DSP extension: the output pixels in batches of `batch` (`stride` apart
+/// in `row`), each gathered by [`gather_permuted`] and run by [`finish_in_asm`], with the
+/// checks of [`asm_finishes`] and the [`row_table`] done once for the layer rather than once
+/// per batch. A batch the assembly cannot finish (an odd count) runs as [`linear_batch_dsp`]
+/// runs it. Returns the pixels done, all but for a layer [`gather_permuted`] does not take
+/// (then 0: the caller runs the rest with the portable gather).
+pub fn conv_dsp(
+    conv: &ConvLayer<'_>,
+    src: &[i8],
+    outputs: &mut [i8],
+    row: &mut [i16],
+    stride: usize,
+    batch: usize,
+) -> usize {
+    let linear = &conv.linear;
+    let rows = linear.rows;
+    if rows == 0 || batch == 0 {
+        return 0;
+    }
+    let bounds = bounds::<i8>(linear);
+    let in_asm = asm_finishes(linear, &OutputSlice::Int8(&mut []), bounds);
+    let mut table = [0i32; SUMS];
+    if in_asm {
+        row_table(linear, &mut table);
+    }
+    let mut first = 0;
+    for out in outputs.chunks_mut(batch * rows) {
+        let count = out.len() / rows;
+        let Some(patches) = row.get_mut(..count * stride) else {
+            break;
+        };
+        if !gather_permuted(conv, src, first, patches, stride) {
+            break;
+        }
+        let mut slice = OutputSlice::Int8(out);
+        if !(in_asm
+            && count % 2 == 0
+            && patches.as_ptr() as usize % 4 == 0
+            && stride % 2 == 0
+            && finish_in_asm(
+                linear,
+                patches,
+                stride,
+                &mut slice,
+                (count / 2, &table),
+                bounds,
+            ))
+        {
+            linear_batch_any(linear, patches, stride, slice, bounds);
+        }
+        first += count;
+    }
+    first
+}
+
 /// [`super::kernel::quantize_inputs_scalar`] in 32-bit steps where the input's shift allows:
 /// for a right shift of 33 or more as in [`requantize`], for exactly 32 the high word of the
 /// product plus 2^31 (`SMMULR`'s rounding, the same formula); the scalar kernel's otherwise.

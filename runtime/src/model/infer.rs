@@ -445,22 +445,27 @@ pub fn forward_in(
         let outputs = dst
             .get_mut(..pixels * out_channels)
             .ok_or(InferError::Internal)?;
+        // The DSP kernel runs the layer's batches itself: its gather widens multi-channel
+        // runs straight into its order, and the layer's requantization table is built once.
+        // Pixels it does not take (none in the shipped network) go the portable way.
+        #[cfg(all(target_arch = "arm", target_feature = "dsp"))]
+        let mut first = if kernel == Kernel::Dsp {
+            super::dsp_m4::conv_dsp(conv, src, &mut *outputs, row, stride, batch)
+        } else {
+            0
+        };
+        #[cfg(not(all(target_arch = "arm", target_feature = "dsp")))]
         let mut first = 0;
-        for out in outputs.chunks_mut(batch * out_channels) {
+        let rest = outputs
+            .get_mut(first * out_channels..)
+            .ok_or(InferError::Internal)?;
+        for out in rest.chunks_mut(batch * out_channels) {
             let count = out.len() / out_channels;
             let patches = row.get_mut(..count * stride).ok_or(InferError::Internal)?;
-            // The DSP kernel's gather widens multi-channel runs straight into its order.
-            #[cfg(all(target_arch = "arm", target_feature = "dsp"))]
-            let permuted = kernel == Kernel::Dsp
-                && super::dsp_m4::gather_permuted(conv, src, first, patches, stride);
-            #[cfg(not(all(target_arch = "arm", target_feature = "dsp")))]
-            let permuted = false;
-            if !permuted {
-                gather_patches(kernel, conv, src, first, patches, stride);
-                if kernel == Kernel::Dsp {
-                    for patch in patches.chunks_exact_mut(stride) {
-                        prepare_row(kernel, patch.get_mut(..row_len).unwrap_or_default());
-                    }
+            gather_patches(kernel, conv, src, first, patches, stride);
+            if kernel == Kernel::Dsp {
+                for patch in patches.chunks_exact_mut(stride) {
+                    prepare_row(kernel, patch.get_mut(..row_len).unwrap_or_default());
                 }
             }
             linear_batch(kernel, &conv.linear, patches, stride, out);
