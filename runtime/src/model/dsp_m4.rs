@@ -16,7 +16,7 @@
 //! - `wheelleg_dsp_dot_2x2`: two input rows (two conv pixels) by two weight rows: each input
 //!   pair loaded serves two rows and each weight pair two pixels, 16 MACs in 16 instructions,
 //!   four groups of four per loop turn; it also requantizes each row pair into int8 outputs
-//!   (`SMMUL`, `SSAT`, `SEL`: 34 instructions per 4 outputs), so conv layers never leave
+//!   (`SMMUL`, `SSAT`, `SEL`: 33 instructions per 4 outputs), so conv layers never leave
 //!   assembly;
 //! - `wheelleg_dsp_dot_1x4`: one input row by four weight rows (the dense layers), 16 MACs in
 //!   21, two groups per turn, its sums finished in Rust ([`requantize`]).
@@ -34,9 +34,9 @@
 //! - `dot_2x2`'s turn of 64 MACs: 8 `LDRD` (24) + 8 `LDR` (16) + 16 `SXTB16` (16) + 32
 //!   `SMLAD` (32) + `LDR`, `CMP`, `BNE` (2 + 1 + 3) = 94 cycles, 1.47 cycles per MAC (67
 //!   instructions);
-//! - its requantization of a row pair (4 outputs): 2 `LDM` (8) + 5 `LDR` (10) + 2 `STR`
+//! - its requantization of a row pair (4 outputs): 2 `LDM` (8) + `LDRD` (3) + 3 `LDR` (6) + 2 `STR`
 //!   and 2 `STRH` (4) + 23 ALU (23: `SMMUL`, shift, zero point, `SSAT`, `BFI`, the ReLU's
-//!   `SSUB8`/`SEL`) = 45 cycles, 11.3 per output (the bias is where the sums start); a tail element (the first conv's 9th
+//!   `SSUB8`/`SEL`) = 44 cycles, 11 per output (the bias is where the sums start); a tail element (the first conv's 9th
 //!   input) 4 loads (5), 4 `MLA` (4), `SUBS`, `BNE` (4) = 13 cycles;
 //! - [`widen_permuted`]'s turn of 8 inputs: 2 `LDR` (3) + 4 `SXTB16` + 4 `SSUB16` (8) + 2
 //!   `STRD` (6) + `CMP`, `BNE` (4) = 21 cycles, 2.6 per input;
@@ -71,7 +71,9 @@ use super::quant::{requantize_clamped, MAX_SHIFT, MIN_SHIFT};
 // last the four bytes packed into a word (`BFI`) and the low bound (ReLU) as their byte-wise
 // maximum with it (`SSUB8` sets a lane's flag where the output is not below it, `SEL` keeps
 // those). Pixel a's outputs (rows A, B) go to `outputs[row..]` and pixel b's `rows` bytes on,
-// each pair by one `STRH`. Per row pair after the sums: 34 instructions for 4 outputs.
+// each pair by one `STRH`. Per row pair after the sums: 33 instructions for 4 outputs. The
+// leftover groups after the unrolled turns (bits 1 and 0 of the group count) branch on one
+// `LSLS`'s carry and sign (the blocks between set no flags).
 //
 // Stack frame: [sp] the outputs' address, [sp, #4] input a's end of the unrolled turns,
 // [sp, #8] groups, [sp, #12] input row a, [sp, #16] row pairs left, [sp, #20] from one row
@@ -210,8 +212,8 @@ core::arch::global_asm!(
     "bne 1b",
     "2:",
     "ldr r12, [sp, #8]",
-    "tst r12, #2",
-    "beq 6f",
+    "lsls r12, r12, #31",
+    "bcc 6f",
     "ldrd r8, r9, [r0], #8",
     "ldrd r10, r11, [r2], #8",
     "ldr r12, [r1, r3]",
@@ -245,9 +247,7 @@ core::arch::global_asm!(
     "smlad r4, lr, r9, r4",
     "smlad r5, lr, r11, r5",
     "6:",
-    "ldr r12, [sp, #8]",
-    "tst r12, #1",
-    "beq 3f",
+    "bpl 3f",
     "ldrd r8, r9, [r0], #8",
     "ldrd r10, r11, [r2], #8",
     "ldr r12, [r1, r3]",
@@ -292,8 +292,7 @@ core::arch::global_asm!(
     "smmul r7, r7, r9",
     "asr r6, r6, r10",
     "asr r7, r7, r10",
-    "ldr r10, [sp, #48]",
-    "ldr r11, [sp, #52]",
+    "ldrd r10, r11, [sp, #48]",
     "add r4, r4, r10",
     "add r5, r5, r10",
     "add r6, r6, r10",
