@@ -76,9 +76,10 @@ use super::quant::{requantize_clamped, MAX_SHIFT, MIN_SHIFT};
 // `LSLS`'s carry and sign (the blocks between set no flags).
 //
 // Stack frame: [sp] the outputs' address, [sp, #4] input a's end of the unrolled turns,
-// [sp, #8] groups, [sp, #12] input row a, [sp, #16] row pairs left, [sp, #20] from one row
+// [sp, #8] groups, [sp, #16] row pairs left, [sp, #20] from one row
 // pair's weights (after the loop and the tail) to the next, [sp, #24] stride, [sp, #28]
-// tail, [sp, #32] the row table, [sp, #44] rows, [sp, #48] 2 * zero point + 1, [sp, #52]
+// tail, [sp, #32] the row table, [sp, #36] input row a and [sp, #40] input row b (one `LDRD`),
+// [sp, #44] rows, [sp, #48] 2 * zero point + 1, [sp, #52]
 // the low bound in each byte, [sp, #56] row pairs, [sp, #60] pixel pairs left, [sp, #64]
 // the first weight row, [sp, #68] the row table.
 core::arch::global_asm!(
@@ -91,7 +92,7 @@ core::arch::global_asm!(
     "wheelleg_dsp_dot_2x2:",
     "push {{r4-r11, lr}}",
     "sub sp, sp, #72",
-    "str r0, [sp, #12]",
+    "str r0, [sp, #36]",
     "ldr r12, [r2, #8]",
     "str r12, [sp, #8]",
     "lsrs r4, r12, #2",
@@ -108,6 +109,8 @@ core::arch::global_asm!(
     "str r5, [sp, #20]",
     "ldr r4, [r2]",
     "str r4, [sp, #24]",
+    "add r4, r4, r0",
+    "str r4, [sp, #40]",
     "ldr r4, [r2, #36]",
     "str r4, [sp, #44]",
     "ldr r4, [r2, #40]",
@@ -131,9 +134,7 @@ core::arch::global_asm!(
     "cmp r4, #0",
     "beq 9f",
     "5:",
-    "ldr r0, [sp, #12]",
-    "ldr r2, [sp, #24]",
-    "add r2, r2, r0",
+    "ldrd r0, r2, [sp, #36]",
     "ldr r12, [sp, #32]",
     "ldr r4, [r12]",
     "ldr r6, [r12, #12]",
@@ -308,14 +309,12 @@ core::arch::global_asm!(
     "sel r4, r4, r11",
     "ldr r12, [sp]",
     "ldr r10, [sp, #44]",
-    "strh r4, [r12]",
     "lsr r8, r4, #16",
     "strh r8, [r12, r10]",
-    "add r12, r12, #2",
+    "strh r4, [r12], #2",
     "str r12, [sp]",
-    "ldr r12, [sp, #20]",
-    "add r1, r1, r12",
-    "ldr r12, [sp, #16]",
+    "ldrd r12, lr, [sp, #16]",
+    "add r1, r1, lr",
     "subs r12, r12, #1",
     "str r12, [sp, #16]",
     "bne 5b",
@@ -329,9 +328,10 @@ core::arch::global_asm!(
     "ldr r12, [sp, #68]",
     "str r12, [sp, #32]",
     "ldr r12, [sp, #24]",
-    "ldr r10, [sp, #12]",
+    "ldrd r10, r11, [sp, #36]",
     "add r10, r10, r12, lsl #1",
-    "str r10, [sp, #12]",
+    "add r11, r11, r12, lsl #1",
+    "strd r10, r11, [sp, #36]",
     "ldr r10, [sp, #4]",
     "add r10, r10, r12, lsl #1",
     "str r10, [sp, #4]",
