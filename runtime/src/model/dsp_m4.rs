@@ -16,7 +16,7 @@
 //! - `wheelleg_dsp_dot_2x2`: two input rows (two conv pixels) by two weight rows: each input
 //!   pair loaded serves two rows and each weight pair two pixels, 16 MACs in 16 instructions,
 //!   four groups of four per loop turn; it also requantizes each row pair into int8 outputs
-//!   (`SMMUL`, `SSAT`, `SEL`: 33 instructions per 4 outputs), so conv layers never leave
+//!   (`SMMUL`, `SSAT`, `SEL`: 32 instructions per 4 outputs), so conv layers never leave
 //!   assembly;
 //! - `wheelleg_dsp_dot_1x4`: one input row by four weight rows (the dense layers), 16 MACs in
 //!   21, two groups per turn, its sums finished in Rust ([`requantize`]).
@@ -35,8 +35,8 @@
 //!   `SMLAD` (32) + `LDR`, `CMP`, `BNE` (2 + 1 + 3) = 94 cycles, 1.47 cycles per MAC (67
 //!   instructions);
 //! - its requantization of a row pair (4 outputs): 2 `LDM` (8) + `LDRD` (3) + 3 `LDR` (6) + 2 `STR`
-//!   and 2 `STRH` (4) + 23 ALU (23: `SMMUL`, shift, zero point, `SSAT`, `BFI`, the ReLU's
-//!   `SSUB8`/`SEL`) = 44 cycles, 11 per output (the bias is where the sums start); a tail element (the first conv's 9th
+//!   and 2 `STRH` (4) + 22 ALU (22: `SMMUL`, shift, zero point, `SSAT`, `BFI`, the ReLU's
+//!   `SSUB8`/`SEL`) = 43 cycles, 10.75 per output (the bias is where the sums start); a tail element (the first conv's 9th
 //!   input) 4 loads (5), 4 `MLA` (4), `SUBS`, `BNE` (4) = 13 cycles;
 //! - [`widen_permuted`]'s turn of 8 inputs: 2 `LDR` (3) + 4 `SXTB16` + 4 `SSUB16` (8) + 2
 //!   `STRD` (6) + `CMP`, `BNE` (4) = 21 cycles, 2.6 per input;
@@ -71,7 +71,7 @@ use super::quant::{requantize_clamped, MAX_SHIFT, MIN_SHIFT};
 // last the four bytes packed into a word (`BFI`) and the low bound (ReLU) as their byte-wise
 // maximum with it (`SSUB8` sets a lane's flag where the output is not below it, `SEL` keeps
 // those). Pixel a's outputs (rows A, B) go to `outputs[row..]` and pixel b's `rows` bytes on,
-// each pair by one `STRH`. Per row pair after the sums: 33 instructions for 4 outputs. The
+// each pair by one `STRH`. Per row pair after the sums: 32 instructions for 4 outputs. The
 // leftover groups after the unrolled turns (bits 1 and 0 of the group count) branch on one
 // `LSLS`'s carry and sign (the blocks between set no flags).
 //
