@@ -12,7 +12,7 @@
 //! (`composed-7-spread+lift-beyond`), so that an evaluation can split its results by variant
 //! ([`ComposedVariant::of_name`]).
 
-use super::{cell_index, fence_cells, layout, on_robot_lattice, random_obstacle};
+use super::{cell_index, fence_cells, fence_rows, layout, on_robot_lattice, random_obstacle};
 use super::{robot_lattice_index, StartYaw};
 use super::{Behaviour, Layout};
 use crate::obstacle::{cell_centre_m, Obstacle, ObstacleYaw, GRID_CELL_M};
@@ -125,15 +125,6 @@ impl ComposedVariant {
             ComposedEnding::Beyond
         };
         ComposedVariant { fences, ending }
-    }
-}
-
-/// Rows of a behaviour's fence (docs/simulator.md: why three for the slab, two for squeeze).
-const fn fence_rows(behaviour: Behaviour) -> i32 {
-    match behaviour {
-        Behaviour::SpreadOver => 3,
-        Behaviour::Squeeze => 2,
-        _ => 1,
     }
 }
 

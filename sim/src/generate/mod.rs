@@ -368,6 +368,15 @@ fn target_is_free(scenario: &Scenario) -> bool {
     })
 }
 
+/// Rows of a behaviour's fence (docs/simulator.md: why three for the slab, two for squeeze).
+const fn fence_rows(behaviour: Behaviour) -> i32 {
+    match behaviour {
+        Behaviour::SpreadOver => 3,
+        Behaviour::Squeeze => 2,
+        _ => 1,
+    }
+}
+
 /// Cells of a fence: (y cell offset from the opening, kind) pairs.
 fn fence_cells(behaviour: Behaviour) -> Vec<(i32, ObstacleKind)> {
     let span = -6..=6;
@@ -460,12 +469,7 @@ fn behaviour_scene(
         Behaviour::LiftOver | Behaviour::SpreadOver | Behaviour::Squeeze => {
             let opening = path_cell + rng.random_range(-1..=1);
             line_y_m = cell_centre_m(opening);
-            let rows = match behaviour {
-                Behaviour::SpreadOver => 3,
-                Behaviour::Squeeze => 2,
-                _ => 1,
-            };
-            (0..rows)
+            (0..fence_rows(behaviour))
                 .flat_map(|row| {
                     fence_cells(behaviour).into_iter().map(move |(m, kind)| {
                         let x = fence_x + row as f32 * GRID_CELL_M;
