@@ -106,18 +106,6 @@ pub struct Scenes {
     pub composed_share: f64,
 }
 
-impl Scenes {
-    /// Scenes of `kind` as specified: any yaw, stage 1, no composed scenes.
-    pub fn of_kind(kind: SceneKind) -> Scenes {
-        Scenes {
-            kind,
-            start_yaw: StartYaw::Any,
-            stage: 1.0,
-            composed_share: 0.0,
-        }
-    }
-}
-
 fn new_scene(scenes: Scenes, rng: &mut ChaCha8Rng, env: usize, episode: u64) -> Scenario {
     // Without composed scenes nothing extra is drawn, so such a run sees exactly the scenes it
     // saw before the mix existed.
@@ -641,5 +629,37 @@ mod tests {
             .iter()
             .zip(&first)
             .all(|(slot, name)| slot.scenario.name != *name));
+    }
+
+    #[test]
+    fn the_composed_share_mixes_composed_scenes_in_deterministically() {
+        let names = |share: f64| -> Vec<String> {
+            let scenes = Scenes {
+                kind: SceneKind::Complex,
+                start_yaw: StartYaw::Any,
+                stage: 1.0,
+                composed_share: share,
+            };
+            let v = VecEnv::with_scenes(scenes, 40, 5, EnvConfig::default(), 1).unwrap();
+            v.snapshot()
+                .iter()
+                .map(|s| {
+                    wheelleg_sim::scenario_file::parse(
+                        &s.scenario_json,
+                        &wheelleg_runtime::robot::WHEELLEG,
+                    )
+                    .unwrap()[0]
+                        .name
+                        .clone()
+                })
+                .collect()
+        };
+        let family = |n: &String| n.split('-').next().unwrap_or("").to_string();
+        assert!(names(0.0).iter().all(|n| family(n) == "complex"));
+        assert!(names(1.0).iter().all(|n| family(n) == "composed"));
+        let half = names(0.5);
+        let composed = half.iter().filter(|n| family(n) == "composed").count();
+        assert!((10..=30).contains(&composed), "{composed} of 40 composed");
+        assert_eq!(half, names(0.5), "the same seed, the same mix");
     }
 }
