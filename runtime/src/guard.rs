@@ -1143,7 +1143,6 @@ mod tests {
     /// window's edge (where a window one cell too small would be caught).
     #[test]
     fn fine_window_keeps_the_whole_maps_verdicts() {
-        extern crate std;
         const SIDE: usize = 128;
         const CELL_M: f32 = 0.01;
         let guard = CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M);
@@ -1178,15 +1177,20 @@ mod tests {
                     }
                 }
             }
-            let metres: std::vec::Vec<f32> = mm.iter().map(|&h| f32::from(h) * 1.0e-3).collect();
+            let mut metres = [0.0f32; SIDE * SIDE];
+            for (m, &h) in metres.iter_mut().zip(&mm) {
+                *m = f32::from(h) * 1.0e-3;
+            }
             let grid = HeightMapRef::Grid(GridMap::new(&metres, SIDE, CELL_M).unwrap());
-            let mut bytes = std::vec::Vec::new();
+            let mut bytes = [0u8; 2 * 5600];
+            let mut len = 0;
             for row in bounds.rows() {
                 for col in bounds.cols() {
-                    bytes.extend_from_slice(&mm[row * SIDE + col].to_le_bytes());
+                    bytes[len..len + 2].copy_from_slice(&mm[row * SIDE + col].to_le_bytes());
+                    len += 2;
                 }
             }
-            let fine = FineWindow::new(&bytes, bounds).unwrap();
+            let fine = FineWindow::new(&bytes[..len], bounds).unwrap();
             let window = HeightMapRef::Window(&fine);
             for legs in [
                 default_legs(),
