@@ -367,8 +367,8 @@ fn success_rates_of_simulation_and_closed_loop_agree_for_the_planner() {
 }
 
 fn demo(dir: &Path, args: &[&str]) -> std::process::Output {
-    // Run in a scratch directory so that a weights/policy.wlw in the repository (once trained)
-    // does not change which driver these tests exercise.
+    // Run in a scratch directory, as a user outside the checkout would: the shipped weights
+    // are built into the binary, nothing is read from the repository.
     Command::new(env!("CARGO_BIN_EXE_wheelleg"))
         .arg("demo")
         .args(args)
@@ -384,7 +384,7 @@ fn text(bytes: &[u8]) -> String {
 #[test]
 fn demo_binary_writes_the_path_and_the_bus_log() {
     let dir = scratch_dir("binary");
-    let out = demo(&dir, &["--out", "demo-out"]);
+    let out = demo(&dir, &["--out", "demo-out", "--planner"]);
     let stdout = text(&out.stdout);
     eprintln!("{stdout}{}", text(&out.stderr));
     assert!(out.status.success());
@@ -398,6 +398,19 @@ fn demo_binary_writes_the_path_and_the_bus_log() {
     assert!(entries.len() > 1000, "{} frames", entries.len());
     // No temporary left behind by the atomic write.
     assert!(!dir.join("demo-out/.bus.log.tmp").exists());
+
+    // Without a driver named, from a folder with no weights in it: the shipped policy, built
+    // into the binary, drives the robot's stack and reaches the default scene's target.
+    let out = demo(&dir, &["--out", "shipped-out"]);
+    let stdout = text(&out.stdout);
+    eprintln!("{stdout}{}", text(&out.stderr));
+    assert!(out.status.success());
+    assert!(
+        stdout.contains("driver:    int8 policy shipped weights/policy.wlw, built in"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("collision guard"), "{stdout}");
+    assert!(stdout.contains("SUCCESS"), "{stdout}");
 
     // The same with a (random) weights file: the policy drives, the loop runs to the end.
     std::fs::write(dir.join("random.wlw"), random_policy_bytes(3)).unwrap();
@@ -479,6 +492,14 @@ fn demo_binary_refuses_bad_input_with_a_clear_message() {
             assert!(stderr.contains(needle), "{args:?}: {stderr}");
         }
     }
+    // Two drivers named at once is a usage error (clap's exit status 2), naming both.
+    let out = demo(&dir, &["--weights", "nope.wlw", "--planner"]);
+    let stderr = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("--weights") && stderr.contains("--planner"),
+        "{stderr}"
+    );
     std::fs::write(dir.join("garbage.wlw"), b"not weights").unwrap();
     let out = demo(&dir, &["--weights", "garbage.wlw"]);
     let stderr = text(&out.stderr);

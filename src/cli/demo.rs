@@ -1,6 +1,8 @@
-//! `wheelleg demo [--scenario FILE] [--weights FILE] [--can IFACE] [--out DIR] [--seed S]`:
-//! the closed loop (world -> policy or planner -> CAN -> motors -> measured motion -> world) on
-//! one scene, with a picture of the achieved path and the bus traffic as a `candump -L` log.
+//! `wheelleg demo [--scenario FILE] [--weights FILE | --planner] [--can IFACE] [--out DIR]
+//! [--seed S]`: the closed loop (world -> policy or planner -> CAN -> motors -> measured motion
+//! -> world) on one scene, with a picture of the achieved path and the bus traffic as a
+//! `candump -L` log. The shipped policy is built into the binary, so the demo drives the same
+//! way from any folder.
 //!
 //! Exit status: 0 when the episode ran to its end (success or not: a policy failing a scene is
 //! a result, not an error); non-zero when the robot had to be stopped (a [`Fault`]: silent
@@ -10,6 +12,7 @@
 use super::CliResult;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use std::borrow::Cow;
 use std::io::Write;
 use std::path::PathBuf;
 use wheelleg::closed_loop::{
@@ -28,8 +31,12 @@ use wheelleg_sim::render::top_view;
 use wheelleg_sim::scenario::Scenario;
 use wheelleg_trainer::lookahead::LookaheadConfig;
 
-/// Weights the demo uses when `--weights` is not given, if the file exists.
-pub const DEFAULT_WEIGHTS: &str = "weights/policy.wlw";
+/// The shipped int8 policy (`weights/policy.wlw`, its model card beside it), built into the
+/// binary: the demo's driver when neither `--weights` nor `--planner` is given.
+pub const SHIPPED_WEIGHTS: &[u8] = include_bytes!("../../weights/policy.wlw");
+
+/// How the shipped weights are named in the demo's report.
+const SHIPPED_LABEL: &str = "shipped weights/policy.wlw, built in";
 
 /// Complex scenes drawn from the seed until the planner solves one: a default scene the demo
 /// cannot finish would demonstrate nothing.
@@ -49,10 +56,13 @@ pub struct Args {
     /// Name of the scenario to run from --scenario.
     #[arg(long, requires = "scenario")]
     name: Option<String>,
-    /// Policy weights (.wlw). Default: weights/policy.wlw if it exists, else the exact
-    /// planner's action sequence drives.
-    #[arg(long)]
+    /// Policy weights (.wlw). Default: the shipped policy, built into the binary.
+    #[arg(long, conflicts_with = "planner")]
     weights: Option<PathBuf>,
+    /// Drive by the exact planner's action sequence instead of a policy (see
+    /// --max-expansions; proving a hard scene can take minutes).
+    #[arg(long)]
+    planner: bool,
     /// SocketCAN interface with the motors on it (for example vcan0, with
     /// `firmware_sim --can vcan0` running). Default: in-process bus with simulated motors.
     #[arg(long)]
@@ -152,12 +162,21 @@ fn scene(args: &Args, planner: &PlannerConfig) -> Result<(Scenario, String), Str
     ))
 }
 
-/// The weights file to use, if any: `--weights` must exist; the default may be absent.
-fn weights_path(args: &Args) -> Result<Option<PathBuf>, String> {
+/// The policy's weights and how to name them, or `None` when the planner drives. A file named
+/// by `--weights` must exist: a missing one is an error, never a silent change of driver.
+fn weights(args: &Args) -> Result<Option<(Cow<'static, [u8]>, String)>, String> {
+    if args.planner {
+        return Ok(None);
+    }
     match &args.weights {
-        Some(path) if path.is_file() => Ok(Some(path.clone())),
+        Some(path) if path.is_file() => std::fs::read(path)
+            .map(|bytes| Some((Cow::Owned(bytes), path.display().to_string())))
+            .map_err(|e| format!("cannot read {}: {e}", path.display())),
         Some(path) => Err(format!("--weights {}: no such file", path.display())),
-        None => Ok(Some(PathBuf::from(DEFAULT_WEIGHTS)).filter(|p| p.is_file())),
+        None => Ok(Some((
+            Cow::Borrowed(SHIPPED_WEIGHTS),
+            SHIPPED_LABEL.to_owned(),
+        ))),
     }
 }
 
@@ -234,7 +253,7 @@ pub fn run(args: Args) -> CliResult {
         max_expansions: args.max_expansions,
         ..PlannerConfig::default()
     };
-    let weights = weights_path(&args)?;
+    let weights = weights(&args)?;
     if let Some(node) = args.silent_node {
         if !Axis::ALL.iter().any(|a| a.node_id().get() == node) {
             return Err(format!("--silent-node {node}: the robot's nodes are 1 to 16").into());
@@ -244,12 +263,9 @@ pub fn run(args: Args) -> CliResult {
     let mut closed_loop = closed_loop(&args, &scenario)?;
 
     // Both drivers decide from the world as it is at the start of the episode.
-    let bytes;
     let mut driver: Box<dyn Driver + '_> = match &weights {
-        Some(path) => {
-            bytes =
-                std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
-            let mut driver = PolicyDriver::from_bytes(&bytes, &path.display().to_string())?;
+        Some((bytes, label)) => {
+            let mut driver = PolicyDriver::from_bytes(bytes, label)?;
             if !args.no_arrival {
                 driver = driver.with_arrival(closed_loop.env().config().success_radius_m);
             }
@@ -271,12 +287,8 @@ pub fn run(args: Args) -> CliResult {
             }
         }
         None => Box::new(
-            PlannerDriver::new(closed_loop.env(), &planner).map_err(|e| {
-                format!(
-                    "no weights file ({DEFAULT_WEIGHTS} does not exist) and the planner cannot \
-                 drive: {e}"
-                )
-            })?,
+            PlannerDriver::new(closed_loop.env(), &planner)
+                .map_err(|e| format!("--planner: the planner cannot drive: {e}"))?,
         ),
     };
     outln!(
@@ -284,13 +296,7 @@ pub fn run(args: Args) -> CliResult {
         scenario.name,
         closed_loop.env().distance_to_target_m()
     );
-    match &weights {
-        Some(_) => outln!("driver:    {}", driver.describe()),
-        None => outln!(
-            "driver:    {} (no weights: {DEFAULT_WEIGHTS} does not exist; pass --weights)",
-            driver.describe()
-        ),
-    }
+    outln!("driver:    {}", driver.describe());
     match &args.can {
         None => {
             outln!("bus:       in-process, 16 simulated ODrive axes, 1 Mbit/s, control 100 Hz")
