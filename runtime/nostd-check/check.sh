@@ -26,4 +26,4 @@ if [[ "$actual" != "$expected" ]]; then
     echo "nostd-check: no_std decision $actual != host decision $expected" >&2
     exit 1
 fi
-echo "nostd-check: no_std binary linked without std/alloc and decided actions $actual (first, then after a refusal, then with the collision guard and its level; host agrees)"
+echo "nostd-check: no_std binary linked without std/alloc and decided actions $actual (first, then after a refusal, then with the collision guard and its level; host agrees), SLCAN line round trip ok"

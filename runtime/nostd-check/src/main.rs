@@ -5,7 +5,9 @@
 //!
 //! It loads the weights file named by `WHEELLEG_POLICY` at build time, takes one decision on a
 //! fixed observation and a second one as if the first had been refused (`decision::Decider`),
-//! prints both action indices and exits with 0 (or prints the error, exits 1).
+//! prints both action indices and exits with 0 (or prints the error, exits 1). Before that it
+//! sends a CANSimple frame through the SLCAN encoder and line decoder, which must hand back the
+//! same frame, so the serial-adapter codec is proven to link without `std` or `alloc` too.
 #![no_std]
 #![no_main]
 
@@ -13,6 +15,9 @@ use core::fmt::Write;
 use core::panic::PanicInfo;
 
 use wheelleg_runtime::arrival::{Arrival, DEFAULT_RADIUS_M};
+use wheelleg_runtime::can::protocol::{encode, Message, NodeId};
+use wheelleg_runtime::can::slcan::{encode_frame, Command, Decoder};
+use wheelleg_runtime::can::CanFrame;
 use wheelleg_runtime::decision::{Decider, ObservationKey};
 use wheelleg_runtime::guard::{CollisionGuard, HeightMapRef, DEFAULT_MARGIN_M};
 use wheelleg_runtime::leg::LegConfig;
@@ -66,8 +71,43 @@ fn observation() -> ([[i16; 32]; 32], [i32; 4]) {
     (height_mm, [250, 400, 2000, 500])
 }
 
+/// A Set_Input_Vel frame for node 13 comes back unchanged from its SLCAN line.
+fn slcan_round_trips() -> bool {
+    let Some(node) = NodeId::new(13) else {
+        return false;
+    };
+    let message = Message::SetInputVel {
+        vel_turns_per_s: 2.5,
+        torque_ff_nm: 0.0,
+    };
+    let Ok(frame) = encode::<CanFrame>(node, &message) else {
+        return false;
+    };
+    let Ok(line) = encode_frame(&frame, None) else {
+        return false;
+    };
+    let mut decoder = Decoder::new();
+    let mut decoded = None;
+    for &byte in line.as_bytes() {
+        match decoder.feed(byte) {
+            Ok(Some(command)) => decoded = Some(command),
+            Ok(None) => {}
+            Err(_) => return false,
+        }
+    }
+    decoded
+        == Some(Command::Frame {
+            frame,
+            timestamp_ms: None,
+        })
+}
+
 #[no_mangle]
 extern "C" fn main(_argc: i32, _argv: *const *const u8) -> i32 {
+    if !slcan_round_trips() {
+        let _ = writeln!(Stdout, "slcan round trip failed");
+        return 1;
+    }
     let (height_mm, state_mm) = observation();
     let result = DefaultPolicy::from_bytes(WEIGHTS)
         .map_err(|error| (error, None))

@@ -5,6 +5,7 @@
 //! - [`host`]: the runtime's transmit queue, commands and feedback tracking.
 //! - [`frame`]: a plain frame type for hosts and tests.
 //! - [`bus_load`]: frame bit counts and bus load per control cycle.
+//! - [`slcan`]: the Lawicel ASCII protocol of serial (USB) CAN adapters: encoder and line decoder.
 //!
 //! Everything is generic over [`embedded_can::Frame`], so any microcontroller HAL's CAN driver
 //! (or SocketCAN on a Linux host) plugs in without conversion. docs/can-protocol.md documents the
@@ -15,6 +16,7 @@ pub mod frame;
 pub mod host;
 pub mod node_map;
 pub mod protocol;
+pub mod slcan;
 
 pub use frame::CanFrame;
 pub use host::{Commander, FeedbackTracker, Health, TxQueue};
