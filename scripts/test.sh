@@ -15,3 +15,14 @@ bash runtime/nostd-check/check.sh
 log="$(mktemp -d)/bus.log"
 cargo run --quiet --release -p wheelleg-firmware-sim --example closed_loop_log -- "$log"
 python3 tools/check_dbc.py "$log"
+
+# SLCAN: python-can's slcan interface drives a simulated wheel axis through firmware_sim's TCP
+# endpoint. python-can and pyserial are pinned in tools/requirements-slcan.txt and installed in
+# a virtual environment under target/, so the system Python is left alone.
+venv="target/slcan-venv"
+if [ ! -x "$venv/bin/python" ]; then
+    python3 -m venv "$venv"
+fi
+"$venv/bin/python" -m pip install --quiet --disable-pip-version-check -r tools/requirements-slcan.txt
+cargo build --quiet --release -p wheelleg-firmware-sim --bin firmware_sim
+"$venv/bin/python" tools/slcan_python_can.py --firmware-sim target/release/firmware_sim

@@ -6,6 +6,8 @@
 //! - [`bus`]: the [`bus::Transport`] trait and the in-process bus with fault injection (dropped,
 //!   delayed, duplicated frames).
 //! - [`socketcan`] (Linux, feature `socketcan`): the same trait over a SocketCAN interface.
+//! - [`slcan`]: the bus behind an SLCAN (Lawicel ASCII) endpoint on TCP or a pseudo-terminal,
+//!   as a USB-CAN adapter presents it to python-can, SavvyCAN or `slcand`.
 //! - [`candump`]: `candump -L` log writing, parsing and replay.
 //! - [`rig`]: runtime + bus + axes in one loop, reporting achieved against ideal steps.
 //!
@@ -17,5 +19,6 @@ pub mod bus;
 pub mod candump;
 pub mod firmware;
 pub mod rig;
+pub mod slcan;
 #[cfg(all(feature = "socketcan", target_os = "linux"))]
 pub mod socketcan;

@@ -1,23 +1,39 @@
 //! `firmware_sim`: the robot's 16 simulated ODrive axes as their own process on a SocketCAN
-//! interface, so the controller can run against them exactly as against real motors.
+//! interface or behind an SLCAN endpoint, so the controller or any CAN tool can run against
+//! them exactly as against real motors.
 //!
 //! ```text
 //! sudo ip link add dev vcan0 type vcan && sudo ip link set up vcan0
 //! firmware_sim --can vcan0 --log traffic.log
+//! firmware_sim --slcan tcp:127.0.0.1:20108     # python-can: socket://127.0.0.1:20108
+//! firmware_sim --slcan pty                     # prints the /dev/pts/N to open
 //! ```
 
-use clap::Parser;
+use clap::{ArgGroup, Parser};
+use std::io::{BufWriter, Write};
 use std::process::ExitCode;
+use std::time::{Duration, Instant};
+use wheelleg_firmware_sim::bus::{BusError, Transport};
+use wheelleg_firmware_sim::candump::{CandumpWriter, DEFAULT_EPOCH_US};
+use wheelleg_firmware_sim::firmware::Firmware;
+use wheelleg_firmware_sim::slcan::{EndpointSpec, SlcanEndpoint};
+use wheelleg_runtime::can::protocol::NodeId;
+use wheelleg_runtime::can::{CanFrame, NodeMap};
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::robot::WHEELLEG;
 
-/// Simulated ODrive axes for the wheel-legged robot on a SocketCAN bus.
+/// Simulated ODrive axes for the wheel-legged robot on a SocketCAN bus or an SLCAN endpoint.
 #[derive(Parser, Debug)]
-#[command(version, about)]
+#[command(version, about, group(ArgGroup::new("bus").required(true).args(["can", "slcan"])))]
 struct Args {
     /// SocketCAN interface to attach to (for example vcan0).
     #[arg(long)]
-    can: String,
+    can: Option<String>,
+    /// SLCAN (Lawicel ASCII) endpoint to serve the axes on, as a USB-CAN adapter would:
+    /// tcp:HOST:PORT (port 0 picks a free one) or pty (a pseudo-terminal). The place to
+    /// connect to is printed on stdout.
+    #[arg(long, value_parser = parse_endpoint)]
+    slcan: Option<EndpointSpec>,
     /// Physics rate of the simulated motors.
     #[arg(long, default_value_t = 1000.0)]
     rate_hz: f64,
@@ -38,6 +54,11 @@ struct Args {
     track_m: f32,
 }
 
+fn parse_endpoint(s: &str) -> Result<EndpointSpec, String> {
+    s.parse()
+        .map_err(|e: wheelleg_firmware_sim::slcan::SpecError| e.to_string())
+}
+
 fn main() -> ExitCode {
     let args = Args::parse();
     match run(&args) {
@@ -49,26 +70,7 @@ fn main() -> ExitCode {
     }
 }
 
-#[cfg(not(all(feature = "socketcan", target_os = "linux")))]
 fn run(args: &Args) -> Result<(), Box<dyn std::error::Error>> {
-    Err(format!(
-        "cannot attach to {}: built without SocketCAN (Linux and the `socketcan` feature needed)",
-        args.can
-    )
-    .into())
-}
-
-#[cfg(all(feature = "socketcan", target_os = "linux"))]
-fn run(args: &Args) -> Result<(), Box<dyn std::error::Error>> {
-    use std::io::BufWriter;
-    use std::time::{Duration, Instant};
-    use wheelleg_firmware_sim::bus::Transport;
-    use wheelleg_firmware_sim::candump::{CandumpWriter, DEFAULT_EPOCH_US};
-    use wheelleg_firmware_sim::firmware::Firmware;
-    use wheelleg_firmware_sim::socketcan::SocketCan;
-    use wheelleg_runtime::can::protocol::NodeId;
-    use wheelleg_runtime::can::NodeMap;
-
     if !(args.rate_hz.is_finite() && args.rate_hz > 0.0 && args.rate_hz <= 100_000.0) {
         return Err("--rate-hz must be in (0, 100000]".into());
     }
@@ -85,59 +87,120 @@ fn run(args: &Args) -> Result<(), Box<dyn std::error::Error>> {
             .ok_or("--silent-node is not on the node map")?
             .set_silent(true);
     }
-    let socket = SocketCan::open(&args.can).map_err(|e| {
-        format!(
-            "cannot open {}: {e} (does the interface exist and is it up?)",
-            args.can
-        )
+    match (&args.slcan, &args.can) {
+        (Some(spec), _) => {
+            let mut endpoint = SlcanEndpoint::open(spec)
+                .map_err(|e| format!("cannot open the SLCAN endpoint {spec:?}: {e}"))?;
+            let place = endpoint.describe();
+            // On stdout, flushed, so a script that started this process can read where to
+            // connect (port 0 binds a free port; a pty's name is known only once it exists).
+            println!("firmware_sim: SLCAN on {place}");
+            std::io::stdout().flush()?;
+            simulate(&mut firmware, &mut endpoint, "slcan0", &place, args)?;
+            let s = endpoint.session().stats();
+            eprintln!(
+                "firmware_sim: SLCAN: {} TCP clients, {} commands, {} malformed and {} refused lines \
+                 (answered BEL), {} frames from clients, {} to them, {} dropped (client too slow)",
+                s.clients,
+                s.commands,
+                s.malformed,
+                s.refused,
+                s.frames_from_client,
+                s.frames_to_client,
+                s.frames_dropped
+            );
+        }
+        (None, Some(interface)) => run_socketcan(&mut firmware, interface, args)?,
+        // clap's argument group requires one of the two.
+        (None, None) => return Err("give --can IFACE or --slcan tcp:HOST:PORT|pty".into()),
+    }
+    let stats = firmware.stats();
+    eprintln!(
+        "firmware_sim: received {} frames ({} malformed, {} for other nodes)",
+        stats.received, stats.malformed, stats.foreign
+    );
+    Ok(())
+}
+
+#[cfg(not(all(feature = "socketcan", target_os = "linux")))]
+fn run_socketcan(
+    _firmware: &mut Firmware,
+    interface: &str,
+    _args: &Args,
+) -> Result<(), Box<dyn std::error::Error>> {
+    Err(format!(
+        "cannot attach to {interface}: built without SocketCAN (Linux and the `socketcan` feature \
+         needed); --slcan tcp:HOST:PORT works everywhere"
+    )
+    .into())
+}
+
+#[cfg(all(feature = "socketcan", target_os = "linux"))]
+fn run_socketcan(
+    firmware: &mut Firmware,
+    interface: &str,
+    args: &Args,
+) -> Result<(), Box<dyn std::error::Error>> {
+    use wheelleg_firmware_sim::socketcan::SocketCan;
+    let mut socket = SocketCan::open(interface).map_err(|e| {
+        format!("cannot open {interface}: {e} (does the interface exist and is it up?)")
     })?;
-    // Log what this process sees and says, by wrapping the socket.
-    struct Logged<T> {
-        inner: T,
-        log: Option<CandumpWriter<BufWriter<std::fs::File>>>,
-    }
-    impl<T: Transport> Transport for Logged<T> {
-        fn send(
-            &mut self,
-            frame: &wheelleg_runtime::can::CanFrame,
-            now_us: u64,
-        ) -> Result<(), wheelleg_firmware_sim::bus::BusError> {
-            if let Some(log) = &mut self.log {
-                log.log(now_us, frame)?;
-            }
-            self.inner.send(frame, now_us)
+    simulate(firmware, &mut socket, interface, interface, args)
+}
+
+/// Logs what this process sees and says, around any transport.
+struct Logged<'a, T> {
+    inner: &'a mut T,
+    log: Option<CandumpWriter<BufWriter<std::fs::File>>>,
+}
+
+impl<T: Transport> Transport for Logged<'_, T> {
+    fn send(&mut self, frame: &CanFrame, now_us: u64) -> Result<(), BusError> {
+        if let Some(log) = &mut self.log {
+            log.log(now_us, frame)?;
         }
-        fn recv(
-            &mut self,
-            now_us: u64,
-        ) -> Result<Option<wheelleg_runtime::can::CanFrame>, wheelleg_firmware_sim::bus::BusError>
-        {
-            let frame = self.inner.recv(now_us)?;
-            if let (Some(log), Some(f)) = (&mut self.log, &frame) {
-                log.log(now_us, f)?;
-            }
-            Ok(frame)
-        }
+        self.inner.send(frame, now_us)
     }
+
+    fn recv(&mut self, now_us: u64) -> Result<Option<CanFrame>, BusError> {
+        let frame = self.inner.recv(now_us)?;
+        if let (Some(log), Some(f)) = (&mut self.log, &frame) {
+            log.log(now_us, f)?;
+        }
+        Ok(frame)
+    }
+}
+
+/// Steps the axes in real time at `--rate-hz` on `transport` until `--duration-s` (or forever).
+/// `log_interface` names the bus in the `candump -L` log, `place` in the start-up line.
+fn simulate<T: Transport>(
+    firmware: &mut Firmware,
+    transport: &mut T,
+    log_interface: &str,
+    place: &str,
+    args: &Args,
+) -> Result<(), Box<dyn std::error::Error>> {
     let epoch_us = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(DEFAULT_EPOCH_US, |d| d.as_micros() as u64);
     let log = match &args.log {
         Some(path) => Some(CandumpWriter::new(
             BufWriter::new(std::fs::File::create(path)?),
-            &args.can,
+            log_interface,
             epoch_us,
         )),
         None => None,
     };
-    let mut bus = Logged { inner: socket, log };
+    let mut bus = Logged {
+        inner: transport,
+        log,
+    };
     let period = Duration::from_secs_f64(1.0 / args.rate_hz);
     let t0 = Instant::now();
     let mut next = t0;
     eprintln!(
-        "firmware_sim: {} axes on {} at {} Hz",
+        "firmware_sim: {} axes on {place} at {} Hz",
         firmware.axes().len(),
-        args.can,
         args.rate_hz
     );
     loop {
@@ -157,10 +220,5 @@ fn run(args: &Args) -> Result<(), Box<dyn std::error::Error>> {
     if let Some(log) = bus.log.take() {
         log.finish()?;
     }
-    let stats = firmware.stats();
-    eprintln!(
-        "firmware_sim: received {} frames ({} malformed, {} for other nodes)",
-        stats.received, stats.malformed, stats.foreign
-    );
     Ok(())
 }
