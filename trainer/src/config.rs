@@ -89,11 +89,10 @@ impl Default for NetworkConfig {
 }
 
 /// `run` keys a resumed run may change: its budget, the re-sampling of failed scenes and the
-/// shares of composed and fence scenes (which only change which scenes come next).
-const RESUMABLE_CHANGES: [&str; 5] = [
+/// share of composed scenes (which only change which scenes come next).
+const RESUMABLE_CHANGES: [&str; 4] = [
     "total_env_steps",
     "composed_share",
-    "fence_share",
     "failure_resample_probability",
     "failure_memory_per_env",
 ];
@@ -149,10 +148,6 @@ pub struct RunConfig {
     /// `wheelleg_sim::generate::SceneKind::Composed`) instead of `scene_kind`. 0, the default,
     /// draws `scene_kind` alone. A finished run may be continued with it changed (`--resume`).
     pub composed_share: f64,
-    /// Share of episodes drawn as a single fence with nothing else in the arena (lift, spread
-    /// or squeeze, equally often) instead of `scene_kind`. 0, the default, draws none. A
-    /// finished run may be continued with it changed (`--resume`).
-    pub fence_share: f64,
 }
 
 impl Default for RunConfig {
@@ -175,7 +170,6 @@ impl Default for RunConfig {
             failure_resample_probability: 0.0,
             failure_memory_per_env: 8,
             composed_share: 0.0,
-            fence_share: 0.0,
         }
     }
 }
@@ -380,10 +374,6 @@ impl TrainConfig {
         check(
             (0.0..=1.0).contains(&r.composed_share),
             "run.composed_share must be between 0 and 1",
-        )?;
-        check(
-            (0.0..=1.0).contains(&r.fence_share) && r.composed_share + r.fence_share <= 1.0,
-            "run.fence_share must be between 0 and 1, and with run.composed_share at most 1",
         )?;
         check(r.num_envs >= 1, "run.num_envs must be at least 1")?;
         check(
@@ -602,9 +592,6 @@ mod tests {
         assert_eq!(c.curriculum.secondary_env_steps_by_behaviour["lift"], 5000);
         let e = TrainConfig::from_toml(&format!("{budgets}astride = 5000\n")).unwrap_err();
         assert!(e.contains("secondary_env_steps_by_behaviour"), "{e}");
-        let e =
-            TrainConfig::from_toml("[run]\ncomposed_share = 0.7\nfence_share = 0.4\n").unwrap_err();
-        assert!(e.contains("run.fence_share"), "{e}");
         let e = TrainConfig::from_toml("[run]\ninvalid_reward = 0.5\n").unwrap_err();
         assert!(e.contains("run.invalid_reward"), "{e}");
         let e = TrainConfig::from_toml("[curriculum]\nreplay_imitation_coef = -1.0\n").unwrap_err();

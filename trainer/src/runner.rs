@@ -174,7 +174,6 @@ pub fn train_stage(
         start_yaw: config.start_yaw(),
         stage: schedule.as_ref().map_or(1.0, StartStageSchedule::stage),
         composed_share: run.composed_share,
-        fence_share: run.fence_share,
     };
     let mut envs = VecEnv::with_scenes(scenes, n, env_seed, env_config, run.threads)?;
     if run.failure_resample_probability > 0.0 {

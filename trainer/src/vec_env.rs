@@ -11,7 +11,7 @@ use wheelleg_runtime::action::{Action, DIMS};
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
 use wheelleg_sim::env::{Env, EnvConfig, Observation, Status};
 use wheelleg_sim::failure_memory::FailureMemory;
-use wheelleg_sim::generate::{generate_staged, Behaviour, SceneKind, StartYaw};
+use wheelleg_sim::generate::{generate_staged, SceneKind, StartYaw};
 use wheelleg_sim::scenario::Scenario;
 
 /// How a finished episode went.
@@ -104,28 +104,13 @@ pub struct Scenes {
     pub stage: f32,
     /// Share of episodes on composed scenes instead of `kind` (`run.composed_share`).
     pub composed_share: f64,
-    /// Share of episodes on a single fence (lift, spread or squeeze, equally often) with
-    /// nothing else in the arena (`run.fence_share`).
-    pub fence_share: f64,
 }
-
-/// The fences a `fence_share` draws from: the behaviours a composed scene needs.
-const FENCES: [SceneKind; 3] = [
-    SceneKind::Behaviour(Behaviour::LiftOver),
-    SceneKind::Behaviour(Behaviour::SpreadOver),
-    SceneKind::Behaviour(Behaviour::Squeeze),
-];
 
 fn new_scene(scenes: Scenes, rng: &mut ChaCha8Rng, env: usize, episode: u64) -> Scenario {
     // Without composed scenes nothing extra is drawn, so such a run sees exactly the scenes it
     // saw before the mix existed.
     let kind = if scenes.composed_share > 0.0 && rng.random_bool(scenes.composed_share.min(1.0)) {
         SceneKind::Composed
-    } else if scenes.fence_share > 0.0
-        // The fence share is of all episodes; here it is drawn among those not composed.
-        && rng.random_bool((scenes.fence_share / (1.0 - scenes.composed_share)).min(1.0))
-    {
-        FENCES[rng.random_range(0..FENCES.len())]
     } else {
         scenes.kind
     };
@@ -290,7 +275,6 @@ impl VecEnv {
             start_yaw,
             stage,
             composed_share: 0.0,
-            fence_share: 0.0,
         };
         VecEnv::with_scenes(scenes, num_envs, seed, config, threads)
     }
@@ -648,14 +632,13 @@ mod tests {
     }
 
     #[test]
-    fn the_composed_and_fence_shares_mix_their_scenes_in_deterministically() {
-        let mixed = |composed_share: f64, fence_share: f64| -> Vec<String> {
+    fn the_composed_share_mixes_composed_scenes_in_deterministically() {
+        let names = |share: f64| -> Vec<String> {
             let scenes = Scenes {
                 kind: SceneKind::Complex,
                 start_yaw: StartYaw::Any,
                 stage: 1.0,
-                composed_share,
-                fence_share,
+                composed_share: share,
             };
             let v = VecEnv::with_scenes(scenes, 40, 5, EnvConfig::default(), 1).unwrap();
             v.snapshot()
@@ -671,7 +654,6 @@ mod tests {
                 })
                 .collect()
         };
-        let names = |share: f64| mixed(share, 0.0);
         let family = |n: &String| n.split('-').next().unwrap_or("").to_string();
         assert!(names(0.0).iter().all(|n| family(n) == "complex"));
         assert!(names(1.0).iter().all(|n| family(n) == "composed"));
@@ -679,25 +661,5 @@ mod tests {
         let composed = half.iter().filter(|n| family(n) == "composed").count();
         assert!((10..=30).contains(&composed), "{composed} of 40 composed");
         assert_eq!(half, names(0.5), "the same seed, the same mix");
-
-        let count = |names: &[String], f: &str| names.iter().filter(|n| family(n) == f).count();
-        let fences = mixed(0.0, 1.0);
-        for fence in ["lift", "spread", "squeeze"] {
-            assert!(count(&fences, fence) >= 5, "{fence}: {fences:?}");
-        }
-        assert_eq!(
-            count(&fences, "lift") + count(&fences, "spread") + count(&fences, "squeeze"),
-            40
-        );
-        // A fifth of all episodes on fences, half composed: about 8 fences of 40 (the share is
-        // of all episodes, not of those left over).
-        let three = mixed(0.5, 0.2);
-        let fenced = 40 - count(&three, "complex") - count(&three, "composed");
-        assert!(
-            (3..=15).contains(&fenced),
-            "{fenced} of 40 fences: {three:?}"
-        );
-        assert!(count(&three, "complex") >= 5, "{three:?}");
-        assert_eq!(three, mixed(0.5, 0.2), "the same seed, the same mix");
     }
 }
