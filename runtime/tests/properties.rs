@@ -548,6 +548,37 @@ proptest! {
             Some(Ok(Some(slcan::Command::Frame { frame, timestamp_ms }))));
     }
 
+    /// What an adapter sends a host (frames from the bus, every reply) decodes back to itself,
+    /// interleaved in one stream.
+    #[test]
+    fn adapter_messages_round_trip_through_slcan(
+        items in prop::collection::vec((any_frame(), prop::option::of(any::<u16>()),
+                                        0u8..7, any::<(u8, u8)>()), 1..20)) {
+        use slcan::{AdapterMessage, Reply};
+        let mut decoder = slcan::Decoder::new();
+        let (mut sent, mut got) = (Vec::new(), Vec::new());
+        for (frame, timestamp_ms, kind, (a, b)) in items {
+            let reply = match kind {
+                0 => Reply::Ok,
+                1 => Reply::Error,
+                2 => Reply::Transmitted { extended: a % 2 == 1 },
+                3 => Reply::Version { hardware: a % 100, software: b % 100 },
+                4 => Reply::SerialNumber(*b"A1b2"),
+                5 => Reply::StatusFlags(a),
+                _ => Reply::Transmitted { extended: false },
+            };
+            sent.push(AdapterMessage::Frame { frame, timestamp_ms });
+            sent.push(AdapterMessage::Reply(reply));
+            let line = slcan::encode_frame(&frame, timestamp_ms).unwrap();
+            for &byte in line.as_bytes().iter().chain(slcan::encode_reply(&reply).as_bytes()) {
+                if let Some(m) = decoder.feed_from_adapter(byte).unwrap() {
+                    got.push(m);
+                }
+            }
+        }
+        prop_assert_eq!(got, sent);
+    }
+
     /// Every command a host sends decodes back to itself, many in one stream.
     #[test]
     fn every_command_round_trips_through_slcan(

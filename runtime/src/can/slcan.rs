@@ -22,6 +22,10 @@
 //! acceptance filters (`M`, `m`) and the adapter-configuration commands (`U`, `Q`, `X`, `W`,
 //! `P`, `A`) are known and refused as [`SlcanError::Unsupported`].
 //!
+//! Both ends are here: an adapter decodes commands with [`Decoder::feed`] and answers with
+//! [`encode_reply`] and [`encode_frame`]; a host sends [`encode_command`] lines and reads the
+//! adapter's replies and frames with [`Decoder::feed_from_adapter`].
+//!
 //! Nothing here allocates or panics: lines are fixed buffers ([`Line`], at most
 //! [`LINE_CAPACITY`] bytes), and every malformed line is a typed [`SlcanError`] the
 //! [`Decoder`] counts; the adapter side answers it with [`Reply::Error`] (BEL).
@@ -435,13 +439,15 @@ pub fn encode_reply(reply: &Reply) -> Line {
 /// Counters of what a [`Decoder`] read.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub struct DecoderStats {
-    /// Lines decoded to a command.
+    /// Lines decoded to a command (from an adapter: to a reply or a frame; BEL included).
     pub commands: u32,
     /// Malformed lines (each was a [`SlcanError`]).
     pub errors: u32,
 }
 
-/// An incremental SLCAN line decoder: feed it bytes as they arrive, one at a time.
+/// An incremental SLCAN line decoder: feed it bytes as they arrive, one at a time, with
+/// [`Decoder::feed`] on an adapter (commands from a host) or [`Decoder::feed_from_adapter`] on a
+/// host (replies and frames from an adapter).
 #[derive(Clone, Debug)]
 pub struct Decoder {
     line: [u8; MAX_LINE_LEN],
@@ -477,24 +483,51 @@ impl Decoder {
         self.stats
     }
 
-    /// Takes one byte: `Ok(None)` mid-line and for empty lines, the command or the error when
-    /// a CR ends the line.
+    /// Adapter side: takes one byte from a host. `Ok(None)` mid-line and for empty lines; the
+    /// command, or the error, when a CR ends the line.
     pub fn feed(&mut self, byte: u8) -> Result<Option<Command>, SlcanError> {
+        if !self.accept(byte) {
+            return Ok(None);
+        }
+        let result = if self.overlong {
+            Err(SlcanError::LineTooLong)
+        } else {
+            decode_line(self.current())
+        };
+        self.end_line(result.as_ref().map(Option::is_some));
+        result
+    }
+
+    /// Host side: takes one byte from an adapter. `Ok(None)` mid-line; a reply (BEL at once, the
+    /// others and frames when their CR arrives) or the error of a malformed line.
+    pub fn feed_from_adapter(&mut self, byte: u8) -> Result<Option<AdapterMessage>, SlcanError> {
+        if byte == BEL {
+            // BEL has no CR after it; a partial line before it stays and goes on.
+            self.stats.commands = self.stats.commands.saturating_add(1);
+            return Ok(Some(AdapterMessage::Reply(Reply::Error)));
+        }
+        if !self.accept(byte) {
+            return Ok(None);
+        }
+        let result = if self.overlong {
+            Err(SlcanError::LineTooLong)
+        } else {
+            decode_adapter_line(self.current())
+        };
+        self.end_line(result.as_ref().map(|_| true));
+        result.map(Some)
+    }
+
+    /// Takes a byte into the line; true when it was the CR that ends the line.
+    fn accept(&mut self, byte: u8) -> bool {
         let after_cr = core::mem::replace(&mut self.after_cr, false);
         match byte {
             CR => {
                 self.after_cr = true;
-                let result = self.finish();
-                self.len = 0;
-                self.overlong = false;
-                match result {
-                    Ok(None) => {}
-                    Ok(Some(_)) => self.stats.commands = self.stats.commands.saturating_add(1),
-                    Err(_) => self.stats.errors = self.stats.errors.saturating_add(1),
-                }
-                result
+                true
             }
-            b'\n' if after_cr && self.len == 0 => Ok(None),
+            // CR LF line ends: the LF is no part of the next line.
+            b'\n' if after_cr && self.len == 0 => false,
             _ => {
                 match self.line.get_mut(self.len) {
                     Some(slot) => {
@@ -503,21 +536,80 @@ impl Decoder {
                     }
                     None => self.overlong = true,
                 }
-                Ok(None)
+                false
             }
         }
     }
 
-    fn finish(&self) -> Result<Option<Command>, SlcanError> {
-        if self.overlong {
-            return Err(SlcanError::LineTooLong);
-        }
-        let line = self.line.get(..self.len).unwrap_or(&[]);
-        match line.split_first() {
-            None => Ok(None),
-            Some((&command, args)) => parse(command, args).map(Some),
+    fn current(&self) -> &[u8] {
+        self.line.get(..self.len).unwrap_or(&[])
+    }
+
+    /// Starts the next line, counting the one that ended: `Ok(true)` a command, `Err` an error.
+    fn end_line<E>(&mut self, decoded: Result<bool, E>) {
+        self.len = 0;
+        self.overlong = false;
+        match decoded {
+            Ok(false) => {}
+            Ok(true) => self.stats.commands = self.stats.commands.saturating_add(1),
+            Err(_) => self.stats.errors = self.stats.errors.saturating_add(1),
         }
     }
+}
+
+/// What an adapter sends a host: a reply to a command, or a frame from the bus.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum AdapterMessage {
+    /// CR, BEL, `z`, `Z`, `Vhhss`, `Nxxxx` or `Fxx`.
+    Reply(Reply),
+    /// A `t`, `T`, `r` or `R` line.
+    Frame {
+        /// The frame.
+        frame: CanFrame,
+        /// The adapter's millisecond timestamp, if it sends them (`Z1`).
+        timestamp_ms: Option<u16>,
+    },
+}
+
+/// Decodes one line an adapter sent, without its CR (BEL is not a line: see
+/// [`Decoder::feed_from_adapter`]).
+pub fn decode_adapter_line(line: &[u8]) -> Result<AdapterMessage, SlcanError> {
+    if line.len() > MAX_LINE_LEN {
+        return Err(SlcanError::LineTooLong);
+    }
+    let digit = |d: u8| {
+        if d.is_ascii_digit() {
+            Ok(d - b'0')
+        } else {
+            Err(SlcanError::BadArguments(b'V'))
+        }
+    };
+    let reply = match line {
+        [] => Reply::Ok,
+        [b'z'] => Reply::Transmitted { extended: false },
+        [b'Z'] => Reply::Transmitted { extended: true },
+        &[b'V', h1, h0, s1, s0] => Reply::Version {
+            hardware: 10 * digit(h1)? + digit(h0)?,
+            software: 10 * digit(s1)? + digit(s0)?,
+        },
+        &[b'N', a, b, c, d] => Reply::SerialNumber([a, b, c, d]),
+        [b'F', flags @ ..] if flags.len() == 2 => Reply::StatusFlags(hex(Some(flags))? as u8),
+        [command @ (b't' | b'T' | b'r' | b'R'), args @ ..] => {
+            return match parse_frame(*command, args)? {
+                Command::Frame {
+                    frame,
+                    timestamp_ms,
+                } => Ok(AdapterMessage::Frame {
+                    frame,
+                    timestamp_ms,
+                }),
+                _ => Err(SlcanError::UnknownCommand(*command)),
+            }
+        }
+        [command @ (b'V' | b'N' | b'F'), ..] => return Err(SlcanError::BadArguments(*command)),
+        [command, ..] => return Err(SlcanError::UnknownCommand(*command)),
+    };
+    Ok(AdapterMessage::Reply(reply))
 }
 
 /// Decodes one line without its CR (what [`Decoder`] does at each CR).
@@ -920,6 +1012,83 @@ mod tests {
             decode_line(&[b'O'; MAX_LINE_LEN + 1]),
             Err(SlcanError::LineTooLong)
         );
+    }
+
+    #[test]
+    fn a_host_decodes_what_an_adapter_sends() {
+        let replies = [
+            Reply::Ok,
+            Reply::Error,
+            Reply::Transmitted { extended: false },
+            Reply::Transmitted { extended: true },
+            Reply::Version {
+                hardware: 12,
+                software: 7,
+            },
+            Reply::SerialNumber(*b"AB12"),
+            Reply::StatusFlags(0xA9),
+        ];
+        let mut decoder = Decoder::new();
+        let mut got = [None; 8];
+        let mut n = 0;
+        let mut stream = [0u8; 64];
+        let mut len = 0;
+        for reply in replies {
+            for &b in encode_reply(&reply).as_bytes() {
+                stream[len] = b;
+                len += 1;
+            }
+        }
+        for &b in encode_frame(&std_frame(0x1A9, &[1, 2]), Some(0x0102))
+            .unwrap()
+            .as_bytes()
+        {
+            stream[len] = b;
+            len += 1;
+        }
+        for &b in &stream[..len] {
+            if let Some(m) = decoder.feed_from_adapter(b).unwrap() {
+                got[n] = Some(m);
+                n += 1;
+            }
+        }
+        for (i, reply) in replies.into_iter().enumerate() {
+            assert_eq!(got[i], Some(AdapterMessage::Reply(reply)));
+        }
+        assert_eq!(
+            got[7],
+            Some(AdapterMessage::Frame {
+                frame: std_frame(0x1A9, &[1, 2]),
+                timestamp_ms: Some(0x0102)
+            })
+        );
+        assert_eq!(decoder.stats().commands, 8);
+        // A BEL in the middle of a frame line (a refusal overtaking it) leaves the frame whole.
+        let mut decoder = Decoder::new();
+        let mut last = None;
+        for &b in b"t1A\x0720\r" {
+            if let Some(m) = decoder.feed_from_adapter(b).unwrap() {
+                last = Some(m);
+                if b == BEL {
+                    assert_eq!(m, AdapterMessage::Reply(Reply::Error));
+                }
+            }
+        }
+        assert_eq!(
+            last,
+            Some(AdapterMessage::Frame {
+                frame: std_frame(0x1A2, &[]),
+                timestamp_ms: None
+            })
+        );
+        use SlcanError::*;
+        assert_eq!(decode_adapter_line(b"O"), Err(UnknownCommand(b'O')));
+        assert_eq!(decode_adapter_line(b"V01x0"), Err(BadArguments(b'V')));
+        assert_eq!(decode_adapter_line(b"V010"), Err(BadArguments(b'V')));
+        assert_eq!(decode_adapter_line(b"N12"), Err(BadArguments(b'N')));
+        assert_eq!(decode_adapter_line(b"FG0"), Err(BadHexDigit(b'G')));
+        assert_eq!(decode_adapter_line(b"t1239"), Err(DlcOverEight(9)));
+        assert_eq!(decode_adapter_line(&[b'z'; 40]), Err(LineTooLong));
     }
 
     #[test]
