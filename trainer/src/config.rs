@@ -288,6 +288,53 @@ pub struct TrainConfig {
     pub curriculum: CurriculumConfig,
 }
 
+/// How many `extends` a config may chain: more is a cycle or a mistake.
+const MAX_EXTENDS: usize = 8;
+
+/// A config file's keys with its `extends` chain merged beneath them.
+fn load_table(path: &Path, depth: usize) -> Result<toml::Table, String> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| format!("cannot read config {}: {e}", path.display()))?;
+    let mut table: toml::Table = text
+        .parse()
+        .map_err(|e| format!("config {}: {e}", path.display()))?;
+    let base = match table.remove("extends") {
+        None => return Ok(table),
+        Some(toml::Value::String(base)) => base,
+        Some(other) => {
+            return Err(format!(
+                "config {}: extends must name a config file, not {other}",
+                path.display()
+            ))
+        }
+    };
+    if depth >= MAX_EXTENDS {
+        return Err(format!(
+            "config {}: more than {MAX_EXTENDS} configs extend one another (a cycle?)",
+            path.display()
+        ));
+    }
+    let base_path = path.parent().unwrap_or(Path::new(".")).join(&base);
+    let mut merged = load_table(&base_path, depth + 1)
+        .map_err(|e| format!("config {} extends {base}: {e}", path.display()))?;
+    merge_over(&mut merged, table);
+    Ok(merged)
+}
+
+/// `over`'s keys replace `base`'s; tables merge key by key.
+fn merge_over(base: &mut toml::Table, over: toml::Table) {
+    for (key, value) in over {
+        match (base.get_mut(&key), value) {
+            (Some(toml::Value::Table(below)), toml::Value::Table(above)) => {
+                merge_over(below, above)
+            }
+            (_, value) => {
+                base.insert(key, value);
+            }
+        }
+    }
+}
+
 impl TrainConfig {
     /// Parses TOML text and validates it.
     pub fn from_toml(text: &str) -> Result<TrainConfig, String> {
@@ -296,11 +343,19 @@ impl TrainConfig {
         Ok(config)
     }
 
-    /// Reads and validates a config file.
+    /// Reads and validates a config file. A file may start from another: `extends =
+    /// "base.toml"` (a path relative to the file's folder) takes every key of the base, and
+    /// the file's own keys replace the base's one by one, so a variant names only what it
+    /// changes.
     pub fn load(path: &Path) -> Result<TrainConfig, String> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| format!("cannot read config {}: {e}", path.display()))?;
-        TrainConfig::from_toml(&text).map_err(|e| format!("config {}: {e}", path.display()))
+        let table = load_table(path, 0)?;
+        let config: TrainConfig = toml::Value::Table(table)
+            .try_into()
+            .map_err(|e| format!("config {}: {e}", path.display()))?;
+        config
+            .validate()
+            .map_err(|e| format!("config {}: {e}", path.display()))?;
+        Ok(config)
     }
 
     /// The config as TOML (stored in every checkpoint to detect mismatched resumes).
@@ -571,6 +626,60 @@ mod tests {
             crate::network_f32::Architecture::default_policy()
         );
         assert_eq!(TrainConfig::from_toml(&c.to_toml()).unwrap(), c);
+    }
+
+    #[test]
+    fn a_config_extends_its_base_key_by_key_and_a_cycle_is_named() {
+        let dir = std::env::temp_dir().join(format!("wheelleg-extends-{}", std::process::id()));
+        std::fs::create_dir_all(dir.join("sub")).unwrap();
+        let write = |name: &str, text: &str| std::fs::write(dir.join(name), text).unwrap();
+        write(
+            "base.toml",
+            "[run]\ntotal_env_steps = 7000000\nnum_envs = 10\nsteps_per_iteration = 1000\n\
+             [ppo]\ngamma = 0.9\n",
+        );
+        write(
+            "sub/variant.toml",
+            "extends = \"../base.toml\"\n[run]\ntotal_env_steps = 9000000\n",
+        );
+        let c = TrainConfig::load(&dir.join("sub/variant.toml")).unwrap();
+        assert_eq!(c.run.total_env_steps, 9_000_000, "the variant's own key");
+        assert_eq!(c.run.num_envs, 10, "the base's key beside it");
+        assert_eq!(c.ppo.gamma, 0.9, "the base's other table");
+        assert_eq!(
+            c.ppo.epochs,
+            PpoConfig::default().epochs,
+            "the defaults below both"
+        );
+
+        write("a.toml", "extends = \"b.toml\"\n");
+        write("b.toml", "extends = \"a.toml\"\n");
+        let e = TrainConfig::load(&dir.join("a.toml")).unwrap_err();
+        assert!(e.contains("extend one another"), "{e}");
+        write("c.toml", "extends = \"missing.toml\"\n");
+        let e = TrainConfig::load(&dir.join("c.toml")).unwrap_err();
+        assert!(
+            e.contains("extends missing.toml") && e.contains("cannot read"),
+            "{e}"
+        );
+        write("d.toml", "extends = \"base.toml\"\n[run]\nnum_env = 3\n");
+        let e = TrainConfig::load(&dir.join("d.toml")).unwrap_err();
+        assert!(e.contains("num_env"), "a typo in a variant is named: {e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn every_committed_config_loads() {
+        let dir = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../configs"));
+        let mut loaded = 0;
+        for entry in std::fs::read_dir(dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_some_and(|e| e == "toml") {
+                TrainConfig::load(&path).unwrap_or_else(|e| panic!("{e}"));
+                loaded += 1;
+            }
+        }
+        assert!(loaded >= 5, "{loaded} configs in {}", dir.display());
     }
 
     #[test]
