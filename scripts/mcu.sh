@@ -125,6 +125,11 @@ if [ "$kernel_mismatches" != 0 ]; then
     log "error: the DSP kernel's outputs differ from the scalar kernel's on $kernel_mismatches decisions"
     match=false
 fi
+quantize_mismatches=$(field input_quantization_mismatches)
+if [ "$quantize_mismatches" != 0 ]; then
+    log "error: the DSP kernel's input quantization differs from the scalar kernel's on $quantize_mismatches of the checked records"
+    match=false
+fi
 per_tick=$((tick_instructions / ticks))
 
 if [ "$calibration" != "$calibration_expected" ]; then

@@ -8,6 +8,7 @@
 #![no_std]
 #![no_main]
 
+mod kernels;
 mod qemu;
 mod semihosting;
 
@@ -168,6 +169,10 @@ fn main() -> ! {
     uart.field("calibration_instructions", calibration);
     uart.field("calibration_expected", 2 * u64::from(turns));
     uart.field("instructions_boot_check", boot_instructions);
+    uart.field(
+        "input_quantization_mismatches",
+        kernels::input_quantization_mismatches(),
+    );
     uart.write(b"\n");
 
     let (Some(work), Some(row), Some(observation)) = (WORK.take(), ROW.take(), OBSERVATION.take())

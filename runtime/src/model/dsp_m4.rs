@@ -686,8 +686,11 @@ pub fn conv_dsp(
 }
 
 /// [`super::kernel::quantize_inputs_scalar`] in 32-bit steps where the input's shift allows:
-/// for a right shift of 33 or more as in [`requantize`], for exactly 32 the high word of the
-/// product plus 2^31 (`SMMULR`'s rounding, the same formula); the scalar kernel's otherwise.
+/// for a right shift of 33 or more as in [`requantize`]; for a right shift `r` of 17 to 32 the
+/// rounded high word (`SMMULR`) of the product with the input moved up by `32 - r` bits:
+/// `(x * m + 2^(r-1)) >> r = (x * 2^(32-r) * m + 2^31) >> 32` (both sides scaled by
+/// `2^(32-r)`), where `x * 2^(32-r)` fits an i32 for an int16 input; the scalar kernel's
+/// otherwise.
 pub fn quantize_inputs_dsp(quant: &InputQuantRecord, values_mm: &[i16], out: &mut [i8]) {
     let right = 31 - i32::from(quant.shift.clamp(MIN_SHIFT, MAX_SHIFT));
     let multiplier = i64::from(quant.multiplier);
@@ -699,9 +702,10 @@ pub fn quantize_inputs_dsp(quant: &InputQuantRecord, values_mm: &[i16], out: &mu
             let high_word = ((i64::from(mm) * multiplier) >> 32) as i32;
             *q = ((((high_word >> shift) + 1) >> 1) + zero_point).clamp(-128, 127) as i8;
         }
-    } else if right == 32 {
+    } else if right >= 17 {
+        let up = 32 - right;
         for (q, &mm) in pairs {
-            let value = ((i64::from(mm) * multiplier + (1 << 31)) >> 32) as i32;
+            let value = ((i64::from(i32::from(mm) << up) * multiplier + (1 << 31)) >> 32) as i32;
             *q = (value + zero_point).clamp(-128, 127) as i8;
         }
     } else {
