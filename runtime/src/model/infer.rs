@@ -178,12 +178,39 @@ fn layer_with_state<T: Output>(
     row: &mut [i16],
     output: &mut [T],
 ) -> Result<(), InferError> {
+    let output = output
+        .get_mut(..linear_layer.rows)
+        .ok_or(InferError::Internal)?;
+    let (row, wide) = state_input(kernel, linear_layer, input, state, row)?;
+    let wide = wide.get(..state.len()).ok_or(InferError::Internal)?;
+    let mut bias = [0u8; 4 * STATE_ROWS_PER_CALL];
+    for (chunk, out) in output.chunks_mut(STATE_ROWS_PER_CALL).enumerate() {
+        let rows = (chunk * STATE_ROWS_PER_CALL, out.len());
+        let part = fold_state(linear_layer, wide, rows, &mut bias)?;
+        linear_batch(kernel, &part, row, linear_layer.row_len, out);
+    }
+    Ok(())
+}
+
+/// [`layer_with_state`]'s input row (the features widened, 0 in the state columns, in the
+/// kernel's order), cut as [`layer_buffers`] cuts it, and the state in the layer's input
+/// domain, 256 times finer: `u - 256 * zp_in`. Apart from the output type, so that on a
+/// controller one copy serves the layers of both types.
+#[cfg_attr(target_arch = "arm", inline(never))]
+fn state_input<'r>(
+    kernel: Kernel,
+    linear_layer: &Linear<'_>,
+    input: &[i8],
+    state: &[i16],
+    row: &'r mut [i16],
+) -> Result<(&'r mut [i16], [i32; MAX_STATE_FEATURES]), InferError> {
     let row_len = linear_layer.row_len;
     let features = row_len
         .checked_sub(state.len())
         .ok_or(InferError::Internal)?;
     let input = input.get(..features).ok_or(InferError::Internal)?;
-    let (output, row) = layer_buffers(linear_layer, row, output)?;
+    let padded = padded_row_len(row_len).min(row.len());
+    let row = row.get_mut(..padded).ok_or(InferError::Internal)?;
     let values = row.get_mut(..row_len).ok_or(InferError::Internal)?;
     let (feature_values, state_values) = values
         .split_at_mut_checked(features)
@@ -191,57 +218,64 @@ fn layer_with_state<T: Output>(
     widen(input, linear_layer.input_zero_point, feature_values);
     state_values.fill(0);
     prepare_row(kernel, values);
-    // The state in the layer's input domain, 256 times finer: u - 256 * zp_in.
     let zero_point = i32::from(linear_layer.input_zero_point) << STATE_FRACTION_BITS;
     let mut wide = [0i32; MAX_STATE_FEATURES];
     for (v, &u) in wide.iter_mut().zip(state) {
         *v = i32::from(u) - zero_point;
     }
-    let wide = wide.get(..state.len()).ok_or(InferError::Internal)?;
-    let mut bias = [0u8; 4 * STATE_ROWS_PER_CALL];
-    for (chunk, out) in output.chunks_mut(STATE_ROWS_PER_CALL).enumerate() {
-        let first = chunk * STATE_ROWS_PER_CALL;
-        let count = out.len();
-        let weights = linear_layer
-            .weights
-            .get(first * row_len..(first + count) * row_len)
-            .ok_or(InferError::Internal)?;
-        let biases = linear_layer
-            .bias
-            .get(4 * first..4 * (first + count))
-            .ok_or(InferError::Internal)?;
-        // Lock-step iterators over the rows: no index arithmetic or bounds checks per row.
-        for ((slot, weights), stored) in bias
-            .chunks_exact_mut(4)
-            .zip(weights.chunks_exact(row_len))
-            .zip(biases.chunks_exact(4))
-        {
-            let mut sum = 0i32;
-            if let Some(columns) = weights.get(features..) {
-                for (&w, &v) in columns.iter().zip(wide) {
-                    sum += i32::from(w as i8) * v;
-                }
+    Ok((row, wide))
+}
+
+/// Rows `first..first + count` of `linear_layer` with the state columns' partial sums
+/// (`wide`: [`state_input`]) folded into their biases, which it writes to `bias`.
+#[cfg_attr(target_arch = "arm", inline(never))]
+fn fold_state<'b>(
+    linear_layer: &Linear<'b>,
+    wide: &[i32],
+    (first, count): (usize, usize),
+    bias: &'b mut [u8; 4 * STATE_ROWS_PER_CALL],
+) -> Result<Linear<'b>, InferError> {
+    let row_len = linear_layer.row_len;
+    let features = row_len
+        .checked_sub(wide.len())
+        .ok_or(InferError::Internal)?;
+    let weights = linear_layer
+        .weights
+        .get(first * row_len..(first + count) * row_len)
+        .ok_or(InferError::Internal)?;
+    let biases = linear_layer
+        .bias
+        .get(4 * first..4 * (first + count))
+        .ok_or(InferError::Internal)?;
+    // Lock-step iterators over the rows: no index arithmetic or bounds checks per row.
+    for ((slot, weights), stored) in bias
+        .chunks_exact_mut(4)
+        .zip(weights.chunks_exact(row_len))
+        .zip(biases.chunks_exact(4))
+    {
+        let mut sum = 0i32;
+        if let Some(columns) = weights.get(features..) {
+            for (&w, &v) in columns.iter().zip(wide) {
+                sum += i32::from(w as i8) * v;
             }
-            let adjusted = le_i32(stored) + ((sum + STATE_HALF) >> STATE_FRACTION_BITS);
-            slot.copy_from_slice(&adjusted.to_le_bytes());
         }
-        let part = Linear {
-            weights,
-            bias: bias.get(..4 * count).ok_or(InferError::Internal)?,
-            multipliers: linear_layer
-                .multipliers
-                .get(4 * first..4 * (first + count))
-                .ok_or(InferError::Internal)?,
-            shifts: linear_layer
-                .shifts
-                .get(first..first + count)
-                .ok_or(InferError::Internal)?,
-            rows: count,
-            ..*linear_layer
-        };
-        linear_batch(kernel, &part, row, row_len, out);
+        let adjusted = le_i32(stored) + ((sum + STATE_HALF) >> STATE_FRACTION_BITS);
+        slot.copy_from_slice(&adjusted.to_le_bytes());
     }
-    Ok(())
+    Ok(Linear {
+        weights,
+        bias: bias.get(..4 * count).ok_or(InferError::Internal)?,
+        multipliers: linear_layer
+            .multipliers
+            .get(4 * first..4 * (first + count))
+            .ok_or(InferError::Internal)?,
+        shifts: linear_layer
+            .shifts
+            .get(first..first + count)
+            .ok_or(InferError::Internal)?,
+        rows: count,
+        ..*linear_layer
+    })
 }
 
 /// A layer that reads the flattened vector: with the int16 state of a version 2 file, or
