@@ -7,7 +7,9 @@
 //! `SXTB16` pairs weights 0 with 2 and 1 with 3, so the inputs must come in that order: every
 //! whole group of four inputs `x0 x1 x2 x3` is stored as `x0 x2 x1 x3`. Conv patches are
 //! gathered straight into it ([`gather_permuted`]: `SXTB16` widens input bytes 0 and 2, then
-//! 1 and 3, which is that order, and `SSUB16` subtracts the zero point from both halves);
+//! 1 and 3, which is that order, and `SSUB16` subtracts the zero point from both halves; the
+//! first layer's one-channel 3 x 3 patches by [`gather_3x3_padded`] from a copy of the map
+//! padded with its zero point, so that border patches take the same 21 instructions);
 //! other rows are [`permute`]d once after they are written. Elements after the last whole
 //! group stay in order.
 //!
@@ -40,6 +42,8 @@
 //!   input) 4 loads (5), 4 `MLA` (4), `SUBS`, `BNE` (4) = 13 cycles;
 //! - [`widen_permuted`]'s turn of 8 inputs: 2 `LDR` (3) + 4 `SXTB16` + 4 `SSUB16` (8) + 2
 //!   `STRD` (6) + `CMP`, `BNE` (4) = 21 cycles, 2.6 per input;
+//! - [`gather_3x3_padded`]'s patch of 9 inputs: 3 `LDR` (4) + 6 `SXTB16`, 3 `PKHBT`/`PKHTB`,
+//!   5 `SSUB16`, `LSR` (15) + 2 `STRD` (6) + `STRH` (1) = 26 cycles, 2.9 per input;
 //! - `dot_1x4`'s turn of 32 MACs: 2 `LDRD` (6) + 8 `LDR` (16) + 16 `SXTB16` (16) + 16
 //!   `SMLAD` (16) + `CMP`, `BNE` (4) = 58, 1.81 per MAC.
 //!
@@ -563,25 +567,6 @@ pub fn gather_permuted(
     let zero_point = conv.linear.input_zero_point;
     let run = side * channels;
     let cols = conv.out_cols.max(1);
-    if channels == 1 && side == 3 && stride >= 9 {
-        // The first layer: interior patches straight into the permuted order, border ones
-        // as `infer` gathers them, then permuted.
-        for (offset, patch) in patches.chunks_exact_mut(stride).enumerate() {
-            if gather_3x3_interior(conv, src, first + offset, patch).is_none() {
-                // The portable gather's one copy (flash), one pixel.
-                super::infer::gather_patches(
-                    super::kernel::Kernel::Dsp,
-                    conv,
-                    src,
-                    first + offset,
-                    patch,
-                    stride,
-                );
-                permute(patch.get_mut(..9).unwrap_or_default());
-            }
-        }
-        return true;
-    }
     if channels % 4 != 0
         || stride % 2 != 0
         || stride < side * run
@@ -631,14 +616,15 @@ pub fn gather_permuted(
 }
 
 /// A conv layer on the DSP extension: the output pixels in batches of `batch` (`stride` apart
-/// in `row`), each gathered by [`gather_permuted`] and run by [`finish_in_asm`], with the
-/// checks of [`asm_finishes`] and the [`row_table`] done once for the layer rather than once
-/// per batch. A batch the assembly cannot finish (an odd count) runs as [`linear_batch_dsp`]
-/// runs it. Returns the pixels done, all but for a layer [`gather_permuted`] does not take
-/// (then 0: the caller runs the rest with the portable gather).
+/// in `row`), each gathered by [`gather_permuted`] (a one-channel 3 x 3 layer by
+/// [`gather_3x3_padded`] from the copy [`pad_input`] writes after its input in `src`) and run
+/// by [`finish_in_asm`], with the checks of [`asm_finishes`] and the [`row_table`] done once
+/// for the layer rather than once per batch. A batch the assembly cannot finish (an odd count)
+/// runs as [`linear_batch_dsp`] runs it. Returns the pixels done, all but for a layer neither
+/// gather takes (then 0: the caller runs the rest with the portable gather).
 pub fn conv_dsp(
     conv: &ConvLayer<'_>,
-    src: &[i8],
+    src: &mut [i8],
     outputs: &mut [i8],
     row: &mut [i16],
     stride: usize,
@@ -655,13 +641,21 @@ pub fn conv_dsp(
     if in_asm {
         row_table(linear, &mut table);
     }
+    let padded = pad_input(conv, src);
+    let src = &*src;
     let mut first = 0;
     for out in outputs.chunks_mut(batch * rows) {
         let count = out.len() / rows;
         let Some(patches) = row.get_mut(..count * stride) else {
             break;
         };
-        if !gather_permuted(conv, src, first, patches, stride) {
+        let gathered = match padded {
+            Some((start, width)) => src
+                .get(start..)
+                .is_some_and(|image| gather_3x3_padded(conv, image, width, first, patches, stride)),
+            None => gather_permuted(conv, src, first, patches, stride),
+        };
+        if !gathered {
             break;
         }
         let mut slice = OutputSlice::Int8(out);
@@ -710,46 +704,6 @@ pub fn quantize_inputs_dsp(quant: &InputQuantRecord, values_mm: &[i16], out: &mu
         }
     } else {
         super::kernel::quantize_inputs_scalar(quant, values_mm, out);
-    }
-}
-
-/// The patch of output pixel `pixel` of a one-channel 3 x 3 conv whose patch lies inside the
-/// map, widened straight into the [`permute`]d order `x0 x2 x1 x3 x4 x6 x5 x7 x8`; `None`
-/// (nothing written) for a border pixel or another layer.
-#[inline(always)]
-fn gather_3x3_interior(
-    conv: &ConvLayer<'_>,
-    src: &[i8],
-    pixel: usize,
-    patch: &mut [i16],
-) -> Option<()> {
-    let step = usize::from(conv.record.stride);
-    let padding = usize::from(conv.record.padding);
-    let cols = conv.out_cols.max(1);
-    let (y0, x0) = ((pixel / cols) * step, (pixel % cols) * step);
-    if y0 < padding
-        || x0 < padding
-        || y0 + 3 > conv.in_rows + padding
-        || x0 + 3 > conv.in_cols + padding
-    {
-        return None;
-    }
-    let pitch = conv.in_cols;
-    let base = (y0 - padding) * pitch + (x0 - padding);
-    let zp = i16::from(conv.linear.input_zero_point);
-    let row = |ky: usize| -> Option<[i16; 3]> {
-        match src.get(base + ky * pitch..base + ky * pitch + 3)? {
-            &[a, b, c] => Some([i16::from(a) - zp, i16::from(b) - zp, i16::from(c) - zp]),
-            _ => None,
-        }
-    };
-    let ([x0, x1, x2], [x3, x4, x5], [x6, x7, x8]) = (row(0)?, row(1)?, row(2)?);
-    match patch.get_mut(..9)? {
-        [p0, p1, p2, p3, p4, p5, p6, p7, p8] => {
-            (*p0, *p1, *p2, *p3, *p4, *p5, *p6, *p7, *p8) = (x0, x2, x1, x3, x4, x6, x5, x7, x8);
-            Some(())
-        }
-        _ => None,
     }
 }
 
@@ -1173,4 +1127,104 @@ fn permuted_rust(
             );
         }
     }
+}
+
+/// For a one-channel 3 x 3 conv (the first layer), its input (the first `in_rows * in_cols` of
+/// `src`) copied again right after it with `padding` cells of the input zero point around (0
+/// once the zero point is subtracted: what the padding stands for), and 4 more bytes for the
+/// word loads of [`gather_3x3_padded`]; returns where the copy starts and its width. `None`
+/// (nothing written) for other layers, or when `src` has no room for the copy.
+fn pad_input(conv: &ConvLayer<'_>, src: &mut [i8]) -> Option<(usize, usize)> {
+    let padding = usize::from(conv.record.padding);
+    let (rows, cols) = (conv.in_rows, conv.in_cols);
+    if conv.in_channels != 1 || conv.record.kernel != 3 || cols == 0 {
+        return None;
+    }
+    let width = cols + 2 * padding;
+    let (input, rest) = src.split_at_mut_checked(rows * cols)?;
+    let image = rest.get_mut(..width * (rows + 2 * padding) + 4)?;
+    image.fill(conv.linear.input_zero_point);
+    for (line, out) in input
+        .chunks_exact(cols)
+        .zip(image.chunks_exact_mut(width).skip(padding))
+    {
+        out.get_mut(padding..padding + cols)?.copy_from_slice(line);
+    }
+    Some((rows * cols, width))
+}
+
+/// The patches of output pixels `first..` of a one-channel 3 x 3 conv into `patches`, one
+/// every `stride` elements, from its padded input `image` (`width` cells a row, [`pad_input`]),
+/// straight into the [`permute`]d order `x0 x2 x1 x3 x4 x6 x5 x7 x8`: a word load per kernel
+/// row, `SXTB16` of bytes 0 and 2 and of bytes 1 and 3 (or 3 and 1), the pairs the order needs
+/// repacked by `PKHBT`/`PKHTB`, the zero point subtracted from both halves by `SSUB16`: 21
+/// instructions a patch, none of them a branch. Returns `false`, having written nothing, for
+/// unaligned or short patches or an image smaller than the layer's patches need.
+fn gather_3x3_padded(
+    conv: &ConvLayer<'_>,
+    image: &[i8],
+    width: usize,
+    first: usize,
+    patches: &mut [i16],
+    stride: usize,
+) -> bool {
+    let step = usize::from(conv.record.stride);
+    let cols = conv.out_cols.max(1);
+    let base = |pixel: usize| (pixel / cols) * step * width + (pixel % cols) * step;
+    let pixels = patches.len() / stride.max(1);
+    // Each patch's words end within its rows (`(cols - 1) * step + 3 <= width`), and no patch
+    // starts after the last one, whose last word must be in the image.
+    if pixels == 0
+        || stride < 9
+        || stride % 2 != 0
+        || patches.as_ptr() as usize % 4 != 0
+        || (cols - 1) * step + 3 > width
+        || base(first + pixels - 1) + 2 * width + 4 > image.len()
+    {
+        return pixels == 0;
+    }
+    let zero_point = u32::from(i16::from(conv.linear.input_zero_point) as u16) * 0x1_0001;
+    for (offset, patch) in patches.chunks_exact_mut(stride).enumerate() {
+        // SAFETY: reads the three words at `base`, `base + width` and `base + 2 * width` of
+        // `image` (checked above for the last patch; every other one starts before it; word
+        // loads may be unaligned on the M4 for normal memory), and writes the first 9 i16 of
+        // `patch` (`stride >= 9`; word-aligned for `STRD`: the slice's start and the even
+        // stride).
+        unsafe {
+            core::arch::asm!(
+                "ldr {a}, [{p}]",
+                "ldr {b}, [{p}, {w}]",
+                "ldr {c}, [{p}, {w}, lsl #1]",
+                "sxtb16 {x}, {a}",
+                "sxtb16 {a}, {a}, ror #8",
+                "sxtb16 {t}, {b}",
+                "sxtb16 {b}, {b}, ror #8",
+                "pkhbt {a}, {a}, {t}, lsl #16",
+                "ssub16 {x}, {x}, {zp}",
+                "ssub16 {a}, {a}, {zp}",
+                "strd {x}, {a}, [{out}]",
+                "sxtb16 {x}, {c}",
+                "pkhbt {a}, {b}, {x}, lsl #16",
+                "sxtb16 {c}, {c}, ror #24",
+                "pkhtb {b}, {c}, {t}, asr #16",
+                "ssub16 {a}, {a}, {zp}",
+                "ssub16 {b}, {b}, {zp}",
+                "strd {a}, {b}, [{out}, #8]",
+                "ssub16 {x}, {x}, {zp}",
+                "lsr {x}, {x}, #16",
+                "strh {x}, [{out}, #16]",
+                p = in(reg) image.as_ptr().wrapping_add(base(first + offset)),
+                w = in(reg) width,
+                zp = in(reg) zero_point,
+                out = in(reg) patch.as_mut_ptr(),
+                a = out(reg) _,
+                b = out(reg) _,
+                c = out(reg) _,
+                t = out(reg) _,
+                x = out(reg) _,
+                options(nostack, preserves_flags),
+            );
+        }
+    }
+    true
 }

@@ -484,7 +484,7 @@ pub fn forward_in(
         // Pixels it does not take (none in the shipped network) go the portable way.
         #[cfg(all(target_arch = "arm", target_feature = "dsp"))]
         let mut first = if kernel == Kernel::Dsp {
-            super::dsp_m4::conv_dsp(conv, src, &mut *outputs, row, stride, batch)
+            super::dsp_m4::conv_dsp(conv, &mut *src, &mut *outputs, row, stride, batch)
         } else {
             0
         };
