@@ -13,8 +13,15 @@ use std::path::Path;
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct PpoConfig {
-    /// Adam learning rate.
+    /// Adam learning rate (at `anneal_start_env_steps` and before, when annealed).
     pub learning_rate: f64,
+    /// The learning rate reached at `run.total_env_steps`, linearly from `learning_rate` at
+    /// `anneal_start_env_steps` (CleanRL's `anneal_lr`, over a chosen span so that a
+    /// continued run anneals over its own steps). `None`, the default: constant. A finished run
+    /// may be continued with it changed (`--resume`).
+    pub learning_rate_final: Option<f64>,
+    /// Where the anneal to `learning_rate_final` starts, in env steps.
+    pub anneal_start_env_steps: u64,
     /// Adam epsilon.
     pub adam_epsilon: f64,
     /// Discount factor gamma.
@@ -52,6 +59,8 @@ impl Default for PpoConfig {
     fn default() -> Self {
         PpoConfig {
             learning_rate: 3e-4,
+            learning_rate_final: None,
+            anneal_start_env_steps: 0,
             adam_epsilon: 1e-5,
             gamma: 0.99,
             gae_lambda: 0.95,
@@ -96,6 +105,10 @@ const RESUMABLE_CHANGES: [&str; 4] = [
     "failure_resample_probability",
     "failure_memory_per_env",
 ];
+
+/// `ppo` keys a resumed run may change: the learning rate's anneal (which only changes the
+/// steps to come).
+const RESUMABLE_PPO_CHANGES: [&str; 2] = ["learning_rate_final", "anneal_start_env_steps"];
 
 /// The run: budget, scenes, parallelism, logging.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -335,6 +348,22 @@ fn merge_over(base: &mut toml::Table, over: toml::Table) {
     }
 }
 
+impl PpoConfig {
+    /// The learning rate of the update after `env_steps` env steps of a run of
+    /// `total_env_steps`.
+    pub fn learning_rate_at(&self, env_steps: u64, total_env_steps: u64) -> f64 {
+        let Some(last) = self.learning_rate_final else {
+            return self.learning_rate;
+        };
+        let start = self.anneal_start_env_steps;
+        if env_steps <= start || total_env_steps <= start {
+            return self.learning_rate;
+        }
+        let done = ((env_steps - start) as f64 / (total_env_steps - start) as f64).min(1.0);
+        self.learning_rate + (last - self.learning_rate) * done
+    }
+}
+
 impl TrainConfig {
     /// Parses TOML text and validates it.
     pub fn from_toml(text: &str) -> Result<TrainConfig, String> {
@@ -392,7 +421,8 @@ impl TrainConfig {
                 .iter()
                 .filter_map(|t| t.get(section).and_then(toml::Value::as_table))
                 .flat_map(|t| t.keys().cloned())
-                .filter(|k| !(section == "run" && RESUMABLE_CHANGES.contains(&k.as_str())));
+                .filter(|k| !(section == "run" && RESUMABLE_CHANGES.contains(&k.as_str())))
+                .filter(|k| !(section == "ppo" && RESUMABLE_PPO_CHANGES.contains(&k.as_str())));
             keys.extend(names.map(|k| (section, k)));
         }
         keys.extend(
@@ -476,6 +506,14 @@ impl TrainConfig {
         crate::conv_kernel::ConvKernel::from_name(&p.conv_kernel)
             .map_err(|e| format!("ppo.conv_kernel: {e}"))?;
         check(p.learning_rate > 0.0, "ppo.learning_rate must be positive")?;
+        check(
+            p.learning_rate_final.is_none_or(|lr| lr >= 0.0),
+            "ppo.learning_rate_final must be >= 0",
+        )?;
+        check(
+            p.learning_rate_final.is_none() || p.anneal_start_env_steps < r.total_env_steps,
+            "ppo.anneal_start_env_steps must be below run.total_env_steps",
+        )?;
         check(
             (0.0..=1.0).contains(&p.gamma),
             "ppo.gamma must be in [0, 1]",
@@ -666,6 +704,37 @@ mod tests {
         let e = TrainConfig::load(&dir.join("d.toml")).unwrap_err();
         assert!(e.contains("num_env"), "a typo in a variant is named: {e}");
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn the_learning_rate_anneals_linearly_over_its_span_and_may_change_on_resume() {
+        let mut c = TrainConfig::from_toml(
+            "[run]\ntotal_env_steps = 30000000\n[ppo]\nlearning_rate = 0.001\n",
+        )
+        .unwrap();
+        assert_eq!(
+            c.ppo.learning_rate_at(25_000_000, 30_000_000),
+            0.001,
+            "constant"
+        );
+        let stored = c.to_toml();
+        c.ppo.learning_rate_final = Some(0.0001);
+        c.ppo.anneal_start_env_steps = 20_000_000;
+        c.validate().unwrap();
+        let at = |steps| c.ppo.learning_rate_at(steps, 30_000_000);
+        assert_eq!(at(10_000_000), 0.001, "before the span");
+        assert_eq!(at(20_000_000), 0.001, "at its start");
+        assert!(
+            (at(25_000_000) - 0.00055).abs() < 1e-12,
+            "{}",
+            at(25_000_000)
+        );
+        assert!((at(30_000_000) - 0.0001).abs() < 1e-12, "at the end");
+        assert!((at(40_000_000) - 0.0001).abs() < 1e-12, "past the end");
+        assert!(c.changes_from_stored(&stored, &[]).unwrap().is_empty());
+        c.ppo.anneal_start_env_steps = 30_000_000;
+        let e = c.validate().unwrap_err();
+        assert!(e.contains("ppo.anneal_start_env_steps"), "{e}");
     }
 
     #[test]

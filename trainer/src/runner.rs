@@ -323,6 +323,7 @@ pub fn train_stage(
         storage.compute_returns(&last_values, config.ppo.gamma, config.ppo.gae_lambda);
         // 3. PPO update, on the on-policy samples plus (Algorithm 2) replayed ones whose
         //    advantages come from the current value function.
+        ppo.config.learning_rate = config.ppo.learning_rate_at(env_steps, run.total_env_steps);
         let update = match inputs.replay {
             Some(batch) => {
                 let mut mixed = storage.samples.clone();
