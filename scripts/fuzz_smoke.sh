@@ -5,6 +5,7 @@
 #
 #   bash scripts/fuzz_smoke.sh                   # every target, 30 s each
 #   FUZZ_SECONDS=600 bash scripts/fuzz_smoke.sh can_frames   # one target, longer
+#   bash scripts/fuzz_smoke.sh slcan_lines can_frames          # the CAN and SLCAN decoders
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 

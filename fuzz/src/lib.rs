@@ -176,6 +176,104 @@ pub fn check_can_frames(data: &[u8]) {
     }
 }
 
+/// Bytes from an SLCAN client (a USB-CAN adapter's serial line), in two places: the runtime's
+/// line decoder, and the simulated adapter (`firmware_sim::slcan::SlcanSession`) in front of the
+/// 16 simulated axes, with a millisecond of physics after every line.
+///
+/// Checks: every error and command is counted once; whatever decodes re-encodes to a line that
+/// decodes to the same command; the adapter answers every malformed or refused line with
+/// exactly one BEL; what it sends back is printable ASCII, CR and BEL only, within its output
+/// bound; no frame from the client drives a motor to a non-finite state.
+pub fn check_slcan_lines(data: &[u8]) {
+    use wheelleg_firmware_sim::slcan::{SlcanSession, MAX_PENDING_BYTES};
+    use wheelleg_runtime::can::slcan::{encode_command, Decoder, BEL, CR, LINE_CAPACITY};
+
+    let mut decoder = Decoder::new();
+    let (mut commands, mut errors) = (0u32, 0u32);
+    for &byte in data {
+        match decoder.feed(byte) {
+            Ok(None) => {}
+            Ok(Some(command)) => {
+                commands += 1;
+                let line = encode_command(&command);
+                assert!(line.as_bytes().len() <= LINE_CAPACITY);
+                let mut again = Decoder::new();
+                let mut back = None;
+                for &b in line.as_bytes() {
+                    match again.feed(b) {
+                        Ok(None) => {}
+                        Ok(Some(c)) => back = Some(c),
+                        Err(e) => panic!("{command:?} re-encodes to {line:?}, refused: {e}"),
+                    }
+                }
+                assert_eq!(back, Some(command), "{line:?}");
+            }
+            Err(_) => errors += 1,
+        }
+    }
+    let stats = decoder.stats();
+    assert_eq!((stats.commands, stats.errors), (commands, errors));
+
+    let map = NodeMap::NOMINAL;
+    let start = LegConfig {
+        clearance_m: WHEELLEG.default_clearance_m,
+        track_m: WHEELLEG.default_track_m,
+    };
+    let mut firmware = match Firmware::for_robot(&WHEELLEG, &map, start) {
+        Ok(firmware) => firmware,
+        Err(e) => panic!("the default legs have no IK solution: {e:?}"),
+    };
+    let mut session = SlcanSession::new();
+    let mut loopback = Loopback::default();
+    let mut sent = Vec::new();
+    let mut now_us = 0u64;
+    for line in data.split_inclusive(|&b| b == CR) {
+        session.receive_bytes(line);
+        while let Some(frame) = session.next_frame() {
+            firmware.receive(&frame, now_us);
+        }
+        now_us += 1_000;
+        if let Err(e) = firmware.run(&mut loopback, now_us, 0.001) {
+            panic!("the loopback transport cannot fail: {e}");
+        }
+        for frame in loopback.0.drain(..) {
+            session.frame_to_client(&frame, now_us);
+        }
+        let pending = session.pending_output();
+        assert!(
+            pending.len() <= MAX_PENDING_BYTES + data.len(),
+            "output unbounded"
+        );
+        sent.extend_from_slice(pending);
+        let n = pending.len();
+        session.consume_output(n);
+    }
+    assert!(
+        sent.iter()
+            .all(|&b| b == CR || b == BEL || b.is_ascii_graphic()),
+        "the adapter sent a byte outside printable ASCII, CR and BEL"
+    );
+    let s = session.stats();
+    let bels = sent.iter().filter(|&&b| b == BEL).count() as u64;
+    assert_eq!(
+        bels,
+        s.malformed + s.refused,
+        "one BEL per malformed or refused line"
+    );
+    assert_eq!(
+        s.malformed,
+        u64::from(errors),
+        "session and decoder disagree"
+    );
+    for axis in firmware.axes() {
+        assert!(
+            axis.pos_turns().is_finite() && axis.vel_turns_per_s().is_finite(),
+            "an SLCAN frame drove axis {:?} to a non-finite state",
+            axis.node()
+        );
+    }
+}
+
 /// Scenario JSON: refused with an error, or accepted as scenarios that write back to a file
 /// which reads again to the same scenarios (what `wheelleg generate` writes, `plan` reads).
 pub fn check_scenario_json(bytes: &[u8]) {
