@@ -390,9 +390,11 @@ fn decide_one(
         .map_err(|_| b"inference".as_slice())?;
     let infer = clock.instructions_since(start);
     // The portable scalar kernel on the same observation: its outputs must be the fast
-    // kernel's, bit for bit (`Outputs` compares every logit).
+    // kernel's, bit for bit (`Outputs` compares every logit). Left out of a build for
+    // tools/mcu_profile.sh, which counts the fast kernel alone.
     let fast = stack.policy().kernel();
-    if stack.set_kernel(Kernel::Scalar).is_ok() {
+    if option_env!("WHEELLEG_CHECK_FAST_ONLY").is_none() && stack.set_kernel(Kernel::Scalar).is_ok()
+    {
         let start = clock.now();
         let reference = stack.infer(observation, work, row);
         counts.scalar_infer_instructions += clock.instructions_since(start);
