@@ -187,7 +187,7 @@ fn random_int8_policy_runs_the_loop_and_tracks_the_ideal_steps() {
         .collect();
     let dir = scratch_dir("random-policy");
     let path = dir.join("random.wlw");
-    wheelleg_trainer::export::write_atomic(&path, &moving_random_policy(&scenes, 10)).unwrap();
+    wheelleg_sim::atomic_write(&path, &moving_random_policy(&scenes, 10)).unwrap();
     let bytes = std::fs::read(&path).unwrap();
     let mut moved = 0;
     for scene in &scenes {
@@ -708,4 +708,103 @@ fn the_look_ahead_and_its_search_shorten_the_drivers_way_and_lose_no_success() {
         steps_searched * 20 <= steps_looking * 19,
         "{steps_searched} decisions with the search, {steps_looking} without"
     );
+}
+
+/// The 16 simulated axes behind an SLCAN endpoint on a free TCP port, stepped in real time at
+/// 1 kHz on a thread (as `firmware_sim --slcan tcp:127.0.0.1:0` runs them) until `stop` is set.
+fn motors_behind_slcan(
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+) -> (
+    String,
+    std::thread::JoinHandle<(
+        wheelleg_firmware_sim::firmware::FirmwareStats,
+        wheelleg_firmware_sim::slcan::SlcanStats,
+    )>,
+) {
+    use std::sync::atomic::Ordering;
+    use std::time::{Duration, Instant};
+    use wheelleg_firmware_sim::firmware::Firmware;
+    use wheelleg_firmware_sim::slcan::{EndpointSpec, SlcanEndpoint};
+    use wheelleg_runtime::can::NodeMap;
+    use wheelleg_runtime::leg::LegConfig;
+    let mut endpoint = SlcanEndpoint::open(&EndpointSpec::Tcp("127.0.0.1:0".into())).unwrap();
+    let place = endpoint.describe();
+    let motors = std::thread::spawn(move || {
+        let legs = LegConfig {
+            clearance_m: WHEELLEG.default_clearance_m,
+            track_m: WHEELLEG.default_track_m,
+        };
+        let mut firmware = Firmware::for_robot(&WHEELLEG, &NodeMap::NOMINAL, legs).unwrap();
+        let period = Duration::from_millis(1);
+        let t0 = Instant::now();
+        let mut next = t0;
+        while !stop.load(Ordering::Relaxed) {
+            next += period;
+            let now_us = t0.elapsed().as_micros() as u64;
+            firmware.run(&mut endpoint, now_us, 0.001).unwrap();
+            if let Some(wait) = next.checked_duration_since(Instant::now()) {
+                std::thread::sleep(wait);
+            }
+        }
+        (firmware.stats(), endpoint.session().stats())
+    });
+    (place, motors)
+}
+
+#[test]
+fn demo_binary_runs_the_loop_through_an_slcan_adapter() {
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::Arc;
+    let stop = Arc::new(AtomicBool::new(false));
+    let (place, motors) = motors_behind_slcan(stop.clone());
+    let dir = scratch_dir("slcan");
+    let out = demo(
+        &dir,
+        &[
+            "--out",
+            "o",
+            "--planner",
+            "--can",
+            &format!("slcan:{place}"),
+        ],
+    );
+    stop.store(true, Ordering::Relaxed);
+    let (firmware, slcan) = motors.join().unwrap();
+    let stdout = text(&out.stdout);
+    let stderr = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "{stdout}\n{stderr}");
+    assert!(
+        stdout.contains(&format!("bus:       SLCAN adapter at {place}")),
+        "{stdout}"
+    );
+    assert!(stdout.contains("result:    SUCCESS"), "{stdout}");
+    let log = std::fs::read_to_string(dir.join("o/bus.log")).unwrap();
+    assert!(log.lines().count() > 1000 && log.contains(" slcan0 "));
+    assert!(parse_log(&log).is_ok());
+    // Every setpoint line reached the axes, and nothing was refused or malformed either way.
+    assert_eq!((slcan.malformed, slcan.refused, slcan.clients), (0, 0, 1));
+    assert_eq!(firmware.malformed, 0);
+    assert!(slcan.frames_from_client > 1000, "{slcan:?}");
+    assert_eq!(firmware.received, slcan.frames_from_client);
+    std::fs::remove_dir_all(&dir).unwrap();
+
+    // No adapter listening: a one-line error naming the address and what to run.
+    let dir = scratch_dir("slcan-missing");
+    for (can, needles) in [
+        (
+            "slcan:tcp:127.0.0.1:1",
+            &["127.0.0.1:1", "firmware_sim --slcan tcp:127.0.0.1:1"][..],
+        ),
+        ("slcan:serial", &["neither tcp:HOST:PORT nor pty"][..]),
+        ("slcan:pty", &["by TCP only"][..]),
+    ] {
+        let out = demo(&dir, &["--out", "o", "--can", can]);
+        let stderr = text(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{can}: {stderr}");
+        assert!(!stderr.contains("panicked"), "{can}: {stderr}");
+        for needle in needles {
+            assert!(stderr.contains(needle), "{can}: {stderr}");
+        }
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -20,7 +20,7 @@ use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::model::DefaultPolicy;
 use wheelleg_runtime::observation::HEIGHT_MAP_CELLS;
 use wheelleg_runtime::robot::WHEELLEG;
-use wheelleg_trainer::export::write_atomic;
+use wheelleg_sim::atomic_write;
 use wheelleg_trainer::network_f32::{Architecture, NetworkF32};
 use wheelleg_trainer::quantize::{observation_mm, quantize, Calibration, RangeMethod};
 
@@ -49,7 +49,7 @@ fn main() {
         .unwrap()
         .to_bytes()
         .unwrap();
-    write_atomic(std::path::Path::new(&path), &bytes).unwrap();
+    atomic_write(std::path::Path::new(&path), &bytes).unwrap();
     let (height_mm, state_mm) = observation_mm(&height, &state);
     let policy = DefaultPolicy::from_bytes(&bytes).unwrap();
     let outputs = policy.evaluate(&height_mm, &state_mm).unwrap();

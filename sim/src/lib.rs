@@ -34,9 +34,26 @@ pub mod state;
 use std::io::Write;
 use std::path::Path;
 
-/// Writes `bytes` to `path` atomically: into a temporary file beside it, synced, then renamed
-/// over the target. A crash leaves either the old file or the new one, never half of one.
+/// Writes `bytes` to `path` atomically: into a temporary file beside it (so the rename stays
+/// on one file system), synced, then renamed over the target. A crash leaves either the old
+/// file or the new one, never half of one. Every file the project saves goes through here.
 pub fn atomic_write(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let tmp = atomic_temp_path(path)?;
+    let result = (|| {
+        let mut file = std::fs::File::create(&tmp)?;
+        file.write_all(bytes)?;
+        file.sync_all()?;
+        std::fs::rename(&tmp, path)
+    })();
+    if result.is_err() {
+        // Best effort: the error that matters is the one being returned.
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
+}
+
+/// `dir/.name.tmp` beside `path`: where [`atomic_write`] writes before the rename.
+pub fn atomic_temp_path(path: &Path) -> std::io::Result<std::path::PathBuf> {
     let dir = path
         .parent()
         .filter(|p| !p.as_os_str().is_empty())
@@ -44,11 +61,24 @@ pub fn atomic_write(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     let name = path.file_name().ok_or_else(|| {
         std::io::Error::new(std::io::ErrorKind::InvalidInput, "path has no file name")
     })?;
-    let tmp = dir.join(format!(".{}.tmp", name.to_string_lossy()));
-    {
-        let mut file = std::fs::File::create(&tmp)?;
-        file.write_all(bytes)?;
-        file.sync_all()?;
+    Ok(dir.join(format!(".{}.tmp", name.to_string_lossy())))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_atomic_write_replaces_the_file_and_leaves_no_temporary() {
+        let dir = std::env::temp_dir().join(format!("wheelleg-atomic-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("policy.wlw");
+        atomic_write(&path, b"first").unwrap();
+        atomic_write(&path, b"second").unwrap();
+        assert_eq!(std::fs::read(&path).unwrap(), b"second");
+        assert!(!atomic_temp_path(&path).unwrap().exists());
+        assert!(atomic_write(&dir.join("missing").join("x.wlw"), b"x").is_err());
+        assert!(atomic_write(Path::new("/"), b"x").is_err(), "no file name");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
-    std::fs::rename(&tmp, path)
 }

@@ -4,8 +4,9 @@
 
 use super::CliResult;
 use std::path::PathBuf;
+use wheelleg_sim::atomic_write;
 use wheelleg_trainer::checkpoint::Checkpoint;
-use wheelleg_trainer::export::{card_path, export_policy, write_atomic, ExportOptions};
+use wheelleg_trainer::export::{card_path, export_policy, ExportOptions};
 use wheelleg_trainer::lookahead::LookaheadConfig;
 use wheelleg_trainer::network::BackendKind;
 use wheelleg_trainer::quantize::qat::RECOMMENDED_STEPS;
@@ -175,10 +176,10 @@ pub fn run(args: Args) -> CliResult {
         std::fs::create_dir_all(dir)
             .map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
     }
-    write_atomic(&args.out, &bytes)
+    atomic_write(&args.out, &bytes)
         .map_err(|e| format!("cannot write {}: {e}", args.out.display()))?;
     let card_file = card_path(&args.out);
-    write_atomic(&card_file, serde_json::to_string_pretty(&card)?.as_bytes())
+    atomic_write(&card_file, serde_json::to_string_pretty(&card)?.as_bytes())
         .map_err(|e| format!("cannot write {}: {e}", card_file.display()))?;
     outln!(
         "wrote {} ({} bytes, {} parameters, {} MACs per decision) and {}",

@@ -362,7 +362,7 @@ impl Checkpoint {
     /// [`Checkpoint::save`] with `extras`.
     pub fn save_with(&self, path: &Path, extras: &CheckpointExtras) -> Result<(), String> {
         let bytes = self.to_bytes_with(extras)?;
-        crate::export::write_atomic(path, &bytes)
+        wheelleg_sim::atomic_write(path, &bytes)
             .map_err(|e| format!("cannot write checkpoint {}: {e}", path.display()))
     }
 

@@ -237,7 +237,7 @@ pub fn train_stage(
         truncate_metrics(&metrics_path, iteration)?;
         // A resume may change the budget and the other resumable keys: the folder's config
         // then says what the run now is, as the checkpoint does.
-        crate::export::write_atomic(&opts.out.join("config.toml"), config.to_toml().as_bytes())
+        wheelleg_sim::atomic_write(&opts.out.join("config.toml"), config.to_toml().as_bytes())
             .map_err(|e| format!("cannot write config.toml: {e}"))?;
     } else {
         if ckpt_path.exists() {
@@ -246,7 +246,7 @@ pub fn train_stage(
                 opts.out.display()
             ));
         }
-        crate::export::write_atomic(&opts.out.join("config.toml"), config.to_toml().as_bytes())
+        wheelleg_sim::atomic_write(&opts.out.join("config.toml"), config.to_toml().as_bytes())
             .map_err(|e| format!("cannot write config.toml: {e}"))?;
         let _ = std::fs::remove_file(&metrics_path);
     }
@@ -464,7 +464,7 @@ fn truncate_metrics(path: &Path, iteration: u64) -> Result<(), String> {
         })
         .map(|l| format!("{l}\n"))
         .collect();
-    crate::export::write_atomic(path, kept.as_bytes())
+    wheelleg_sim::atomic_write(path, kept.as_bytes())
         .map_err(|e| format!("cannot rewrite {}: {e}", path.display()))
 }
 

@@ -675,7 +675,7 @@ impl BatchWriter {
     pub fn create(out: &Path, header: &BatchHeader) -> Result<BatchWriter, BatchFileError> {
         let partial = partial_path(out);
         let bytes = header_bytes(header)?;
-        crate::export::write_atomic(&partial, &bytes).map_err(|e| io_error(&partial, e))?;
+        wheelleg_sim::atomic_write(&partial, &bytes).map_err(|e| io_error(&partial, e))?;
         let file = fs::OpenOptions::new()
             .append(true)
             .open(&partial)

@@ -275,7 +275,7 @@ fn decode_actions(codes: &[u8], index: usize, path: &Path) -> Result<Vec<Action>
 fn read_log(path: &Path, config: &DemoConfig) -> Result<Vec<PlanRecord>, String> {
     let header = serde_json::to_string(config).map_err(|e| e.to_string())?;
     if !path.exists() {
-        crate::export::write_atomic(path, format!("{header}\n").as_bytes())
+        wheelleg_sim::atomic_write(path, format!("{header}\n").as_bytes())
             .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
         return Ok(Vec::new());
     }
