@@ -710,17 +710,17 @@ fn the_look_ahead_and_its_search_shorten_the_drivers_way_and_lose_no_success() {
     );
 }
 
+/// What the motors behind the SLCAN endpoint counted: the axes' traffic and the endpoint's.
+type SlcanMotorStats = (
+    wheelleg_firmware_sim::firmware::FirmwareStats,
+    wheelleg_firmware_sim::slcan::SlcanStats,
+);
+
 /// The 16 simulated axes behind an SLCAN endpoint on a free TCP port, stepped in real time at
 /// 1 kHz on a thread (as `firmware_sim --slcan tcp:127.0.0.1:0` runs them) until `stop` is set.
 fn motors_behind_slcan(
     stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
-) -> (
-    String,
-    std::thread::JoinHandle<(
-        wheelleg_firmware_sim::firmware::FirmwareStats,
-        wheelleg_firmware_sim::slcan::SlcanStats,
-    )>,
-) {
+) -> (String, std::thread::JoinHandle<SlcanMotorStats>) {
     use std::sync::atomic::Ordering;
     use std::time::{Duration, Instant};
     use wheelleg_firmware_sim::firmware::Firmware;

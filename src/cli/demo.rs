@@ -1,5 +1,5 @@
-//! `wheelleg demo [--scenario FILE] [--weights FILE | --planner] [--can IFACE] [--out DIR]
-//! [--seed S]`: the closed loop (world -> policy or planner -> CAN -> motors -> measured motion
+//! `wheelleg demo [--scenario FILE] [--weights FILE | --planner] [--can IFACE |
+//! slcan:tcp:HOST:PORT] [--out DIR] [--seed S]`: the closed loop (world -> policy or planner -> CAN -> motors -> measured motion
 //! -> world) on one scene, with a picture of the achieved path and the bus traffic as a
 //! `candump -L` log. The shipped policy is built into the binary, so the demo drives the same
 //! way from any folder.
@@ -64,7 +64,9 @@ pub struct Args {
     #[arg(long)]
     planner: bool,
     /// SocketCAN interface with the motors on it (for example vcan0, with
-    /// `firmware_sim --can vcan0` running). Default: in-process bus with simulated motors.
+    /// `firmware_sim --can vcan0` running), or slcan:tcp:HOST:PORT for motors behind an SLCAN
+    /// adapter on TCP (`firmware_sim --slcan tcp:HOST:PORT`). Default: in-process bus with
+    /// simulated motors.
     #[arg(long)]
     can: Option<String>,
     /// Output directory for path.png and bus.log (created if missing).
@@ -162,9 +164,12 @@ fn scene(args: &Args, planner: &PlannerConfig) -> Result<(Scenario, String), Str
     ))
 }
 
+/// A policy's weights file (built in or read) and how to name it.
+type Weights = (Cow<'static, [u8]>, String);
+
 /// The policy's weights and how to name them, or `None` when the planner drives. A file named
 /// by `--weights` must exist: a missing one is an error, never a silent change of driver.
-fn weights(args: &Args) -> Result<Option<(Cow<'static, [u8]>, String)>, String> {
+fn weights(args: &Args) -> Result<Option<Weights>, String> {
     if args.planner {
         return Ok(None);
     }
@@ -193,8 +198,35 @@ fn closed_loop(args: &Args, scenario: &Scenario) -> Result<ClosedLoop, String> {
                 .to_owned(),
         );
     }
-    let transport = open_socketcan(iface)?;
+    let transport = match iface.strip_prefix("slcan:") {
+        Some(endpoint) => open_slcan(endpoint)?,
+        None => open_socketcan(iface)?,
+    };
     ClosedLoop::remote(scenario, config, transport).map_err(|e| e.to_string())
+}
+
+/// How long connecting to an SLCAN adapter, and each answer of its open sequence, may take.
+const SLCAN_TIMEOUT_S: u64 = 3;
+
+fn open_slcan(endpoint: &str) -> Result<Box<dyn wheelleg_firmware_sim::bus::Transport>, String> {
+    use wheelleg_firmware_sim::slcan::{EndpointSpec, SlcanClient};
+    let spec: EndpointSpec = endpoint
+        .parse()
+        .map_err(|e| format!("--can slcan:{endpoint}: {e}"))?;
+    if spec == EndpointSpec::Pty {
+        return Err(format!(
+            "--can slcan:{endpoint}: the demo reaches an SLCAN adapter by TCP only: \
+             slcan:tcp:HOST:PORT"
+        ));
+    }
+    let timeout = std::time::Duration::from_secs(SLCAN_TIMEOUT_S);
+    match SlcanClient::connect(&spec, timeout) {
+        Ok(client) => Ok(Box::new(client)),
+        Err(e) => Err(format!(
+            "cannot open the SLCAN adapter at {endpoint}: {e}. Start the motors behind one \
+             with `firmware_sim --slcan {endpoint}`, or leave out --can to use the in-process bus"
+        )),
+    }
 }
 
 #[cfg(target_os = "linux")]
@@ -301,12 +333,21 @@ pub fn run(args: Args) -> CliResult {
         None => {
             outln!("bus:       in-process, 16 simulated ODrive axes, 1 Mbit/s, control 100 Hz")
         }
-        Some(iface) => outln!("bus:       SocketCAN {iface}, motors on the bus, real time"),
+        Some(iface) => match iface.strip_prefix("slcan:") {
+            Some(endpoint) => outln!(
+                "bus:       SLCAN adapter at {endpoint} (1 Mbit/s), motors on its bus, real time"
+            ),
+            None => outln!("bus:       SocketCAN {iface}, motors on the bus, real time"),
+        },
     }
 
     std::fs::create_dir_all(&args.out)
         .map_err(|e| format!("cannot create {}: {e}", args.out.display()))?;
-    let interface = args.can.as_deref().unwrap_or("can0");
+    let interface = match args.can.as_deref() {
+        None => "can0",
+        Some(iface) if iface.starts_with("slcan:") => "slcan0",
+        Some(iface) => iface,
+    };
     let (log_file, writer) = LogFile::create(args.out.join("bus.log"))?;
     closed_loop.log_to(CandumpWriter::new(writer, interface, DEFAULT_EPOCH_US));
     let started = closed_loop.start();
@@ -314,11 +355,13 @@ pub fn run(args: Args) -> CliResult {
         let _ = closed_loop.take_log();
         let _ = std::fs::remove_file(&log_file.tmp);
         return Err(match (&args.can, e) {
-            (Some(iface), LoopError::Rig(RigError::StartupFailed(_))) => format!(
-                "no motor controllers answered on {iface}: is `firmware_sim --can {iface}` \
-                 running?"
-            )
-            .into(),
+            (Some(iface), LoopError::Rig(RigError::StartupFailed(_))) => {
+                let run = match iface.strip_prefix("slcan:") {
+                    Some(endpoint) => format!("firmware_sim --slcan {endpoint}"),
+                    None => format!("firmware_sim --can {iface}"),
+                };
+                format!("no motor controllers answered on {iface}: is `{run}` running?").into()
+            }
             (_, e) => e.into(),
         });
     }
