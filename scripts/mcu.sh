@@ -9,7 +9,10 @@
 #      with the check harness), and runs the check image in QEMU with deterministic
 #      instruction counting (-icount shift=0: one instruction per virtual nanosecond);
 #   4. compares the firmware's decisions and frames with the host's, byte for byte;
-#   5. reports sizes from the linked ELFs and the counts the check image measured.
+#   5. reports sizes from the linked ELFs and the counts the check image measured;
+#   6. runs the production image in the loop (tests/hil.rs): the world and the simulated
+#      motors on the host, the firmware in QEMU on its observation link and SLCAN adapter link,
+#      the first held-out scenes against the host's closed loop, and the link and motor faults.
 #
 #   bash scripts/mcu.sh            human-readable report
 #   bash scripts/mcu.sh --json     one JSON object on stdout (the rest on stderr)
@@ -136,6 +139,14 @@ if [ "$calibration" != "$calibration_expected" ]; then
     log "error: the instruction clock counted $calibration for a loop of $calibration_expected"
     match=false
 fi
+log "the firmware in the loop (tests/hil.rs; MCU_HIL_SCENES=${MCU_HIL_SCENES:-2} scenes)"
+hil=true
+if ! WHEELLEG_HIL_SCENES="${MCU_HIL_SCENES:-2}" nice -n 10 cargo test --quiet --release \
+    --test hil -- --test-threads=1 --nocapture >&2; then
+    log "error: the firmware in the loop failed (tests/hil.rs)"
+    hil=false
+fi
+
 fits=true
 if [ "$flash" -gt "$FLASH_BUDGET" ] || [ "$ram" -gt "$RAM_BUDGET" ]; then
     log "error: over budget: flash $flash of $FLASH_BUDGET, RAM $ram of $RAM_BUDGET"
@@ -143,7 +154,7 @@ if [ "$flash" -gt "$FLASH_BUDGET" ] || [ "$ram" -gt "$RAM_BUDGET" ]; then
 fi
 
 if $json; then
-    echo "{\"decisions_match\": $match, \"flash_bytes\": $flash, \"ram_bytes\": $ram, \"stack_bytes\": $stack, \"instructions_per_decision\": $per_decision, \"instructions_per_tick\": $per_tick, \"instructions_boot_check\": $boot, \"decisions\": $decided, \"ticks\": $ticks, \"weights_bytes\": $weights, \"text_bytes\": $((vector_table + text)), \"rodata_bytes\": $rodata, \"data_bytes\": $data, \"bss_bytes\": $((bss + uninit)), \"fits_budget\": $fits, \"instructions_rule_guard_arrival\": $per_rule, \"calibration_instructions\": $calibration, \"instructions_per_decision_scalar\": $per_decision_scalar, \"check_image_flash_bytes\": $check_flash}"
+    echo "{\"decisions_match\": $match, \"flash_bytes\": $flash, \"ram_bytes\": $ram, \"stack_bytes\": $stack, \"instructions_per_decision\": $per_decision, \"instructions_per_tick\": $per_tick, \"instructions_boot_check\": $boot, \"decisions\": $decided, \"ticks\": $ticks, \"weights_bytes\": $weights, \"text_bytes\": $((vector_table + text)), \"rodata_bytes\": $rodata, \"data_bytes\": $data, \"bss_bytes\": $((bss + uninit)), \"fits_budget\": $fits, \"instructions_rule_guard_arrival\": $per_rule, \"calibration_instructions\": $calibration, \"instructions_per_decision_scalar\": $per_decision_scalar, \"check_image_flash_bytes\": $check_flash, \"firmware_in_the_loop\": $hil}"
 else
     cat <<EOF
 decisions match the host's:   $match ($decided decisions, $ticks control periods)
@@ -156,4 +167,4 @@ instructions per period:      $per_tick
 instructions for boot check:  $boot
 EOF
 fi
-$match && $fits
+$match && $fits && $hil

@@ -6,15 +6,17 @@ use embedded_can::nb::Can;
 use embedded_can::Frame;
 use wheelleg_runtime::action::Action;
 use wheelleg_runtime::base::{MecanumBase, Odometry};
-use wheelleg_runtime::can::host::{CanError, Commander, FeedbackTracker, TxQueue};
+
+use wheelleg_runtime::can::host::{AxisSet, CanError, Commander, FeedbackTracker, TxQueue};
 use wheelleg_runtime::can::node_map::{Axis, NodeMap};
 use wheelleg_runtime::can::protocol::AxisState;
 use wheelleg_runtime::leg::LegConfig;
-use wheelleg_runtime::motion::{MotionConfig, MotionError, Setpoint, StepMotion};
+use wheelleg_runtime::motion::{BaseDisplacement, MotionConfig, MotionError, Setpoint, StepMotion};
 use wheelleg_runtime::robot::RobotGeometry;
 
-/// Transmit queue capacity: two periods of start-up frames, as the host's rig.
-pub const TX_FRAMES: usize = 64;
+/// Transmit queue capacity: the start-up sequence (two frames per axis) and one setpoint, the
+/// most one period queues (the host's rig keeps 64; 320 bytes of RAM less here).
+pub const TX_FRAMES: usize = 48;
 /// Hold periods of the start-up sequence: a few heartbeat periods, enough for every axis to
 /// report closed loop (the rig's count).
 pub const STARTUP_TICKS: u32 = 30;
@@ -22,6 +24,10 @@ pub const STARTUP_TICKS: u32 = 30;
 pub const SETTLE_S: f32 = 0.2;
 /// An axis not heard from for this long is silent: 5 missed encoder estimates at 100 Hz.
 pub const HEALTH_TIMEOUT_US: u64 = 50_000;
+
+/// An adapter not heard from for this many control periods is lost (its status poll of each
+/// period unanswered): 50 ms, the axes' health timeout.
+pub const CAN_LINK_TIMEOUT_PERIODS: u32 = 5;
 
 /// What the control loop needs of a board: its CAN peripheral and the control period's clock.
 pub trait Board {
@@ -33,6 +39,39 @@ pub trait Board {
     fn can(&mut self) -> &mut Self::Can;
     /// Waits for the start of the next control period.
     fn wait_for_tick(&mut self);
+    /// Whether the link to the CAN bus is lost (an SLCAN adapter that stopped answering; a
+    /// peripheral on the board's own bus never is).
+    fn link_lost(&self) -> bool {
+        false
+    }
+}
+
+/// Why the control loop holds the robot in safe stop.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StopReason {
+    /// Axes not heard from within [`HEALTH_TIMEOUT_US`].
+    Silent(AxisSet),
+    /// Axes whose heartbeat reported errors.
+    AxisError(AxisSet),
+    /// The CAN link is lost ([`Board::link_lost`]).
+    CanLink,
+    /// No observation within the observation timeout (the board's program decides).
+    ObservationStalled,
+    /// Only corrupt observation frames within the observation timeout.
+    ObservationCorrupt,
+    /// Not every axis reached closed loop at start-up.
+    StartupFailed,
+    /// A frame could not be queued or sent.
+    Control,
+}
+
+/// The safe stop: why, and in which control period (counted from the first).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Stop {
+    /// Why.
+    pub reason: StopReason,
+    /// The period.
+    pub tick: u32,
 }
 
 /// Why the control loop stops.
@@ -70,7 +109,10 @@ pub struct Control<F: Frame> {
     odometry: Odometry,
     legs: LegConfig,
     now_us: u64,
-    stopped: bool,
+    ticks: u32,
+    stop: Option<Stop>,
+    /// The last step's start legs and base motion: what backing out of it undoes.
+    last_step: Option<(LegConfig, BaseDisplacement)>,
 }
 
 impl<F: Frame> Control<F> {
@@ -85,7 +127,9 @@ impl<F: Frame> Control<F> {
             odometry: Odometry::default(),
             legs: start,
             now_us: 0,
-            stopped: false,
+            ticks: 0,
+            stop: None,
+            last_step: None,
         }
     }
 
@@ -101,7 +145,28 @@ impl<F: Frame> Control<F> {
 
     /// Whether the loop has put the robot in safe stop.
     pub fn stopped(&self) -> bool {
-        self.stopped
+        self.stop.is_some()
+    }
+
+    /// The safe stop, once the loop is in it.
+    pub fn stop_state(&self) -> Option<Stop> {
+        self.stop
+    }
+
+    /// Control periods run so far.
+    pub fn ticks(&self) -> u32 {
+        self.ticks
+    }
+
+    /// Puts the robot in safe stop for `reason` from the next period on (the first reason
+    /// stays).
+    pub fn stop(&mut self, reason: StopReason) {
+        if self.stop.is_none() {
+            self.stop = Some(Stop {
+                reason,
+                tick: self.ticks,
+            });
+        }
     }
 
     fn tick_s(&self) -> f32 {
@@ -129,13 +194,15 @@ impl<F: Frame> Control<F> {
                 let _ = self.odometry.integrate_wheels(&base, wheels, self.tick_s());
             }
         }
-        if supervise && !self.stopped {
-            self.stopped = self.unhealthy();
+        if supervise && self.stop.is_none() {
+            if let Some(reason) = self.unhealthy(board.link_lost()) {
+                self.stop(reason);
+            }
         }
         // The rig slows a step in progress to rest along its own path first; the controller
         // holds the measured joints with the wheels stopped at once (the commander's safe
         // stop), which needs no plan kept across periods.
-        if self.stopped {
+        if self.stop.is_some() {
             self.commander
                 .queue_safe_stop(&mut self.tx, &self.tracker)?;
         } else {
@@ -145,14 +212,29 @@ impl<F: Frame> Control<F> {
             send(board.can(), &frame)?;
         }
         self.now_us += (1.0e6 * self.tick_s()) as u64;
+        self.ticks = self.ticks.wrapping_add(1);
         Ok(())
     }
 
     /// Silent or errored axes (the rig's stop conditions; an axis merely not in closed loop
-    /// yet is not one).
-    fn unhealthy(&self) -> bool {
+    /// yet is not one), or a lost CAN link.
+    fn unhealthy(&self, link_lost: bool) -> Option<StopReason> {
         let health = self.tracker.health(self.now_us, HEALTH_TIMEOUT_US);
-        !health.silent.is_empty() || !health.errored.is_empty()
+        if link_lost {
+            Some(StopReason::CanLink)
+        } else if !health.silent.is_empty() {
+            Some(StopReason::Silent(health.silent))
+        } else if !health.errored.is_empty() {
+            Some(StopReason::AxisError(health.errored))
+        } else {
+            None
+        }
+    }
+
+    /// One supervised period holding the commanded legs, wheels stopped (or the safe stop).
+    pub fn hold<B: Board<Frame = F>>(&mut self, board: &mut B) -> Result<(), ControlError> {
+        let hold = Setpoint::hold(&self.geometry, self.legs)?;
+        self.tick(board, &hold, true)
     }
 
     /// Arms every axis and holds the start pose until all report closed loop.
@@ -167,7 +249,7 @@ impl<F: Frame> Control<F> {
                 .axis(axis)
                 .is_some_and(|f| f.axis_state == Some(AxisState::ClosedLoopControl))
         });
-        if armed && !self.unhealthy() {
+        if armed && self.unhealthy(board.link_lost()).is_none() {
             Ok(())
         } else {
             Err(ControlError::StartupFailed)
@@ -175,16 +257,46 @@ impl<F: Frame> Control<F> {
     }
 
     /// Drives one decision: its setpoint stream, then [`SETTLE_S`] holding its target. An
-    /// action the legs cannot take is not sent (`Err`, nothing queued), as on the host.
+    /// action the legs cannot take is not sent (`Err`, nothing queued), as on the host. A safe
+    /// stop ends the step at once (the periods after it hold the robot).
     pub fn step<B: Board<Frame = F>>(
         &mut self,
         board: &mut B,
         action: Action,
     ) -> Result<(), ControlError> {
         let motion = StepMotion::plan(&self.geometry, &self.motion, self.legs, action)?;
+        self.drive(board, motion)
+    }
+
+    /// Backs out of the last step along its inverse motion, to its start legs (the world
+    /// refused the step), as the host's closed loop does; then [`SETTLE_S`] holding them.
+    pub fn retreat<B: Board<Frame = F>>(&mut self, board: &mut B) -> Result<(), ControlError> {
+        let Some((start, displacement)) = self.last_step else {
+            return Ok(());
+        };
+        let back = displacement.isometry().inverse();
+        let back = BaseDisplacement {
+            dx_m: back.translation.x,
+            dy_m: back.translation.y,
+            dyaw_rad: back.rotation.angle(),
+        };
+        let motion =
+            StepMotion::plan_between(&self.geometry, &self.motion, self.legs, start, back)?;
+        self.drive(board, motion)
+    }
+
+    fn drive<B: Board<Frame = F>>(
+        &mut self,
+        board: &mut B,
+        motion: StepMotion,
+    ) -> Result<(), ControlError> {
         let target = motion.target();
+        self.last_step = Some((self.legs, motion.displacement()));
         for setpoint in motion {
             self.tick(board, &setpoint, true)?;
+            if self.stopped() {
+                return Ok(());
+            }
         }
         self.legs = target;
         let hold = Setpoint::hold(&self.geometry, self.legs)?;
@@ -193,6 +305,11 @@ impl<F: Frame> Control<F> {
             self.tick(board, &hold, true)?;
         }
         Ok(())
+    }
+
+    /// The measured legs, if every joint has reported.
+    pub fn measured_legs(&self) -> Option<LegConfig> {
+        self.tracker.leg_config(&self.geometry)
     }
 }
 

@@ -8,6 +8,8 @@
 //!   their feedback in, odometry and health, behind the [`control::Board`] trait.
 //!
 //!
+//! - [`wire`]: the observation link's frames (COBS, CRC-16, `postcard`), both ends.
+//!
 //! Two programs for QEMU's mps2-an386 (Cortex-M4F): the production image `src/main.rs` (what
 //! flash is measured on) and the check image `src/check/main.rs` (scripts/mcu.sh's vectors,
 //! counts and kernel comparison); docs/controller.md says how to build, run and flash them.
@@ -16,3 +18,4 @@
 pub mod control;
 pub mod link;
 pub mod stack;
+pub mod wire;

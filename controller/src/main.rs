@@ -2,11 +2,14 @@
 //! checks the weights file, then decides and drives, with none of the check harness
 //! (semihosting, replay, counts, the scalar kernel's comparison: `src/check/main.rs`).
 //!
-//! Its links stand in for a real board's: observations arrive on CMSDK UART 1 (the record of
-//! `link::read_observation`, then the fine window's `i16` little-endian heights), each
-//! decision's record leaves on it; the ODrive bus is a CAN bridge on UART 2 (each frame as
-//! id, length and 8 data bytes), and SysTick paces the 100 Hz period. A board's HAL puts its
-//! FDCAN driver and timer in their place (docs/controller.md).
+//! Its links are a real robot's: the observation link from the perception computer on CMSDK
+//! UART 1 (COBS-framed, CRC-checked `postcard` messages: `wire`), and an SLCAN (Lawicel) CAN
+//! adapter on UART 2 with the ODrive bus behind it; SysTick paces the 100 Hz period. Each
+//! period starts with the adapter's status poll (`F`), whose answer ends the period's
+//! received frames; an adapter that stops answering is a lost CAN link. Between steps the
+//! robot is held, and an observation link silent (or only corrupt) for
+//! [`OBSERVATION_TIMEOUT_PERIODS`] puts it in safe stop. A board's HAL puts its FDCAN driver
+//! and timer in place of the adapter and SysTick (docs/controller.md).
 #![no_std]
 #![no_main]
 
@@ -15,15 +18,24 @@ use core::mem::MaybeUninit;
 use core::panic::PanicInfo;
 use core::ptr::{read_volatile, write_volatile};
 
-use cortex_m_rt::entry;
-use embedded_can::{Frame, Id, StandardId};
-use wheelleg_controller::control::{Board, Control};
-use wheelleg_controller::link::{read_observation, Buffer};
-use wheelleg_controller::stack::{
-    ControllerDecider, Observation, Stack, ROW_ELEMENTS, WINDOW_BYTES, WORK_BYTES,
+use cortex_m_rt::{entry, exception};
+use wheelleg_controller::control::{
+    Board, Control, ControlError, StopReason, CAN_LINK_TIMEOUT_PERIODS,
 };
+use wheelleg_controller::link::Buffer;
+use wheelleg_controller::stack::{
+    ControllerDecider, DecisionRecord, Observation, Stack, ROW_ELEMENTS, WORK_BYTES,
+};
+use wheelleg_controller::wire::{self, stop_reason, FromController, ToController, WireError};
+use wheelleg_runtime::can::slcan::{self, AdapterMessage, Decoder, Reply};
 use wheelleg_runtime::can::CanFrame;
+use wheelleg_runtime::model::Outputs;
 use wheelleg_runtime::robot::WHEELLEG;
+
+/// Control periods without a valid frame on the observation link, between steps, before the
+/// safe stop: 1 s (the perception computer answers within a period; the longest frame, the
+/// fine window's 10.6 KB, takes 0.05 s at 2 Mbit/s).
+const OBSERVATION_TIMEOUT_PERIODS: u32 = 100;
 
 /// The shipped weights, in flash, word-aligned so that the kernels may load 4 weights at once.
 #[repr(C, align(4))]
@@ -50,7 +62,11 @@ unsafe extern "C" fn unused_interrupt() {
     halt()
 }
 
-/// Stops the core (an unused interrupt, a panic, a failed boot check, a lost link).
+/// SysTick's interrupt only wakes the core from `wfi` at the period's start.
+#[exception]
+fn SysTick() {}
+
+/// Stops the core (an unused interrupt, a panic, a failed boot check).
 fn halt() -> ! {
     loop {
         // SAFETY: `wfi` only waits for an interrupt.
@@ -100,109 +116,276 @@ impl Uart {
         // SAFETY: as in `new`.
         (self.state() & 2 != 0).then(|| unsafe { read_volatile(self.0 as *const u32) } as u8)
     }
-
-    /// Fills `buf`, waiting for each byte.
-    fn read_exact(&mut self, buf: &mut [u8]) -> bool {
-        for slot in buf.iter_mut() {
-            *slot = loop {
-                if let Some(byte) = self.try_read() {
-                    break byte;
-                }
-            };
-        }
-        true
-    }
 }
 
-/// Bytes of a bridged CAN frame: id (u16), length, 8 data bytes.
-const FRAME_BYTES: usize = 11;
+/// Whether SysTick wrapped since the last reading: a control period began. Reading clears it.
+fn period_began() -> bool {
+    // SAFETY: SysTick's control register; reading it clears COUNTFLAG (bit 16).
+    unsafe { read_volatile(0xE000_E010 as *const u32) & (1 << 16) != 0 }
+}
 
-/// The CAN bridge: frames over a UART, a received frame handed out once all its bytes came.
-struct BridgeCan {
+/// The CAN bus behind an SLCAN adapter on a UART: frames out as `t` lines, the adapter's frame
+/// lines in, up to its answer to the period's status poll.
+struct SlcanCan {
     uart: Uart,
-    partial: [u8; FRAME_BYTES],
-    have: usize,
+    decoder: Decoder,
+    /// The period's status poll is not answered yet: frames of the period may still come.
+    polled: bool,
+    /// Periods the poll has waited.
+    waited: u32,
+    /// A period began while waiting: the next one starts at once.
+    period_pending: bool,
+    lost: bool,
 }
 
-/// The bridge's only error: a received frame that no CAN frame can be.
+/// The adapter refused a frame (only a frame longer than 8 bytes, which `CanFrame` never is).
 #[derive(Debug)]
-struct BridgeError;
+struct LineError;
 
-impl embedded_can::Error for BridgeError {
+impl embedded_can::Error for LineError {
     fn kind(&self) -> embedded_can::ErrorKind {
         embedded_can::ErrorKind::Other
     }
 }
 
-impl embedded_can::nb::Can for BridgeCan {
+impl embedded_can::nb::Can for SlcanCan {
     type Frame = CanFrame;
-    type Error = BridgeError;
+    type Error = LineError;
 
-    fn transmit(&mut self, frame: &CanFrame) -> nb::Result<Option<CanFrame>, BridgeError> {
-        let id = match frame.id() {
-            Id::Standard(id) => id.as_raw(),
-            Id::Extended(_) => u16::MAX,
-        };
-        let mut bytes = [0u8; FRAME_BYTES];
-        let [lo, hi] = id.to_le_bytes();
-        let [id_lo, id_hi, len, data @ ..] = &mut bytes;
-        (*id_lo, *id_hi, *len) = (lo, hi, frame.dlc() as u8);
-        for (slot, &byte) in data.iter_mut().zip(frame.data()) {
-            *slot = byte;
-        }
-        self.uart.write(&bytes);
+    fn transmit(&mut self, frame: &CanFrame) -> nb::Result<Option<CanFrame>, LineError> {
+        let line = slcan::encode_frame(frame, None).map_err(|_| nb::Error::Other(LineError))?;
+        self.uart.write(line.as_bytes());
         Ok(None)
     }
 
-    fn receive(&mut self) -> nb::Result<CanFrame, BridgeError> {
-        while self.have < FRAME_BYTES {
-            let byte = self.uart.try_read().ok_or(nb::Error::WouldBlock)?;
-            if let Some(slot) = self.partial.get_mut(self.have) {
-                *slot = byte;
+    fn receive(&mut self) -> nb::Result<CanFrame, LineError> {
+        while self.polled {
+            let Some(byte) = self.uart.try_read() else {
+                if period_began() {
+                    self.period_pending = true;
+                    self.waited += 1;
+                    if self.waited >= CAN_LINK_TIMEOUT_PERIODS {
+                        self.lost = true;
+                        self.polled = false;
+                    }
+                }
+                continue;
+            };
+            match self.decoder.feed_from_adapter(byte) {
+                Ok(Some(AdapterMessage::Frame { frame, .. })) => return Ok(frame),
+                Ok(Some(AdapterMessage::Reply(Reply::StatusFlags(_)))) => self.polled = false,
+                // The adapter's CR and `z` answers, and lines it garbled (counted).
+                _ => {}
             }
-            self.have += 1;
         }
-        self.have = 0;
-        let [lo, hi, len, data @ ..] = self.partial;
-        StandardId::new(u16::from_le_bytes([lo, hi]))
-            .and_then(|id| CanFrame::new(id, data.get(..usize::from(len))?))
-            .ok_or(nb::Error::Other(BridgeError))
+        Err(nb::Error::WouldBlock)
     }
 }
 
 /// SysTick's reload for one 10 ms period of the machine's 25 MHz clock.
 const PERIOD_COUNTS: u32 = 250_000;
 
-/// The board: the CAN bridge and SysTick's period.
-struct BridgeBoard {
-    can: BridgeCan,
+/// The board: the CAN adapter and SysTick's period.
+struct SlcanBoard {
+    can: SlcanCan,
 }
 
-impl BridgeBoard {
-    fn new(can: BridgeCan) -> BridgeBoard {
-        // SAFETY: SysTick's reload, current value and control registers; no memory effects.
+impl SlcanBoard {
+    fn new(uart: Uart) -> SlcanBoard {
+        let mut can = SlcanCan {
+            uart,
+            decoder: Decoder::new(),
+            polled: false,
+            waited: 0,
+            period_pending: false,
+            lost: false,
+        };
+        // Close, 1 Mbit/s, open: the adapter's answers are read (and ignored) with the frames.
+        can.uart.write(b"C\rS8\rO\r");
+        // SAFETY: SysTick's reload, current value and control registers (enable, interrupt,
+        // processor clock); no memory effects.
         unsafe {
             write_volatile(0xE000_E014 as *mut u32, PERIOD_COUNTS - 1);
             write_volatile(0xE000_E018 as *mut u32, 0);
-            write_volatile(0xE000_E010 as *mut u32, 0b101);
+            write_volatile(0xE000_E010 as *mut u32, 0b111);
         }
-        BridgeBoard { can }
+        SlcanBoard { can }
+    }
+
+    /// Whether a period began (latched until [`Board::wait_for_tick`] starts it).
+    fn period_due(&mut self) -> bool {
+        self.can.period_pending |= period_began();
+        self.can.period_pending
     }
 }
 
-impl Board for BridgeBoard {
+impl Board for SlcanBoard {
     type Frame = CanFrame;
-    type Can = BridgeCan;
+    type Can = SlcanCan;
 
-    fn can(&mut self) -> &mut BridgeCan {
+    fn can(&mut self) -> &mut SlcanCan {
         &mut self.can
     }
 
     fn wait_for_tick(&mut self) {
-        // SAFETY: SysTick's control register; reading it clears COUNTFLAG (bit 16), set when
-        // the counter wrapped: the period began.
-        while unsafe { read_volatile(0xE000_E010 as *const u32) } & (1 << 16) == 0 {}
+        while !core::mem::take(&mut self.can.period_pending) {
+            self.can.period_pending = period_began();
+            if !self.can.period_pending {
+                // SAFETY: `wfi` only waits for an interrupt (SysTick's, at the period's start).
+                unsafe { asm!("wfi", options(nomem, nostack)) };
+            }
+        }
+        self.can.uart.write(b"F\r");
+        self.can.polled = !self.can.lost;
+        self.can.waited = 0;
     }
+
+    fn link_lost(&self) -> bool {
+        self.can.lost
+    }
+}
+
+/// The observation link: COBS frames in, decoded into the receiver's buffer as they come.
+struct Link {
+    uart: Uart,
+    cobs: cobs::DecoderState,
+    len: usize,
+    too_long: bool,
+}
+
+/// What waiting on the observation link brought.
+enum Received {
+    /// A decoded frame of this many bytes is in the buffer.
+    Frame(usize),
+    /// A frame that is no frame (bad COBS, too long).
+    Bad,
+    /// A control period went by (the robot was held in it).
+    Period,
+}
+
+impl Link {
+    /// Reads bytes into `buf` until a frame ends or, once the robot is under control, a
+    /// control period begins (it runs one, holding the robot).
+    fn receive(
+        &mut self,
+        buf: &mut [u8],
+        board: &mut SlcanBoard,
+        mut control: Option<&mut Control<CanFrame>>,
+    ) -> Received {
+        loop {
+            let Some(byte) = self.uart.try_read() else {
+                if let Some(control) = control.as_deref_mut() {
+                    if board.period_due() {
+                        // A frame that cannot be queued stops the robot in the next period.
+                        if control.hold(board).is_err() {
+                            control.stop(StopReason::Control);
+                        }
+                        return Received::Period;
+                    }
+                }
+                continue;
+            };
+            match self.cobs.feed(byte) {
+                Ok(cobs::DecodeResult::NoData) => {}
+                Ok(cobs::DecodeResult::DataContinue(value)) => {
+                    match buf.get_mut(self.len) {
+                        Some(slot) => *slot = value,
+                        None => self.too_long = true,
+                    }
+                    self.len += 1;
+                }
+                Ok(cobs::DecodeResult::DataComplete) => {
+                    let len = core::mem::take(&mut self.len);
+                    if !core::mem::take(&mut self.too_long) {
+                        return Received::Frame(len);
+                    }
+                    return Received::Bad;
+                }
+                Err(_) => {
+                    self.len = 0;
+                    self.too_long = false;
+                    return Received::Bad;
+                }
+            }
+        }
+    }
+
+    /// Sends one message (a small one: all of the controller's are).
+    fn send(&mut self, message: FromController) {
+        let mut scratch = [0u8; 64];
+        let mut frame = [0u8; 72];
+        if let Ok(len) = wire::seal(message, &mut scratch, &mut frame) {
+            self.uart.write(frame.get(..len).unwrap_or(&[]));
+        }
+    }
+}
+
+/// The report of a stopped controller.
+fn stopped(control: &Control<CanFrame>) -> Option<FromController> {
+    let stop = control.stop_state()?;
+    let (reason, axes) = match stop.reason {
+        StopReason::Silent(axes) => (stop_reason::SILENT_AXES, axes.0),
+        StopReason::AxisError(axes) => (stop_reason::AXIS_ERRORS, axes.0),
+        StopReason::CanLink => (stop_reason::CAN_LINK, 0),
+        StopReason::ObservationStalled => (stop_reason::OBSERVATION_STALLED, 0),
+        StopReason::ObservationCorrupt => (stop_reason::OBSERVATION_CORRUPT, 0),
+        StopReason::StartupFailed => (stop_reason::STARTUP_FAILED, 0),
+        StopReason::Control => (stop_reason::CONTROL, 0),
+    };
+    Some(FromController::Stopped {
+        reason,
+        axes,
+        tick: stop.tick,
+    })
+}
+
+/// The report after a step (or a retreat): its end, or the safe stop it ended in.
+fn step_report(
+    control: &mut Control<CanFrame>,
+    driven: Result<(), ControlError>,
+) -> FromController {
+    let moved = match driven {
+        Ok(()) => true,
+        // Legs out of reach: nothing was sent, as on the host.
+        Err(ControlError::Motion(_)) => false,
+        Err(_) => {
+            control.stop(StopReason::Control);
+            true
+        }
+    };
+    if let Some(report) = stopped(control) {
+        return report;
+    }
+    let pose = control.odometry().pose;
+    let legs = control.measured_legs().unwrap_or(control.legs());
+    FromController::StepDone {
+        moved,
+        pose: [
+            pose.translation.x,
+            pose.translation.y,
+            pose.rotation.angle(),
+        ],
+        legs_m: [legs.clearance_m, legs.track_m],
+        tick: control.ticks(),
+    }
+}
+
+/// The decision record as the link's message.
+fn decision(record: &DecisionRecord) -> FromController {
+    FromController::Decision {
+        logits: record.logits,
+        greedy: record.greedy,
+        greedy_verdict: record.greedy_verdict,
+        action: record.action,
+        level: record.level,
+        checks: record.checks,
+    }
+}
+
+/// The work area's bytes: a frame arrives there, and inference then reuses them.
+fn bytes(work: &mut [i8; WORK_BYTES]) -> &mut [u8; WORK_BYTES] {
+    // SAFETY: `i8` and `u8` have the same size, alignment and validity.
+    unsafe { &mut *(work as *mut [i8; WORK_BYTES] as *mut [u8; WORK_BYTES]) }
 }
 
 #[entry]
@@ -220,48 +403,125 @@ fn main() -> ! {
         halt()
     };
     let stack = slot.write(stack);
-    let window_bytes = (2 * stack.window().cells()).min(WINDOW_BYTES);
-    let mut link = Uart::new(Uart::UART1);
-    let mut board = BridgeBoard::new(BridgeCan {
-        uart: Uart::new(Uart::UART2),
-        partial: [0; FRAME_BYTES],
-        have: 0,
-    });
+    let mut link = Link {
+        uart: Uart::new(Uart::UART1),
+        cobs: cobs::DecoderState::Idle,
+        len: 0,
+        too_long: false,
+    };
+    let mut board = SlcanBoard::new(Uart::new(Uart::UART2));
     // The legs start where the first observation says they are.
     let mut control: Option<Control<CanFrame>> = None;
+    // The policy's outputs on the observation whose window is awaited.
+    let mut pending: Option<Outputs> = None;
+    let (mut quiet_periods, mut corrupt) = (0u32, false);
     loop {
-        let Some(flags) = read_observation(&mut |buf| link.read_exact(buf), observation) else {
-            halt()
-        };
-        if flags & 1 != 0 {
-            stack.reset();
-        }
-        let Ok(outputs) = stack.infer(observation, work, row) else {
-            halt()
-        };
-        // The window arrives after inference, into the bytes inference no longer needs.
-        // SAFETY: `i8` and `u8` have the same size, alignment and validity.
-        let bytes = unsafe { &mut *(work as *mut [i8; WORK_BYTES] as *mut [u8; WORK_BYTES]) };
-        let Some(window) = bytes.get_mut(..window_bytes) else {
-            halt()
-        };
-        link.read_exact(window);
-        let Ok(record) = stack.decide(observation, &outputs, window) else {
-            halt()
-        };
-        link.write(&record.to_bytes());
-        let control = match &mut control {
-            Some(control) => control,
-            empty => {
-                let started = empty.insert(Control::new(WHEELLEG, observation.legs()));
-                if started.start_up(&mut board).is_err() {
-                    halt()
+        let len = match link.receive(bytes(work), &mut board, control.as_mut()) {
+            Received::Period => {
+                quiet_periods += 1;
+                if let Some(control) = control.as_mut().filter(|c| !c.stopped()) {
+                    if quiet_periods >= OBSERVATION_TIMEOUT_PERIODS {
+                        control.stop(if corrupt {
+                            StopReason::ObservationCorrupt
+                        } else {
+                            StopReason::ObservationStalled
+                        });
+                        if let Some(report) = stopped(control) {
+                            link.send(report);
+                        }
+                    }
                 }
-                started
+                continue;
+            }
+            Received::Bad => Err(WireError::Framing),
+            Received::Frame(len) => Ok(len),
+        };
+        let message =
+            len.and_then(|len| wire::open::<ToController>(bytes(work).get(..len).unwrap_or(&[])));
+        let message = match message {
+            Ok(message) => message,
+            Err(error) => {
+                corrupt = true;
+                link.send(FromController::Rejected {
+                    error: error.code(),
+                });
+                continue;
             }
         };
-        // An action the legs cannot take is not sent; a stopped loop holds the robot still
-        // (the commander's safe stop) on every later period.
-        let _ = control.step(&mut board, record.action());
+        (quiet_periods, corrupt) = (0, false);
+        if let Some(report) = control.as_ref().and_then(stopped) {
+            link.send(report);
+            continue;
+        }
+        match (message, pending.take()) {
+            (
+                ToController::Observation {
+                    new_episode,
+                    height_mm_le,
+                    state_mm,
+                },
+                _,
+            ) => {
+                if height_mm_le.len() != 2 * observation.height_mm.len() {
+                    link.send(FromController::Rejected {
+                        error: WireError::Message.code(),
+                    });
+                    continue;
+                }
+                for (cell, pair) in observation
+                    .height_mm
+                    .iter_mut()
+                    .zip(height_mm_le.chunks_exact(2))
+                {
+                    *cell = i16::from_le_bytes([
+                        pair.first().copied().unwrap_or(0),
+                        pair.get(1).copied().unwrap_or(0),
+                    ]);
+                }
+                observation.state_mm = state_mm;
+                if new_episode {
+                    stack.reset();
+                }
+                let Ok(outputs) = stack.infer(observation, work, row) else {
+                    halt()
+                };
+                pending = Some(outputs);
+                link.send(FromController::WindowPlease);
+            }
+            (ToController::Window { heights_mm_le }, Some(outputs)) => {
+                let Ok(record) = stack.decide(observation, &outputs, heights_mm_le) else {
+                    link.send(FromController::Rejected {
+                        error: WireError::Message.code(),
+                    });
+                    continue;
+                };
+                link.send(decision(&record));
+                let control = match &mut control {
+                    Some(control) => control,
+                    empty => {
+                        let started = empty.insert(Control::new(WHEELLEG, observation.legs()));
+                        if started.start_up(&mut board).is_err() {
+                            started.stop(StopReason::StartupFailed);
+                        }
+                        started
+                    }
+                };
+                let driven = if control.stopped() {
+                    Ok(())
+                } else {
+                    control.step(&mut board, record.action())
+                };
+                link.send(step_report(control, driven));
+            }
+            (ToController::Collided, None) => {
+                if let Some(control) = control.as_mut() {
+                    let driven = control.retreat(&mut board);
+                    link.send(step_report(control, driven));
+                }
+            }
+            _ => link.send(FromController::Rejected {
+                error: WireError::Message.code(),
+            }),
+        }
     }
 }

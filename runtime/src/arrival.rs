@@ -59,7 +59,8 @@ impl Arrival {
     /// Whether taking `action` ends with the body centre within the radius of the target.
     pub fn reached_by(&self, action: Action) -> bool {
         let step = BaseDisplacement::of_action(action);
-        libm::hypotf(self.target_m.x - step.dx_m, self.target_m.y - step.dy_m) <= self.radius_m
+        crate::trig::hypot(self.target_m.x - step.dx_m, self.target_m.y - step.dy_m)
+            <= self.radius_m
     }
 
     /// Whether some action reaches the target in one step (only the two move heads matter).

@@ -210,11 +210,12 @@ impl Odometry {
         }
         let dyaw_rad = velocity.yaw_rate_radps * dt_s;
         let mid = self.pose.rotation.angle() + 0.5 * dyaw_rad;
-        let (sin, cos) = (libm::sinf(mid), libm::cosf(mid));
+        let (sin, cos) = (crate::trig::sin(mid), crate::trig::cos(mid));
         let (vx, vy) = (velocity.vx_mps, velocity.vy_mps);
         let world_step_m = Vector2::new(cos * vx - sin * vy, sin * vx + cos * vy) * dt_s;
         let yaw_rad = self.pose.rotation.angle() + dyaw_rad;
-        self.pose = Isometry2::new(self.pose.translation.vector + world_step_m, yaw_rad);
+        let position_m = self.pose.translation.vector + world_step_m;
+        self.pose = crate::trig::isometry(position_m.x, position_m.y, yaw_rad);
         Ok(())
     }
 

@@ -376,9 +376,10 @@ impl CollisionGuard {
         let half_length_m =
             (0.5 * geometry.body_length_m).max(geometry.hip_x_m + geometry.wheel_radius_m);
         // The farthest any part gets from the centre, plus one step of travel and the growth.
-        let reach_m = libm::hypotf(half_length_m, half_track_m.max(0.5 * geometry.body_width_m))
-            + crate::action::MOVE_STEP_M * core::f32::consts::SQRT_2
-            + margin_m.max(0.0);
+        let reach_m =
+            crate::trig::hypot(half_length_m, half_track_m.max(0.5 * geometry.body_width_m))
+                + crate::action::MOVE_STEP_M * core::f32::consts::SQRT_2
+                + margin_m.max(0.0);
         CollisionGuard {
             geometry,
             margin_m,
@@ -405,7 +406,7 @@ impl CollisionGuard {
             .max(0.5 * g.track_range_m[1] + 0.5 * g.wheel_width_m)
             .max(g.hip_y_m + g.thigh_m + g.link_radius_m);
         let turn_rad = crate::action::YAW_STEP_DEG.to_radians();
-        let (sin, cos) = (libm::sinf(turn_rad), libm::cosf(turn_rad));
+        let (sin, cos) = (crate::trig::sin(turn_rad), crate::trig::cos(turn_rad));
         let travel_m = crate::action::MOVE_STEP_M + self.margin_m.max(0.0);
         let reach_x_m = half_x_m * cos + half_y_m * sin + travel_m;
         let reach_y_m = half_y_m * cos + half_x_m * sin + travel_m;
@@ -416,9 +417,11 @@ impl CollisionGuard {
             } else {
                 0.0
             };
-            let first = libm::ceilf(half - cells).max(0.0) as usize;
-            let last =
-                (libm::floorf(half + cells).min(side as f32 - 1.0).max(0.0) as usize).max(first);
+            let first = crate::trig::ceil(half - cells).max(0.0) as usize;
+            let last = (crate::trig::floor(half + cells)
+                .min(side as f32 - 1.0)
+                .max(0.0) as usize)
+                .max(first);
             (first, (last + 1).min(side) - first.min(side))
         };
         let (first_row, rows) = span(reach_x_m);
@@ -626,8 +629,8 @@ impl CollisionGuard {
         // One cell more: a column's square reaches half a cell past its centre.
         let cells = self.reach_m / heights.cell_m() + 1.0;
         // Saturating casts: a huge reach covers the whole map, never more.
-        let first = libm::ceilf(half - cells).max(0.0) as usize;
-        let last = libm::floorf(half + cells).min(side - 1.0) as usize;
+        let first = crate::trig::ceil(half - cells).max(0.0) as usize;
+        let last = crate::trig::floor(half + cells).min(side - 1.0) as usize;
         first..last + 1
     }
 }
@@ -719,14 +722,14 @@ impl Parts {
                     (column.y_m - half_m, 0.0),
                     (column.y_m + half_m, column.height_m),
                 );
-                deepest_m = deepest_m.max(link_reach_m - libm::hypotf(dx_m, d_yz_m));
+                deepest_m = deepest_m.max(link_reach_m - crate::trig::hypot(dx_m, d_yz_m));
             }
             // Wheel: a disc in the x-z plane, as wide as the wheel along y.
             let dy_m = (column.y_m - wheel.y).abs() - half_m;
             let side_m = self.wheel_half_width_m - dy_m;
             let dx_m = ((column.x_m - wheel.x).abs() - half_m).max(0.0);
             let dz_m = (wheel.z - column.height_m).max(0.0);
-            deepest_m = deepest_m.max(side_m.min(wheel_reach_m - libm::hypotf(dx_m, dz_m)));
+            deepest_m = deepest_m.max(side_m.min(wheel_reach_m - crate::trig::hypot(dx_m, dz_m)));
         }
         deepest_m
     }
@@ -743,7 +746,7 @@ fn segment_rect_distance_m(a: (f32, f32), b: (f32, f32), lo: (f32, f32), hi: (f3
     let point_to_rect = |p: (f32, f32)| {
         let dx = (lo.0 - p.0).max(p.0 - hi.0).max(0.0);
         let dy = (lo.1 - p.1).max(p.1 - hi.1).max(0.0);
-        libm::hypotf(dx, dy)
+        crate::trig::hypot(dx, dy)
     };
     let point_to_segment = |p: (f32, f32)| {
         let (dx, dy) = (b.0 - a.0, b.1 - a.1);
@@ -753,7 +756,7 @@ fn segment_rect_distance_m(a: (f32, f32), b: (f32, f32), lo: (f32, f32), hi: (f3
         } else {
             0.0
         };
-        libm::hypotf(a.0 + t * dx - p.0, a.1 + t * dy - p.1)
+        crate::trig::hypot(a.0 + t * dx - p.0, a.1 + t * dy - p.1)
     };
     let corners = [lo, (hi.0, lo.1), hi, (lo.0, hi.1)];
     corners

@@ -111,9 +111,12 @@ impl RobotGeometry {
         if !(-1.0 - RANGE_EPS..=1.0 + RANGE_EPS).contains(&cos_knee) {
             return Err(IkError::OutOfReach);
         }
-        let knee_rad = libm::acosf(cos_knee.clamp(-1.0, 1.0));
+        let knee_rad = crate::trig::acos(cos_knee.clamp(-1.0, 1.0));
         let hip_rad = libm::atan2f(target.down_m, target.outward_m)
-            - libm::atan2f(l2 * libm::sinf(knee_rad), l1 + l2 * libm::cosf(knee_rad));
+            - libm::atan2f(
+                l2 * crate::trig::sin(knee_rad),
+                l1 + l2 * crate::trig::cos(knee_rad),
+            );
         if !within(hip_rad, self.hip_range_rad) || !within(knee_rad, self.knee_range_rad) {
             return Err(IkError::JointLimit);
         }
@@ -132,13 +135,13 @@ impl RobotGeometry {
     /// Forward kinematics in the leg plane (the wheel mount does not move the axle centre).
     pub fn leg_fk(&self, joints: JointAngles) -> LegPlanePose {
         let knee = LegPlanePoint {
-            outward_m: self.thigh_m * libm::cosf(joints.hip_rad),
-            down_m: self.thigh_m * libm::sinf(joints.hip_rad),
+            outward_m: self.thigh_m * crate::trig::cos(joints.hip_rad),
+            down_m: self.thigh_m * crate::trig::sin(joints.hip_rad),
         };
         let shank_rad = joints.hip_rad + joints.knee_rad;
         let wheel = LegPlanePoint {
-            outward_m: knee.outward_m + self.shank_m * libm::cosf(shank_rad),
-            down_m: knee.down_m + self.shank_m * libm::sinf(shank_rad),
+            outward_m: knee.outward_m + self.shank_m * crate::trig::cos(shank_rad),
+            down_m: knee.down_m + self.shank_m * crate::trig::sin(shank_rad),
         };
         LegPlanePose { knee, wheel }
     }

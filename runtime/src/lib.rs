@@ -16,6 +16,7 @@
 //! - [`base`]: mecanum base kinematics, wheel speeds and odometry.
 //! - [`motion`]: one decision as a smooth setpoint stream at the control rate.
 //! - [`can`]: ODrive CANSimple commands and feedback for the 16 motor axes.
+//! - [`trig`]: sine, cosine and isometries without `libm`'s large-argument reduction.
 #![no_std]
 #![deny(unsafe_code)]
 
@@ -30,3 +31,4 @@ pub mod model;
 pub mod motion;
 pub mod observation;
 pub mod robot;
+pub mod trig;

@@ -37,7 +37,7 @@ use crate::base::{BaseError, BaseVelocity, MecanumBase, WheelSpeeds};
 use crate::leg::{IkError, JointAngles, LegConfig};
 use crate::robot::RobotGeometry;
 use core::f32::consts::PI;
-use nalgebra::{Isometry2, Vector2};
+use nalgebra::Isometry2;
 
 /// Longest step the planner accepts, in ticks: keeps a typo in the rate or duration from
 /// turning validation into a long loop.
@@ -143,14 +143,15 @@ impl BaseDisplacement {
 
     /// The pose change as an isometry: `end = start * displacement.isometry()`.
     pub fn isometry(&self) -> Isometry2<f32> {
-        Isometry2::new(Vector2::new(self.dx_m, self.dy_m), self.dyaw_rad)
+        crate::trig::isometry(self.dx_m, self.dy_m, self.dyaw_rad)
     }
 
     /// The pose change after `progress` (0 to 1) of the step: the step's straight line and
     /// steady turn, stopped part-way ([`progress`] maps time to this).
     pub fn isometry_at(&self, progress: f32) -> Isometry2<f32> {
-        Isometry2::new(
-            Vector2::new(self.dx_m * progress, self.dy_m * progress),
+        crate::trig::isometry(
+            self.dx_m * progress,
+            self.dy_m * progress,
             self.dyaw_rad * progress,
         )
     }
@@ -246,7 +247,7 @@ impl Setpoint {
 /// Progress along the step at normalised time `u` (clamped to [0, 1]).
 pub fn progress(u: f32) -> f32 {
     let u = u.clamp(0.0, 1.0);
-    u - libm::sinf(2.0 * PI * u) / (2.0 * PI)
+    u - crate::trig::sin(2.0 * PI * u) / (2.0 * PI)
 }
 
 /// The setpoint stream of one step; an iterator yielding exactly `ticks()` setpoints.
@@ -412,7 +413,7 @@ impl StepMotion {
         let joints = self.geometry.leg_ik(legs)?;
         // Straight line in the start frame, seen from the body at the tick's mid-heading.
         let heading_rad = d.dyaw_rad * 0.5 * (s0 + s1);
-        let (sin, cos) = (libm::sinf(heading_rad), libm::cosf(heading_rad));
+        let (sin, cos) = (crate::trig::sin(heading_rad), crate::trig::cos(heading_rad));
         let (ux, uy) = (d.dx_m * ds / self.tick_s, d.dy_m * ds / self.tick_s);
         let base = BaseVelocity {
             vx_mps: cos * ux + sin * uy,

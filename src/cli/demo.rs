@@ -1,8 +1,10 @@
 //! `wheelleg demo [--scenario FILE] [--weights FILE | --planner] [--can IFACE |
-//! slcan:tcp:HOST:PORT] [--out DIR] [--seed S]`: the closed loop (world -> policy or planner -> CAN -> motors -> measured motion
+//! slcan:tcp:HOST:PORT] [--controller host|qemu] [--out DIR] [--seed S]`: the closed loop (world -> policy or planner -> CAN -> motors -> measured motion
 //! -> world) on one scene, with a picture of the achieved path and the bus traffic as a
 //! `candump -L` log. The shipped policy is built into the binary, so the demo drives the same
-//! way from any folder.
+//! way from any folder. With `--controller qemu` the on-board stack and the motor commands run
+//! in the controller firmware's production image in QEMU, on its two serial links
+//! ([`wheelleg::hil`]).
 //!
 //! Exit status: 0 when the episode ran to its end (success or not: a policy failing a scene is
 //! a result, not an error); non-zero when the robot had to be stopped (a [`Fault`]: silent
@@ -69,6 +71,17 @@ pub struct Args {
     /// simulated motors.
     #[arg(long)]
     can: Option<String>,
+    /// Where the robot's on-board stack runs: `host` (in this process) or `qemu` (the
+    /// controller firmware's production image in QEMU's mps2-an386, its observation link and
+    /// SLCAN adapter link on two UARTs, the simulated motors behind the adapter;
+    /// docs/controller.md). The firmware drives with its built-in policy, guard and arrival.
+    #[arg(long, value_name = "WHERE", default_value = "host",
+          value_parser = ["host", "qemu"])]
+    controller: String,
+    /// The firmware image for --controller qemu. Default: the production image of
+    /// controller/, built when missing.
+    #[arg(long, value_name = "ELF")]
+    firmware: Option<PathBuf>,
     /// Output directory for path.png and bus.log (created if missing).
     #[arg(long, default_value = "out/demo")]
     out: PathBuf,
@@ -256,7 +269,7 @@ struct LogFile {
 }
 
 impl LogFile {
-    fn create(path: PathBuf) -> Result<(LogFile, Box<dyn Write>), String> {
+    fn create(path: PathBuf) -> Result<(LogFile, Box<dyn Write + Send>), String> {
         let name = path.file_name().map_or_else(
             || "bus.log".to_owned(),
             |n| n.to_string_lossy().into_owned(),
@@ -292,6 +305,9 @@ pub fn run(args: Args) -> CliResult {
         }
     }
     let (scenario, origin) = scene(&args, &planner)?;
+    if args.controller == "qemu" {
+        return run_qemu(&args, &scenario, &origin);
+    }
     let mut closed_loop = closed_loop(&args, &scenario)?;
 
     // Both drivers decide from the world as it is at the start of the episode.
@@ -349,6 +365,7 @@ pub fn run(args: Args) -> CliResult {
         Some(iface) => iface,
     };
     let (log_file, writer) = LogFile::create(args.out.join("bus.log"))?;
+    let writer: Box<dyn Write> = writer;
     closed_loop.log_to(CandumpWriter::new(writer, interface, DEFAULT_EPOCH_US));
     let started = closed_loop.start();
     if let Err(e) = started {
@@ -409,6 +426,89 @@ pub fn run(args: Args) -> CliResult {
     }
 }
 
+/// `demo --controller qemu`: the episode through the firmware in QEMU.
+fn run_qemu(args: &Args, scenario: &Scenario, origin: &str) -> CliResult {
+    use wheelleg::hil::{find_or_build_image, plant::PlantFault, Faults, Hil};
+    let refused = [
+        (
+            args.can.is_some(),
+            "--can (the firmware's CAN adapter is the simulated one)",
+        ),
+        (args.planner, "--planner"),
+        (
+            args.weights.is_some(),
+            "--weights (the firmware's policy is built into its image)",
+        ),
+        (args.lookahead.is_some(), "--lookahead (host-side)"),
+        (
+            args.no_guard || args.no_arrival,
+            "--no-guard / --no-arrival",
+        ),
+        (args.guard_margin != DEFAULT_MARGIN_M, "--guard-margin"),
+        (args.guard_map.grid().is_none(), "--guard-map policy"),
+    ];
+    if let Some((_, what)) = refused.iter().find(|(given, _)| *given) {
+        return Err(format!(
+            "--controller qemu runs the firmware's own stack (policy, guard on the fine \
+             window, arrival): {what} does not apply"
+        )
+        .into());
+    }
+    let image = find_or_build_image(args.firmware.as_deref())?;
+    let mut env = Env::new(scenario, LoopConfig::default().env).map_err(|e| e.to_string())?;
+    let legs = env.state().leg_config(env.geometry());
+    let mut faults = Faults::default();
+    if let (Some(node), Some(at)) = (args.silent_node, args.silent_at_step) {
+        if let Some(axis) = Axis::ALL.into_iter().find(|a| a.node_id().get() == node) {
+            outln!("inject:    node {node} ({axis:?}) goes silent during step {at}");
+            faults.plant.push((at, PlantFault::SilentAxis(axis)));
+        }
+    }
+    outln!(
+        "scene:     {} ({origin}); target {:.2} m away",
+        scenario.name,
+        env.distance_to_target_m()
+    );
+    outln!(
+        "driver:    the controller firmware {} in QEMU mps2-an386 (Cortex-M4F): shipped int8 \
+         policy, decision rule, collision guard on the 1 cm fine window, arrival",
+        image.display()
+    );
+    outln!(
+        "links:     observation link on UART 1 (COBS, CRC-16, postcard); SLCAN adapter on \
+         UART 2, 16 simulated ODrive axes behind it, 1 Mbit/s, control 100 Hz in lockstep"
+    );
+    std::fs::create_dir_all(&args.out)
+        .map_err(|e| format!("cannot create {}: {e}", args.out.display()))?;
+    let mut hil = Hil::start(&image, legs)?;
+    let (log_file, writer) = LogFile::create(args.out.join("bus.log"))?;
+    hil.plant()
+        .log_to(CandumpWriter::new(writer, "slcan0", DEFAULT_EPOCH_US));
+    let wall_clock = std::time::Instant::now();
+    let episode = hil.run(&mut env, &faults);
+    let taken = hil.plant().take_log();
+    let episode = episode?;
+    taken.map_err(|e| format!("cannot write the bus log: {e}"))?;
+    log_file.commit()?;
+    hil.shutdown()?;
+    let report = &episode.report;
+    let png = args.out.join("path.png");
+    top_view(scenario, &WHEELLEG, &report.path)
+        .save_png(&png)
+        .map_err(|e| format!("cannot write {}: {e}", png.display()))?;
+    print_report(report, wall_clock.elapsed().as_secs_f64());
+    outln!(
+        "wrote:     {} and {} ({} frames)",
+        png.display(),
+        args.out.join("bus.log").display(),
+        report.traffic.frames
+    );
+    match report.fault {
+        Some(fault) => Err(format!("robot stopped: {fault}").into()),
+        None => Ok(()),
+    }
+}
+
 fn inject_silence(closed_loop: &mut ClosedLoop, node: u8) {
     let step = closed_loop.env().steps() + 1;
     if let Some(axis) = Axis::ALL.into_iter().find(|a| a.node_id().get() == node) {
@@ -421,7 +521,9 @@ fn inject_silence(closed_loop: &mut ClosedLoop, node: u8) {
 
 fn print_report(report: &EpisodeReport, wall_s: f64) {
     let result = match (report.status, report.fault) {
-        (_, Some(Fault::SafeStop { .. })) => "stopped safely (fault below)".to_owned(),
+        (_, Some(Fault::SafeStop { .. } | Fault::Controller { .. })) => {
+            "stopped safely (fault below)".to_owned()
+        }
         (_, Some(_)) => "stopped (fault below)".to_owned(),
         (Status::Success, None) => "SUCCESS: reached the target".to_owned(),
         (Status::TooFar, None) => "failed: drove too far from the target".to_owned(),

@@ -156,6 +156,14 @@ pub enum Fault {
         /// The errors measured.
         error: StepError,
     },
+    /// The controller firmware stopped the robot (wheels stopped, legs held) and said why
+    /// (`wheelleg demo --controller qemu`).
+    Controller {
+        /// Decision index (0-based) during or after which it happened.
+        step: u32,
+        /// What the firmware reported.
+        reason: crate::hil::ControllerStop,
+    },
     /// The runtime could not reach an action's legs that the simulator accepts.
     KinematicsDisagree {
         /// Decision index (0-based).
@@ -193,6 +201,12 @@ impl fmt::Display for Fault {
                 "safe stop during step {}: {} reported errors; wheels stopped, legs held",
                 step + 1,
                 describe_axes(*set)
+            ),
+            Fault::Controller { step, reason } => write!(
+                f,
+                "the controller stopped the robot at step {}: {reason}; wheels stopped, legs \
+                 held",
+                step + 1
             ),
             Fault::OffTolerance { step, error } => write!(
                 f,
@@ -367,7 +381,8 @@ pub struct ClosedLoop {
     fault: Option<Fault>,
 }
 
-fn lattice_pose(state: &RobotState) -> Isometry2<f32> {
+/// The world's lattice state as a pose.
+pub(crate) fn lattice_pose(state: &RobotState) -> Isometry2<f32> {
     Isometry2::new(
         Vector2::new(state.position.x, state.position.y),
         state.yaw_rad(),

@@ -1,0 +1,742 @@
+//! The controller firmware in the loop (`wheelleg demo --controller qemu`): the world on the
+//! host, the policy, decision rule, guard, arrival and the 100 Hz motor commands in the
+//! firmware's production image in QEMU's mps2-an386, the motors on the host's simulated CAN
+//! bus, joined by the two serial links a real robot has:
+//!
+//! ```text
+//! world (Env) --observation link, UART 1 (COBS + CRC-16 + postcard: wire)--> firmware
+//!   firmware --decision, step reports--> world
+//!   firmware --SLCAN lines, UART 2--> adapter (plant) --> 16 simulated ODrive axes
+//!   axes --feedback--> adapter --frame lines--> firmware
+//! ```
+//!
+//! QEMU connects both UARTs to TCP sockets this module listens on. The motors follow the
+//! firmware's control periods in lockstep ([`plant`]); the world moves as the in-process closed
+//! loop moves it ([`crate::closed_loop`]): after each step the firmware reports its odometry and
+//! measured legs, the world checks them against the ideal step with the same tolerances and
+//! snaps to the lattice, and a step the world refuses is backed out of by the firmware
+//! (`Collided`).
+
+pub mod onboard;
+pub mod plant;
+#[path = "../../controller/src/wire.rs"]
+pub mod wire;
+
+use std::io::{Read, Write};
+use std::net::{TcpListener, TcpStream};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use nalgebra::Isometry2;
+use wheelleg_firmware_sim::rig::StepReport;
+use wheelleg_runtime::action::Action;
+use wheelleg_runtime::can::host::{AxisSet, BusStats};
+use wheelleg_runtime::guard::{CollisionGuard, WindowBounds, DEFAULT_MARGIN_M};
+use wheelleg_runtime::leg::LegConfig;
+use wheelleg_runtime::motion::{target_config, BaseDisplacement};
+use wheelleg_runtime::robot::WHEELLEG;
+use wheelleg_sim::env::{Env, Observation as SimObservation};
+use wheelleg_sim::height_map::MapGrid;
+
+use crate::closed_loop::driver::observation_mm;
+use crate::closed_loop::{EpisodeReport, Fault, StepError, Tolerance, Tracking, BITRATE_BPS};
+use plant::{Plant, PlantFault};
+use wire::{stop_reason, FromController, ToController};
+
+/// The production image, where `cargo +nightly build --release` in `controller/` puts it.
+pub fn default_image() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("controller/target/thumbv7em-none-eabihf/release/wheelleg-controller")
+}
+
+/// The command that builds the production image.
+pub const BUILD_COMMAND: &str =
+    "cd controller && cargo +nightly build --release --bin wheelleg-controller";
+
+/// How long the host waits for any one answer of the firmware (a decision with its guard
+/// takes at most some 0.1 s of QEMU's time; the observation timeout's 50 periods of waiting
+/// some seconds).
+pub const ANSWER_TIMEOUT: Duration = Duration::from_secs(60);
+
+/// Why the firmware in the loop could not run.
+#[derive(Debug)]
+pub enum HilError {
+    /// `qemu-system-arm` is not installed.
+    NoQemu,
+    /// The firmware image is missing and could not be built.
+    NoImage(PathBuf, String),
+    /// A socket, QEMU or the log failed.
+    Io(String),
+    /// The firmware sent something it should not have, or nothing in time.
+    Protocol(String),
+}
+
+impl std::fmt::Display for HilError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            HilError::NoQemu => write!(
+                f,
+                "qemu-system-arm is not installed: run `bash scripts/embedded-toolchain.sh` \
+                 (it installs QEMU and the firmware's toolchain)"
+            ),
+            HilError::NoImage(path, why) => write!(
+                f,
+                "no firmware image at {} ({why}): build it with `{BUILD_COMMAND}` after \
+                 `bash scripts/embedded-toolchain.sh`",
+                path.display()
+            ),
+            HilError::Io(e) => write!(f, "firmware in the loop: {e}"),
+            HilError::Protocol(e) => write!(f, "firmware in the loop: {e}"),
+        }
+    }
+}
+
+impl std::error::Error for HilError {}
+
+fn io(context: &str) -> impl Fn(std::io::Error) -> HilError + '_ {
+    move |e| HilError::Io(format!("{context}: {e}"))
+}
+
+/// Whether `qemu-system-arm` runs here.
+pub fn qemu_available() -> bool {
+    Command::new("qemu-system-arm")
+        .arg("--version")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success())
+}
+
+/// The firmware image at `path`, built first when it is the default one and missing.
+pub fn find_or_build_image(path: Option<&Path>) -> Result<PathBuf, HilError> {
+    let image = path.map_or_else(default_image, Path::to_path_buf);
+    if image.is_file() {
+        return Ok(image);
+    }
+    if path.is_some() {
+        return Err(HilError::NoImage(image, "no such file".into()));
+    }
+    let controller = Path::new(env!("CARGO_MANIFEST_DIR")).join("controller");
+    let built = Command::new("cargo")
+        .args([
+            "+nightly",
+            "build",
+            "--release",
+            "--bin",
+            "wheelleg-controller",
+        ])
+        .current_dir(&controller)
+        .stdout(Stdio::null())
+        .status();
+    match built {
+        Ok(status) if status.success() && image.is_file() => Ok(image),
+        Ok(status) => Err(HilError::NoImage(
+            image,
+            format!("the build failed: {status}"),
+        )),
+        Err(e) => Err(HilError::NoImage(image, format!("cargo cannot run: {e}"))),
+    }
+}
+
+/// A fault of the observation link, injected by the host's side of it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LinkFault {
+    /// From this decision (1-based) on, nothing more is sent.
+    StallAt(u32),
+    /// From this decision (1-based) on, every frame is sent with one byte flipped.
+    CorruptAt(u32),
+}
+
+/// Faults to inject in an episode.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Faults {
+    /// On the observation link.
+    pub link: Option<LinkFault>,
+    /// On the CAN side, from a decision (1-based) on: injected at the first control period the
+    /// firmware polls after that decision was taken (so in the middle of its step).
+    pub plant: Vec<(u32, PlantFault)>,
+}
+
+/// Why the firmware stopped the robot, as it reported it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ControllerStop {
+    /// One of [`wire::stop_reason`].
+    pub reason: u8,
+    /// The axes, for silent or errored axes.
+    pub axes: AxisSet,
+    /// The firmware's control period in which it stopped (counted from its first).
+    pub tick: u32,
+}
+
+impl std::fmt::Display for ControllerStop {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let axes = || {
+            self.axes
+                .iter()
+                .map(|axis| format!("node {} ({axis:?})", axis.node_id().get()))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        match self.reason {
+            stop_reason::SILENT_AXES => write!(f, "{} silent (no frames for 50 ms)", axes()),
+            stop_reason::AXIS_ERRORS => write!(f, "{} reported errors", axes()),
+            stop_reason::CAN_LINK => f.write_str("the CAN adapter stopped answering (50 ms)"),
+            stop_reason::OBSERVATION_STALLED => {
+                f.write_str("no observation for 1 s (observation link stalled)")
+            }
+            stop_reason::OBSERVATION_CORRUPT => {
+                f.write_str("only corrupt frames for 1 s on the observation link")
+            }
+            stop_reason::STARTUP_FAILED => f.write_str("not every axis reached closed loop"),
+            _ => f.write_str("a step could not be driven"),
+        }?;
+        write!(f, ", in control period {}", self.tick)
+    }
+}
+
+/// The firmware in QEMU with both links open, and the motors behind its CAN adapter.
+pub struct Hil {
+    qemu: Child,
+    obs: TcpStream,
+    received: Vec<u8>,
+    plant: Arc<Mutex<Plant>>,
+    can: Option<JoinHandle<Result<(), String>>>,
+    window: WindowBounds,
+    fine: Vec<f32>,
+    sim_observation: SimObservation,
+}
+
+fn listener() -> Result<(TcpListener, u16), HilError> {
+    let listener = TcpListener::bind("127.0.0.1:0").map_err(io("listening for QEMU"))?;
+    let port = listener
+        .local_addr()
+        .map_err(io("listening for QEMU"))?
+        .port();
+    Ok((listener, port))
+}
+
+/// Accepts QEMU's connection, or fails when QEMU exits first.
+fn accept(listener: &TcpListener, qemu: &mut Child, what: &str) -> Result<TcpStream, HilError> {
+    listener
+        .set_nonblocking(true)
+        .map_err(io("listening for QEMU"))?;
+    let started = Instant::now();
+    loop {
+        match listener.accept() {
+            Ok((stream, _)) => {
+                stream.set_nonblocking(false).map_err(io(what))?;
+                stream.set_nodelay(true).map_err(io(what))?;
+                return Ok(stream);
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                if let Ok(Some(status)) = qemu.try_wait() {
+                    return Err(HilError::Io(format!(
+                        "QEMU exited ({status}) before connecting its {what}"
+                    )));
+                }
+                if started.elapsed() > Duration::from_secs(20) {
+                    return Err(HilError::Io(format!("QEMU did not connect its {what}")));
+                }
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            Err(e) => return Err(io(what)(e)),
+        }
+    }
+}
+
+impl Hil {
+    /// Starts `image` in QEMU with the motors' legs at `start`.
+    pub fn start(image: &Path, start: LegConfig) -> Result<Hil, HilError> {
+        if !qemu_available() {
+            return Err(HilError::NoQemu);
+        }
+        let plant = Plant::new(&WHEELLEG, start)
+            .map_err(|e| HilError::Io(format!("the start legs have no IK solution: {e:?}")))?;
+        let (obs_listener, obs_port) = listener()?;
+        let (can_listener, can_port) = listener()?;
+        // UART 0 is the console (unused), UART 1 the observation link, UART 2 the CAN
+        // adapter. Instructions are counted (1 ns each) and idle time is skipped, so that the
+        // firmware's SysTick periods cost only what the firmware executes.
+        let mut qemu = Command::new("qemu-system-arm")
+            .args([
+                "-machine",
+                "mps2-an386",
+                "-display",
+                "none",
+                "-monitor",
+                "none",
+            ])
+            .args(["-serial", "null"])
+            .args(["-serial", &format!("tcp:127.0.0.1:{obs_port}")])
+            .args(["-serial", &format!("tcp:127.0.0.1:{can_port}")])
+            .args(["-icount", "shift=0,sleep=off", "-kernel"])
+            .arg(image)
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .map_err(|e| match e.kind() {
+                std::io::ErrorKind::NotFound => HilError::NoQemu,
+                _ => io("starting QEMU")(e),
+            })?;
+        let obs = accept(&obs_listener, &mut qemu, "observation link (UART 1)")?;
+        let can = accept(&can_listener, &mut qemu, "CAN adapter link (UART 2)")?;
+        let plant = Arc::new(Mutex::new(plant));
+        let shared = Arc::clone(&plant);
+        let can = std::thread::spawn(move || serve_can(can, shared));
+        let window = CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M)
+            .fine_window(MapGrid::GUARD_FINE.side, MapGrid::GUARD_FINE.cell_m);
+        Ok(Hil {
+            qemu,
+            obs,
+            received: Vec::new(),
+            plant,
+            can: Some(can),
+            window,
+            fine: vec![0.0; MapGrid::GUARD_FINE.cells()],
+            sim_observation: SimObservation::default(),
+        })
+    }
+
+    /// The motors and their adapter.
+    pub fn plant(&self) -> MutexGuard<'_, Plant> {
+        self.plant.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    fn send(&mut self, message: ToController<'_>, corrupt: bool) -> Result<(), HilError> {
+        let envelope = wire::Envelope {
+            version: wire::VERSION,
+            message,
+        };
+        let mut payload =
+            postcard::to_allocvec(&envelope).map_err(|e| HilError::Protocol(e.to_string()))?;
+        let crc = wire::CRC.checksum(&payload);
+        payload.extend_from_slice(&crc.to_le_bytes());
+        if corrupt {
+            // One flipped bit in the payload: the checksum no longer matches.
+            let middle = payload.len() / 2;
+            if let Some(byte) = payload.get_mut(middle) {
+                *byte ^= 0x10;
+            }
+        }
+        let mut frame = cobs::encode_vec(&payload);
+        frame.push(0);
+        self.obs
+            .write_all(&frame)
+            .map_err(io("writing the observation link"))
+    }
+
+    /// The next message from the firmware.
+    fn receive(&mut self) -> Result<FromController, HilError> {
+        let deadline = Instant::now() + ANSWER_TIMEOUT;
+        loop {
+            if let Some(end) = self.received.iter().position(|&b| b == 0) {
+                let mut frame: Vec<u8> = self.received.drain(..=end).collect();
+                let len = cobs::decode_in_place(&mut frame).map_err(|_| {
+                    HilError::Protocol("a frame from the firmware is not COBS".into())
+                })?;
+                return wire::open::<FromController>(&frame[..len]).map_err(|e| {
+                    HilError::Protocol(format!("a frame from the firmware was refused: {e:?}"))
+                });
+            }
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return Err(HilError::Protocol(format!(
+                    "the firmware did not answer within {} s",
+                    ANSWER_TIMEOUT.as_secs()
+                )));
+            }
+            self.obs
+                .set_read_timeout(Some(left.min(Duration::from_secs(1))))
+                .map_err(io("the observation link"))?;
+            let mut buf = [0u8; 4096];
+            match self.obs.read(&mut buf) {
+                Ok(0) => {
+                    return Err(HilError::Protocol(
+                        "QEMU closed the observation link".into(),
+                    ))
+                }
+                Ok(n) => self.received.extend_from_slice(&buf[..n]),
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                    ) =>
+                {
+                    if let Ok(Some(status)) = self.qemu.try_wait() {
+                        return Err(HilError::Protocol(format!("QEMU exited: {status}")));
+                    }
+                }
+                Err(e) => return Err(io("reading the observation link")(e)),
+            }
+        }
+    }
+
+    /// The next message that is not a refusal of a corrupt frame (those are counted).
+    fn answer(&mut self, rejected: &mut u32) -> Result<FromController, HilError> {
+        loop {
+            match self.receive()? {
+                FromController::Rejected { .. } => *rejected += 1,
+                other => return Ok(other),
+            }
+        }
+    }
+
+    /// Runs one episode of `env` with `faults`; the robot is left at rest (or in safe stop).
+    pub fn run(&mut self, env: &mut Env, faults: &Faults) -> Result<HilEpisode, HilError> {
+        let tolerance = Tolerance::default();
+        let mut tracking = Tracking::default();
+        let mut path = vec![*env.state()];
+        let start_pose = crate::closed_loop::lattice_pose(env.state());
+        let mut odometry = Isometry2::identity();
+        let mut fault = None;
+        let mut stop = None;
+        let mut rejected = 0u32;
+        let mut last_step_tick = None;
+        let mut first = true;
+        let mut plant_faults = faults.plant.clone();
+        while !env.status().is_done() && fault.is_none() {
+            let decision = env.steps() + 1;
+            let (stall, corrupt) = match faults.link {
+                Some(LinkFault::StallAt(at)) => (decision >= at, false),
+                Some(LinkFault::CorruptAt(at)) => (false, decision >= at),
+                None => (false, false),
+            };
+            if stall {
+                // Nothing more is sent: the firmware must stop by itself.
+                let answer = self.answer(&mut rejected)?;
+                stop = stopped(answer)?;
+                fault = stop.map(|s| Fault::Controller {
+                    step: env.steps(),
+                    reason: s,
+                });
+                break;
+            }
+            env.observe(&mut self.sim_observation);
+            let (height_mm, state_mm) = observation_mm(&self.sim_observation);
+            let height_mm_le: Vec<u8> = height_mm
+                .as_flattened()
+                .iter()
+                .flat_map(|h| h.to_le_bytes())
+                .collect();
+            self.send(
+                ToController::Observation {
+                    new_episode: first,
+                    height_mm_le: &height_mm_le,
+                    state_mm,
+                },
+                corrupt,
+            )?;
+            first = false;
+            if corrupt {
+                // Keep sending the corrupt observation until the firmware gives up on the link.
+                loop {
+                    match self.receive()? {
+                        FromController::Rejected { .. } => {
+                            rejected += 1;
+                            self.send(
+                                ToController::Observation {
+                                    new_episode: false,
+                                    height_mm_le: &height_mm_le,
+                                    state_mm,
+                                },
+                                true,
+                            )?;
+                        }
+                        other => {
+                            stop = stopped(other)?;
+                            break;
+                        }
+                    }
+                }
+                fault = stop.map(|s| Fault::Controller {
+                    step: env.steps(),
+                    reason: s,
+                });
+                break;
+            }
+            match self.answer(&mut rejected)? {
+                FromController::WindowPlease => {}
+                other => {
+                    stop = stopped(other)?;
+                    fault = stop.map(|s| Fault::Controller {
+                        step: env.steps(),
+                        reason: s,
+                    });
+                    break;
+                }
+            }
+            let window = self.window_bytes(env);
+            self.send(
+                ToController::Window {
+                    heights_mm_le: &window,
+                },
+                false,
+            )?;
+            let action = match self.answer(&mut rejected)? {
+                FromController::Decision { action, .. } => Action::from_index(usize::from(action))
+                    .ok_or_else(|| {
+                        HilError::Protocol(format!("the firmware decided on action {action}"))
+                    })?,
+                other => {
+                    return Err(HilError::Protocol(format!(
+                        "expected a decision, got {other:?}"
+                    )))
+                }
+            };
+            // Faults of the CAN side start in the middle of this step.
+            let polls = self.plant().polls();
+            plant_faults.retain(|(at, f)| {
+                if *at == decision {
+                    self.plant().schedule(polls + 10, *f);
+                    false
+                } else {
+                    true
+                }
+            });
+            let from = *env.state();
+            let from_legs = from.leg_config(env.geometry());
+            let ideal = BaseDisplacement::of_action(action);
+            let ideal_legs = target_config(from_legs, action);
+            let index = env.steps();
+            match self.answer(&mut rejected)? {
+                FromController::StepDone {
+                    moved: false,
+                    pose,
+                    tick,
+                    ..
+                } => {
+                    last_step_tick = Some(tick);
+                    odometry = pose_of(pose);
+                    let outcome = env.step(action).map_err(|_| finished())?;
+                    if outcome.invalid.is_none() {
+                        fault = Some(Fault::KinematicsDisagree {
+                            step: index,
+                            action,
+                        });
+                    }
+                    tracking.refused += 1;
+                }
+                FromController::StepDone {
+                    pose, legs_m, tick, ..
+                } => {
+                    last_step_tick = Some(tick);
+                    let report = step_report(ideal.isometry(), odometry, pose, ideal_legs, legs_m);
+                    odometry = pose_of(pose);
+                    let error = StepError::of(&report);
+                    tracking.max_error = max_error(tracking.max_error, error);
+                    if !error.within(&tolerance) {
+                        fault = Some(Fault::OffTolerance { step: index, error });
+                        continue;
+                    }
+                    let outcome = env.step(action).map_err(|_| finished())?;
+                    if outcome.invalid.is_none() {
+                        tracking.moved += 1;
+                        path.push(*env.state());
+                        continue;
+                    }
+                    // The world undid the step: the firmware backs out of it.
+                    self.send(ToController::Collided, false)?;
+                    match self.answer(&mut rejected)? {
+                        FromController::StepDone {
+                            pose, legs_m, tick, ..
+                        } => {
+                            last_step_tick = Some(tick);
+                            let back = ideal.isometry().inverse();
+                            let report = step_report(back, odometry, pose, from_legs, legs_m);
+                            odometry = pose_of(pose);
+                            let error = StepError::of(&report);
+                            tracking.max_error = max_error(tracking.max_error, error);
+                            if !error.within(&tolerance) {
+                                fault = Some(Fault::OffTolerance { step: index, error });
+                                continue;
+                            }
+                            tracking.undone += 1;
+                        }
+                        other => {
+                            stop = stopped(other)?;
+                            fault = stop.map(|s| Fault::Controller {
+                                step: index,
+                                reason: s,
+                            });
+                        }
+                    }
+                }
+                other => {
+                    stop = stopped(other)?;
+                    fault = stop.map(|s| Fault::Controller {
+                        step: index,
+                        reason: s,
+                    });
+                }
+            }
+        }
+        let plant = self.plant();
+        let world = crate::closed_loop::lattice_pose(env.state());
+        let drift = world.inverse() * (start_pose * odometry);
+        let report = EpisodeReport {
+            status: env.status(),
+            steps: env.steps(),
+            collisions: env.collisions(),
+            fault,
+            tracking,
+            path,
+            odometry_drift_m: drift.translation.vector.norm(),
+            odometry_drift_rad: drift.rotation.angle().abs(),
+            elapsed_s: plant.now_us() as f64 * 1e-6,
+            traffic: plant.traffic(),
+            bus_load: plant.bus_load(BITRATE_BPS),
+            feedback: BusStats {
+                accepted: plant.delivered().min(u64::from(u32::MAX)) as u32,
+                ..BusStats::default()
+            },
+        };
+        Ok(HilEpisode {
+            report,
+            stop,
+            rejected,
+            last_step_tick,
+            injected: plant.injected().to_vec(),
+        })
+    }
+
+    /// The fine window of the world's 1 cm map around the robot, as the firmware reads it.
+    fn window_bytes(&mut self, env: &Env) -> Vec<u8> {
+        env.observe_grid(MapGrid::GUARD_FINE, &mut self.fine);
+        let side = self.window.side;
+        let mut out = Vec::with_capacity(2 * self.window.cells());
+        for row in self.window.rows() {
+            for col in self.window.cols() {
+                let m = self.fine[row * side + col];
+                out.extend_from_slice(&((m * 1000.0).round() as i16).to_le_bytes());
+            }
+        }
+        out
+    }
+
+    /// Waits until the firmware has run `periods` more control periods (it holds the robot,
+    /// or keeps it in safe stop, while it waits for the link); false if it did not in time.
+    pub fn wait_periods(&self, periods: u64) -> bool {
+        let until = self.plant().polls() + periods;
+        let deadline = Instant::now() + ANSWER_TIMEOUT;
+        while self.plant().polls() < until {
+            if Instant::now() > deadline {
+                return false;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        true
+    }
+
+    /// Stops QEMU and the CAN link.
+    pub fn shutdown(mut self) -> Result<(), HilError> {
+        self.stop_qemu();
+        if let Some(can) = self.can.take() {
+            match can.join() {
+                Ok(Ok(())) | Err(_) => {}
+                Ok(Err(e)) => return Err(HilError::Io(e)),
+            }
+        }
+        Ok(())
+    }
+
+    fn stop_qemu(&mut self) {
+        let _ = self.qemu.kill();
+        let _ = self.qemu.wait();
+    }
+}
+
+impl Drop for Hil {
+    fn drop(&mut self) {
+        self.stop_qemu();
+    }
+}
+
+/// One episode through the firmware.
+#[derive(Clone, Debug)]
+pub struct HilEpisode {
+    /// What `demo` prints.
+    pub report: EpisodeReport,
+    /// The firmware's safe stop, if it reported one.
+    pub stop: Option<ControllerStop>,
+    /// Frames the firmware refused (corrupt ones).
+    pub rejected: u32,
+    /// The firmware's control period at the end of its last step (or retreat).
+    pub last_step_tick: Option<u32>,
+    /// The CAN side's faults, with the control period each took effect in.
+    pub injected: Vec<(u64, PlantFault)>,
+}
+
+fn finished() -> HilError {
+    HilError::Protocol("the world's episode ended before the firmware's".into())
+}
+
+fn stopped(answer: FromController) -> Result<Option<ControllerStop>, HilError> {
+    match answer {
+        FromController::Stopped { reason, axes, tick } => Ok(Some(ControllerStop {
+            reason,
+            axes: AxisSet(axes),
+            tick,
+        })),
+        other => Err(HilError::Protocol(format!(
+            "expected the firmware's report, got {other:?}"
+        ))),
+    }
+}
+
+fn pose_of([x, y, yaw]: [f32; 3]) -> Isometry2<f32> {
+    Isometry2::new(nalgebra::Vector2::new(x, y), yaw)
+}
+
+/// A step's report as the rig makes it, from the firmware's odometry before and after.
+fn step_report(
+    ideal_pose: Isometry2<f32>,
+    before: Isometry2<f32>,
+    after: [f32; 3],
+    ideal_legs: LegConfig,
+    [clearance_m, track_m]: [f32; 2],
+) -> StepReport {
+    StepReport {
+        ideal_pose,
+        achieved_pose: before.inverse() * pose_of(after),
+        ideal_legs,
+        achieved_legs: LegConfig {
+            clearance_m,
+            track_m,
+        },
+        stopped: None,
+    }
+}
+
+fn max_error(a: StepError, b: StepError) -> StepError {
+    StepError {
+        position_m: a.position_m.max(b.position_m),
+        yaw_rad: a.yaw_rad.max(b.yaw_rad),
+        legs_m: a.legs_m.max(b.legs_m),
+    }
+}
+
+/// The adapter's side of the CAN UART: the firmware's lines to the plant, its answers back.
+fn serve_can(mut stream: TcpStream, plant: Arc<Mutex<Plant>>) -> Result<(), String> {
+    let mut buf = [0u8; 4096];
+    loop {
+        let n = match stream.read(&mut buf) {
+            Ok(0) => return Ok(()),
+            Ok(n) => n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            // QEMU killed at the end.
+            Err(_) => return Ok(()),
+        };
+        let out = plant
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .feed(&buf[..n])
+            .map_err(|e| format!("the CAN adapter: {e}"))?;
+        if !out.is_empty() && stream.write_all(&out).is_err() {
+            return Ok(());
+        }
+    }
+}

@@ -1,0 +1,300 @@
+//! The controller firmware in the loop (`src/hil`): the production image in QEMU, the world and
+//! the simulated motors on the host, joined by the observation link and the SLCAN adapter link.
+//!
+//! Run by `scripts/mcu.sh` once the image is built (it needs `scripts/embedded-toolchain.sh`'s
+//! QEMU and nightly toolchain); without QEMU every test prints a SKIPPED line and passes.
+//!
+//! - the first `WHEELLEG_HIL_SCENES` held-out complex scenes (default 2) reach exactly the
+//!   outcomes (success, decisions, collisions) of the in-process closed loop driven by the same
+//!   on-board stack, and the bus log decodes with ODrive's DBC (`tools/check_dbc.py`);
+//! - each fault brings the robot to the safe state (wheels stopped, legs held) within the
+//!   firmware's timeout, and the firmware says why.
+
+use std::path::{Path, PathBuf};
+
+use wheelleg::closed_loop::{ClosedLoop, Driver, LoopConfig};
+use wheelleg::hil::onboard::OnboardDriver;
+use wheelleg::hil::plant::PlantFault;
+use wheelleg::hil::wire::stop_reason;
+use wheelleg::hil::{find_or_build_image, qemu_available, Faults, Hil, HilEpisode, LinkFault};
+use wheelleg_firmware_sim::candump::{CandumpWriter, DEFAULT_EPOCH_US};
+use wheelleg_runtime::can::node_map::{Axis, Joint};
+use wheelleg_runtime::robot::{LegId, WHEELLEG};
+use wheelleg_sim::env::{Env, EnvConfig};
+use wheelleg_sim::scenario::Scenario;
+
+const SCENES: &str = "eval/heldout-complex-s1000000.json";
+
+/// Health timeout (50 ms) and the period in which the silence is seen, in control periods.
+const HEALTH_PERIODS: u32 = 5 + 2;
+/// The adapter's timeout (5 periods) and the period of the poll.
+const CAN_LINK_PERIODS: u32 = 5 + 2;
+/// The observation link's timeout (1 s).
+const OBSERVATION_PERIODS: u32 = 100;
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn scenes() -> Vec<Scenario> {
+    let json = std::fs::read_to_string(root().join(SCENES)).expect("held-out scenes");
+    wheelleg_sim::scenario_file::parse(&json, &WHEELLEG).expect("scenes parse")
+}
+
+/// The image, or `None` (with the SKIPPED line) when QEMU is missing.
+fn image(test: &str) -> Option<PathBuf> {
+    if !qemu_available() {
+        println!("SKIPPED {test}: qemu-system-arm is missing (bash scripts/embedded-toolchain.sh)");
+        return None;
+    }
+    Some(find_or_build_image(None).unwrap_or_else(|e| panic!("{e}")))
+}
+
+fn run(image: &Path, scene: &Scenario, faults: &Faults, log: Option<&Path>) -> (Hil, HilEpisode) {
+    let mut env = Env::new(scene, EnvConfig::default()).expect("scene");
+    let legs = env.state().leg_config(env.geometry());
+    let mut hil = Hil::start(image, legs).unwrap_or_else(|e| panic!("{e}"));
+    if let Some(path) = log {
+        let file = std::fs::File::create(path).expect("log file");
+        let writer: Box<dyn std::io::Write + Send> = Box::new(std::io::BufWriter::new(file));
+        hil.plant()
+            .log_to(CandumpWriter::new(writer, "slcan0", DEFAULT_EPOCH_US));
+    }
+    let episode = hil.run(&mut env, faults).unwrap_or_else(|e| panic!("{e}"));
+    if log.is_some() {
+        hil.plant().take_log().expect("log flushed");
+    }
+    (hil, episode)
+}
+
+#[test]
+fn firmware_in_the_loop_reaches_the_in_process_outcomes() {
+    let Some(image) = image("firmware_in_the_loop_reaches_the_in_process_outcomes") else {
+        return;
+    };
+    let count: usize = std::env::var("WHEELLEG_HIL_SCENES")
+        .ok()
+        .and_then(|n| n.parse().ok())
+        .unwrap_or(2);
+    let weights = std::fs::read(root().join("weights/policy.wlw")).expect("weights");
+    let out = root().join("target/hil");
+    std::fs::create_dir_all(&out).expect("out dir");
+    let mut lines = Vec::new();
+    for scene in scenes().iter().take(count) {
+        let mut driver = OnboardDriver::new(&weights).expect("stack");
+        let mut host = ClosedLoop::in_process(scene, LoopConfig::default()).expect("loop");
+        host.start().expect("start-up");
+        while !host.is_done() {
+            let action = driver.decide(host.env()).expect("decision");
+            host.step(action).expect("step");
+        }
+        let expected = host.finish().expect("finish");
+        let log = out.join(format!("{}.log", scene.name));
+        let (hil, got) = run(&image, scene, &Faults::default(), Some(&log));
+        hil.shutdown().expect("shutdown");
+        let got = got.report;
+        lines.push(format!(
+            "{}: host {:?} {} decisions {} collisions; firmware {:?} {} decisions {} collisions",
+            scene.name,
+            expected.status,
+            expected.steps,
+            expected.collisions,
+            got.status,
+            got.steps,
+            got.collisions
+        ));
+        assert_eq!(got.fault, None, "{}: {:?}", scene.name, got.fault);
+        assert_eq!(
+            (got.status, got.steps, got.collisions),
+            (expected.status, expected.steps, expected.collisions),
+            "{}",
+            scene.name
+        );
+        let checked = std::process::Command::new("python3")
+            .arg(root().join("tools/check_dbc.py"))
+            .arg(&log)
+            .output()
+            .expect("python3 runs tools/check_dbc.py");
+        assert!(
+            checked.status.success(),
+            "{}: the bus log does not decode with ODrive's DBC: {}",
+            scene.name,
+            String::from_utf8_lossy(&checked.stderr)
+        );
+    }
+    println!("{}", lines.join("\n"));
+}
+
+/// Runs scene 0 with `faults` and checks the firmware's safe stop: its reason, that it came
+/// within `within` periods of `since` (the fault's period), and, where the motors still hear
+/// the firmware, that the wheels stand and the legs hold half a second later.
+fn expect_stop(
+    test: &str,
+    faults: Faults,
+    reason: u8,
+    within: u32,
+    since: impl Fn(&HilEpisode) -> u32,
+    motors_reachable: bool,
+) -> HilEpisode {
+    let Some(image) = image(test) else {
+        return empty_episode();
+    };
+    let scene = scenes().into_iter().next().expect("a scene");
+    let (hil, episode) = run(&image, &scene, &faults, None);
+    let stop = episode
+        .stop
+        .unwrap_or_else(|| panic!("{test}: no safe stop: {:?}", episode.report));
+    assert_eq!(stop.reason, reason, "{test}: {stop}");
+    let from = since(&episode);
+    assert!(
+        stop.tick >= from && stop.tick <= from + within,
+        "{test}: stopped in period {} for a fault in period {from} (timeout {within})",
+        stop.tick
+    );
+    if motors_reachable {
+        // Half a second in safe stop, then the motors' own state.
+        assert!(hil.wait_periods(20), "{test}: the firmware stopped ticking");
+        let before = hil.plant().truth();
+        assert!(hil.wait_periods(50), "{test}: the firmware stopped ticking");
+        let after = hil.plant().truth();
+        assert!(
+            after.wheel_speed_sum < 0.05,
+            "{test}: wheels still turn: {} turns/s",
+            after.wheel_speed_sum
+        );
+        let moved_m = (after.legs.clearance_m - before.legs.clearance_m)
+            .abs()
+            .max((after.legs.track_m - before.legs.track_m).abs());
+        assert!(
+            moved_m < 0.0005,
+            "{test}: legs moved {moved_m} m in safe stop"
+        );
+        let drift_m = (before.pose.inverse() * after.pose)
+            .translation
+            .vector
+            .norm();
+        assert!(
+            drift_m < 0.0005,
+            "{test}: the base moved {drift_m} m in safe stop"
+        );
+    }
+    println!("{test}: {stop}");
+    hil.shutdown().expect("shutdown");
+    episode
+}
+
+fn empty_episode() -> HilEpisode {
+    HilEpisode {
+        report: wheelleg::closed_loop::EpisodeReport {
+            status: wheelleg_sim::env::Status::Running,
+            steps: 0,
+            collisions: 0,
+            fault: None,
+            tracking: Default::default(),
+            path: Vec::new(),
+            odometry_drift_m: 0.0,
+            odometry_drift_rad: 0.0,
+            elapsed_s: 0.0,
+            traffic: Default::default(),
+            bus_load: None,
+            feedback: Default::default(),
+        },
+        stop: None,
+        rejected: 1,
+        last_step_tick: None,
+        injected: Vec::new(),
+    }
+}
+
+fn injected_period(episode: &HilEpisode) -> u32 {
+    episode
+        .injected
+        .first()
+        .map_or(u32::MAX, |(p, _)| *p as u32)
+}
+
+fn after_last_step(episode: &HilEpisode) -> u32 {
+    episode.last_step_tick.unwrap_or(u32::MAX)
+}
+
+#[test]
+fn a_silent_axis_stops_the_robot_within_the_health_timeout() {
+    let knee = Axis::Joint(LegId::ALL[1], Joint::Knee);
+    let episode = expect_stop(
+        "a_silent_axis_stops_the_robot_within_the_health_timeout",
+        Faults {
+            plant: vec![(2, PlantFault::SilentAxis(knee))],
+            ..Faults::default()
+        },
+        stop_reason::SILENT_AXES,
+        HEALTH_PERIODS,
+        injected_period,
+        true,
+    );
+    if let Some(stop) = episode.stop {
+        assert!(stop.axes.contains(knee), "{stop}");
+    }
+}
+
+#[test]
+fn lost_frames_on_the_can_link_stop_the_robot() {
+    expect_stop(
+        "lost_frames_on_the_can_link_stop_the_robot",
+        Faults {
+            plant: vec![(2, PlantFault::DropFrames(0.8))],
+            ..Faults::default()
+        },
+        stop_reason::SILENT_AXES,
+        // Some axis misses five estimates in a row within a few periods at this loss.
+        HEALTH_PERIODS + 20,
+        injected_period,
+        true,
+    );
+}
+
+#[test]
+fn a_dead_can_link_stops_the_robot_within_the_adapter_timeout() {
+    expect_stop(
+        "a_dead_can_link_stops_the_robot_within_the_adapter_timeout",
+        Faults {
+            plant: vec![(2, PlantFault::DeadLink)],
+            ..Faults::default()
+        },
+        stop_reason::CAN_LINK,
+        CAN_LINK_PERIODS,
+        injected_period,
+        // Nothing reaches the motors any more: their own watchdog (100 ms) idles them.
+        false,
+    );
+}
+
+#[test]
+fn a_stalled_observation_link_stops_the_robot_within_its_timeout() {
+    expect_stop(
+        "a_stalled_observation_link_stops_the_robot_within_its_timeout",
+        Faults {
+            link: Some(LinkFault::StallAt(3)),
+            ..Faults::default()
+        },
+        stop_reason::OBSERVATION_STALLED,
+        OBSERVATION_PERIODS + 2,
+        after_last_step,
+        true,
+    );
+}
+
+#[test]
+fn corrupt_observation_frames_are_refused_and_stop_the_robot() {
+    let episode = expect_stop(
+        "corrupt_observation_frames_are_refused_and_stop_the_robot",
+        Faults {
+            link: Some(LinkFault::CorruptAt(3)),
+            ..Faults::default()
+        },
+        stop_reason::OBSERVATION_CORRUPT,
+        OBSERVATION_PERIODS + 2,
+        after_last_step,
+        true,
+    );
+    assert!(episode.rejected > 0, "no frame was refused");
+}
