@@ -273,16 +273,18 @@ impl Link {
         mut control: Option<&mut Control<CanFrame>>,
     ) -> Received {
         loop {
-            let Some(byte) = self.uart.try_read() else {
-                if let Some(control) = control.as_deref_mut() {
-                    if board.period_due() {
-                        // A frame that cannot be queued stops the robot in the next period.
-                        if control.hold(board).is_err() {
-                            control.stop(StopReason::Control);
-                        }
-                        return Received::Period;
+            // Every turn, not only when the link is quiet: a flood of bytes must not starve
+            // the control period.
+            if let Some(control) = control.as_deref_mut() {
+                if board.period_due() {
+                    // A frame that cannot be queued stops the robot in the next period.
+                    if control.hold(board).is_err() {
+                        control.stop(StopReason::Control);
                     }
+                    return Received::Period;
                 }
+            }
+            let Some(byte) = self.uart.try_read() else {
                 continue;
             };
             match self.cobs.feed(byte) {

@@ -10,6 +10,10 @@
 //! first reduced by whole turns (Cody-Waite in single precision: within about 1e-6 of `libm`
 //! up to some 10^4 radians).
 
+// musl's constants are kept as musl writes them (they round to the same floats), and `x - x`
+// is musl's NaN for an infinite or NaN argument.
+#![allow(clippy::excessive_precision, clippy::eq_op)]
+
 use nalgebra::{Isometry2, Translation2, UnitComplex};
 
 /// π/2 and its multiples rounded to double precision (musl's constants).
@@ -59,7 +63,7 @@ fn within_turns(x: f32) -> f32 {
 
 /// `floor(x)`, as `libm::floorf` for every finite `x` but the sign of a zero result.
 pub fn floor(x: f32) -> f32 {
-    if !(x.abs() < 8_388_608.0) {
+    if x.is_nan() || x.abs() >= 8_388_608.0 {
         return x;
     }
     let t = x as i32 as f32;
