@@ -394,7 +394,10 @@ fn run_episode(planned: &Planned, episode: u64, figures: &mut Figures) {
             StopReason::AxisError(_) => figures.safe_stops_error += 1,
         },
         Some(Fault::OffTolerance { .. }) => figures.off_tolerance += 1,
-        Some(Fault::KinematicsDisagree { .. }) => panic!("{what}: {:?}", report.fault),
+        // The in-process loop has no controller firmware to stop it: either is a bug here.
+        Some(Fault::KinematicsDisagree { .. } | Fault::Controller { .. }) => {
+            panic!("{what}: {:?}", report.fault)
+        }
     }
 
     // At rest, whatever happened: wheels stopped, legs holding still.
