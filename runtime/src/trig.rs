@@ -403,7 +403,7 @@ mod tests {
         for (x, y, a) in [
             (0.1f32, -0.2f32, 0.3f32),
             (0.0, 0.0, -3.1),
-            (1.0, 2.0, 3.14159),
+            (1.0, 2.0, core::f32::consts::PI - 1e-3),
         ] {
             let ours = isometry(x, y, a);
             let theirs = Isometry2::new(nalgebra::Vector2::new(x, y), a);
