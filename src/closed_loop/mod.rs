@@ -1,4 +1,4 @@
-//! The whole system in one loop (issue 6, "The closed loop"):
+//! The whole system in one loop (docs/can-protocol.md, "Closed loop demo"):
 //!
 //! ```text
 //! world (Env) -> height map + state -> driver (int8 policy or planner) -> Action

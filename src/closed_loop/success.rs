@@ -1,5 +1,5 @@
-//! Closed-loop success against pure-simulation success over a set of scenes (issue 6: "closed-loop
-//! success rate over held-out scenes equals the pure-simulation success within 2 points").
+//! Closed-loop success against pure-simulation success over a set of scenes: the closed loop
+//! must reach the pure-simulation success over held-out scenes within 2 points.
 //!
 //! The same driver, built fresh for each run, plays every scene twice: once in the world alone
 //! (`Env::step` with the driver's actions) and once through the closed loop (motors, CAN,

@@ -1,4 +1,4 @@
-//! How often the int8 policy takes the float policy's greedy action (issue 5's agreement
+//! How often the int8 policy takes the float policy's greedy action (the model card's agreement
 //! figure), per action dimension, on observations the calibration did not see.
 
 use super::EvalPolicy;

@@ -96,7 +96,7 @@ impl RangeObserver {
 /// The choice mattered for int8 logits, whose 255 steps were coarse enough for rounding to
 /// flip near ties (1.1% of head decisions on the baseline policy): `Contenders` gave a finer
 /// step and raised agreement. With int16 logits the step is at least 64 times finer either
-/// way and both choices measure the same on the baseline policy (docs/results.md, issue 5), so
+/// way and both choices measure the same on the baseline policy (docs/results.md, "Quantization"), so
 /// the default is `AllLogits`, which keeps every logit unclamped (sampling probabilities
 /// stay right too).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]

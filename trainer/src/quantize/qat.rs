@@ -45,7 +45,7 @@ use crate::ppo::{clip_global_norm, Adam};
 
 /// Fine-tuning steps `wheelleg export` takes by default: on the final baseline checkpoint 300
 /// steps took the worst action dimension's agreement from 98.81% (plain PTQ) to 99.26%, and
-/// 1,000 steps measured worse (docs/results.md, issue 5).
+/// 1,000 steps measured worse (docs/results.md, "Quantization").
 pub const RECOMMENDED_STEPS: usize = 300;
 
 /// Settings of the fine-tuning. The default takes no step (plain post-training quantization)
