@@ -2,11 +2,12 @@
 
 use crate::axis::{AxisConfig, SimAxis};
 use crate::bus::{BusError, Transport};
+use wheelleg_runtime::base::WheelSpeeds;
 use wheelleg_runtime::can::node_map::{Axis, AxisKind, Joint, NodeMap};
 use wheelleg_runtime::can::protocol::{decode, NodeId};
 use wheelleg_runtime::can::CanFrame;
-use wheelleg_runtime::leg::{IkError, LegConfig};
-use wheelleg_runtime::robot::RobotGeometry;
+use wheelleg_runtime::leg::{IkError, JointAngles, LegConfig};
+use wheelleg_runtime::robot::{LegId, RobotGeometry};
 
 /// Counters of the traffic the firmware received.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -89,6 +90,42 @@ impl Firmware {
     /// The simulated motor of a robot axis.
     pub fn axis(&self, axis: Axis) -> Option<&SimAxis> {
         self.node(axis.node_id())
+    }
+
+    /// The legs as the simulated joints really are: forward kinematics of their true
+    /// positions through `map`, averaged over the four legs; `None` if an axis is missing.
+    pub fn true_legs(&self, map: &NodeMap, geometry: &RobotGeometry) -> Option<LegConfig> {
+        let (mut clearance_m, mut track_m) = (0.0, 0.0);
+        for leg in LegId::ALL {
+            let angle = |joint| {
+                let axis = Axis::Joint(leg, joint);
+                Some(map.get(axis).to_angle_rad(self.axis(axis)?.pos_turns()))
+            };
+            let joints = JointAngles {
+                hip_rad: angle(Joint::Hip)?,
+                knee_rad: angle(Joint::Knee)?,
+                wheel_mount_rad: angle(Joint::WheelMount)?,
+            };
+            let c = geometry.config_from_joints(joints);
+            clearance_m += 0.25 * c.clearance_m;
+            track_m += 0.25 * c.track_m;
+        }
+        Some(LegConfig {
+            clearance_m,
+            track_m,
+        })
+    }
+
+    /// The wheels' true speeds through `map`; `None` if an axis is missing.
+    pub fn true_wheel_speeds(&self, map: &NodeMap) -> Option<WheelSpeeds> {
+        let mut speeds = WheelSpeeds::ZERO;
+        for (leg, out) in LegId::ALL.into_iter().zip(speeds.radps.iter_mut()) {
+            let axis = Axis::Wheel(leg);
+            *out = map
+                .get(axis)
+                .to_speed_radps(self.axis(axis)?.vel_turns_per_s());
+        }
+        Some(speeds)
     }
 
     /// The simulated motor of a robot axis, mutable (for fault injection).

@@ -31,14 +31,14 @@ use wheelleg_runtime::action::Action;
 use wheelleg_runtime::base::{BaseError, MecanumBase, Odometry, WheelSpeeds};
 use wheelleg_runtime::can::bus_load::frame_bits;
 use wheelleg_runtime::can::host::{CanError, Commander, FeedbackTracker, Health, TxQueue};
-use wheelleg_runtime::can::node_map::{Axis, Joint, NodeMap};
+use wheelleg_runtime::can::node_map::{Axis, NodeMap};
 use wheelleg_runtime::can::protocol::AxisState;
 use wheelleg_runtime::can::CanFrame;
-use wheelleg_runtime::leg::{IkError, JointAngles, LegConfig};
+use wheelleg_runtime::leg::{IkError, LegConfig};
 use wheelleg_runtime::motion::{
     ideal_step, MotionConfig, MotionError, Setpoint, StepMotion, StopMotion,
 };
-use wheelleg_runtime::robot::{LegId, RobotGeometry};
+use wheelleg_runtime::robot::RobotGeometry;
 
 /// Capacity of the controller's transmit queue: two ticks' worth of start-up frames.
 pub const TX_QUEUE_FRAMES: usize = 64;
@@ -438,40 +438,11 @@ impl Rig {
     /// The legs as the simulated joints really are (forward kinematics of their true
     /// positions, averaged over the four legs); `None` for a remote rig.
     pub fn true_legs(&self) -> Option<LegConfig> {
-        let (mut clearance_m, mut track_m) = (0.0, 0.0);
-        for leg in LegId::ALL {
-            let angle = |joint| {
-                let axis = Axis::Joint(leg, joint);
-                let motor = self.firmware.axis(axis)?;
-                Some(self.config.map.get(axis).to_angle_rad(motor.pos_turns()))
-            };
-            let joints = JointAngles {
-                hip_rad: angle(Joint::Hip)?,
-                knee_rad: angle(Joint::Knee)?,
-                wheel_mount_rad: angle(Joint::WheelMount)?,
-            };
-            let c = self.geometry.config_from_joints(joints);
-            clearance_m += 0.25 * c.clearance_m;
-            track_m += 0.25 * c.track_m;
-        }
-        Some(LegConfig {
-            clearance_m,
-            track_m,
-        })
+        self.firmware.true_legs(&self.config.map, &self.geometry)
     }
 
     fn true_wheel_speeds(&self) -> Option<WheelSpeeds> {
-        let mut speeds = WheelSpeeds::ZERO;
-        for (leg, out) in LegId::ALL.into_iter().zip(speeds.radps.iter_mut()) {
-            let axis = Axis::Wheel(leg);
-            let motor = self.firmware.axis(axis)?;
-            *out = self
-                .config
-                .map
-                .get(axis)
-                .to_speed_radps(motor.vel_turns_per_s());
-        }
-        Some(speeds)
+        self.firmware.true_wheel_speeds(&self.config.map)
     }
 
     /// Starts (or stops) recording the ground truth at the end of every control tick; what was

@@ -21,10 +21,10 @@ use wheelleg_firmware_sim::rig::{MeasuredBusLoad, TrafficCounts};
 use wheelleg_firmware_sim::slcan::SlcanSession;
 use wheelleg_runtime::base::{MecanumBase, Odometry, WheelSpeeds};
 use wheelleg_runtime::can::bus_load::frame_bits;
-use wheelleg_runtime::can::node_map::{Axis, Joint, NodeMap};
+use wheelleg_runtime::can::node_map::{Axis, NodeMap};
 use wheelleg_runtime::can::CanFrame;
-use wheelleg_runtime::leg::{IkError, JointAngles, LegConfig};
-use wheelleg_runtime::robot::{LegId, RobotGeometry};
+use wheelleg_runtime::leg::{IkError, LegConfig};
+use wheelleg_runtime::robot::RobotGeometry;
 
 /// The control period the firmware polls once per.
 pub const PERIOD_US: u64 = 10_000;
@@ -285,35 +285,10 @@ impl Plant {
     }
 
     fn true_legs(&self) -> Option<LegConfig> {
-        let (mut clearance_m, mut track_m) = (0.0, 0.0);
-        for leg in LegId::ALL {
-            let angle = |joint| {
-                let axis = Axis::Joint(leg, joint);
-                let motor = self.axes.axis(axis)?;
-                Some(self.map.get(axis).to_angle_rad(motor.pos_turns()))
-            };
-            let joints = JointAngles {
-                hip_rad: angle(Joint::Hip)?,
-                knee_rad: angle(Joint::Knee)?,
-                wheel_mount_rad: angle(Joint::WheelMount)?,
-            };
-            let c = self.geometry.config_from_joints(joints);
-            clearance_m += 0.25 * c.clearance_m;
-            track_m += 0.25 * c.track_m;
-        }
-        Some(LegConfig {
-            clearance_m,
-            track_m,
-        })
+        self.axes.true_legs(&self.map, &self.geometry)
     }
 
     fn true_wheel_speeds(&self) -> Option<WheelSpeeds> {
-        let mut speeds = WheelSpeeds::ZERO;
-        for (leg, out) in LegId::ALL.into_iter().zip(speeds.radps.iter_mut()) {
-            let axis = Axis::Wheel(leg);
-            let motor = self.axes.axis(axis)?;
-            *out = self.map.get(axis).to_speed_radps(motor.vel_turns_per_s());
-        }
-        Some(speeds)
+        self.axes.true_wheel_speeds(&self.map)
     }
 }
