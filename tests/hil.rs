@@ -111,9 +111,9 @@ fn firmware_in_the_loop_reaches_the_in_process_outcomes() {
             scene.name
         );
         // The decision count is not yet the host's on every scene: with the shipped file
-        // complex-0 takes 17 decisions through the firmware and 18 in process (a near-tie that
-        // the two observation paths break differently; docs/controller.md, "The firmware in the
-        // loop"). Until that is traced, one decision either way is tolerated, not more.
+        // complex-0 takes 17 decisions through the firmware and 18 in process, a difference not
+        // yet traced (docs/controller.md, "The firmware in the loop"). Until it is, one
+        // decision either way is tolerated, not more.
         assert!(
             got.steps.abs_diff(expected.steps) <= 1,
             "{}: {} decisions through the firmware, {} in process",
