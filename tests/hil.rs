@@ -1,12 +1,13 @@
 //! The controller firmware in the loop (`src/hil`): the production image in QEMU, the world and
 //! the simulated motors on the host, joined by the observation link and the SLCAN adapter link.
 //!
-//! Run by `scripts/mcu.sh` once the image is built (it needs `scripts/embedded-toolchain.sh`'s
+//! Run by `scripts/hil.sh` once the image is built (it needs `scripts/embedded-toolchain.sh`'s
 //! QEMU and nightly toolchain); without QEMU every test prints a SKIPPED line and passes.
 //!
 //! - the first `WHEELLEG_HIL_SCENES` held-out complex scenes (default 2) reach exactly the
 //!   outcomes (success, decisions, collisions) of the in-process closed loop driven by the same
-//!   on-board stack, and the bus log decodes with ODrive's DBC (`tools/check_dbc.py`);
+//!   on-board stack, and the bus log decodes with ODrive's DBC (`tools/check_dbc.py`); the
+//!   firmware's RAM in use (statics and its painted stack) fits 32 KiB;
 //! - each fault brings the robot to the safe state (wheels stopped, legs held) within the
 //!   firmware's timeout, and the firmware says why.
 
@@ -24,6 +25,9 @@ use wheelleg_sim::env::{Env, EnvConfig};
 use wheelleg_sim::scenario::Scenario;
 
 const SCENES: &str = "eval/heldout-complex-s1000000.json";
+
+/// RAM of the budget's part (an STM32G431-class Cortex-M4F).
+const RAM_BUDGET_BYTES: u32 = 32 * 1024;
 
 /// Health timeout (50 ms) and the period in which the silence is seen, in control periods.
 const HEALTH_PERIODS: u32 = 5 + 2;
@@ -79,7 +83,7 @@ fn firmware_in_the_loop_reaches_the_in_process_outcomes() {
     let weights = std::fs::read(root().join("weights/policy.wlw")).expect("weights");
     let out = root().join("target/hil");
     std::fs::create_dir_all(&out).expect("out dir");
-    let mut lines = Vec::new();
+    let mut differs = Vec::new();
     for scene in scenes().iter().take(count) {
         let mut driver = OnboardDriver::new(&weights).expect("stack");
         let mut host = ClosedLoop::in_process(scene, LoopConfig::default()).expect("loop");
@@ -90,50 +94,57 @@ fn firmware_in_the_loop_reaches_the_in_process_outcomes() {
         }
         let expected = host.finish().expect("finish");
         let log = out.join(format!("{}.log", scene.name));
-        let (hil, got) = run(&image, scene, &Faults::default(), Some(&log));
+        let (mut hil, got) = run(&image, scene, &Faults::default(), Some(&log));
+        let ram = hil.ram_use().unwrap_or_else(|e| panic!("{e}"));
         hil.shutdown().expect("shutdown");
+        // The stack was painted and reached into the paint; with the statics it fits the
+        // budget's 32 KiB of an STM32G431-class part.
+        assert!(
+            ram.peak_stack_bytes > 1024 && ram.total_bytes() <= RAM_BUDGET_BYTES,
+            "{}: {ram:?}",
+            scene.name
+        );
         let got = got.report;
-        lines.push(format!(
-            "{}: host {:?} {} decisions {} collisions; firmware {:?} {} decisions {} collisions",
+        let line = format!(
+            "{}: host {:?} {} decisions {} collisions; firmware {:?} {} decisions {} collisions, \
+             RAM {} bytes (stack {})",
             scene.name,
             expected.status,
             expected.steps,
             expected.collisions,
             got.status,
             got.steps,
-            got.collisions
-        ));
-        assert_eq!(got.fault, None, "{}: {:?}", scene.name, got.fault);
-        assert_eq!(
-            (got.status, got.collisions),
-            (expected.status, expected.collisions),
-            "{}",
-            scene.name
+            got.collisions,
+            ram.total_bytes(),
+            ram.peak_stack_bytes
         );
-        // The decision count is not yet the host's on every scene: with the shipped file
-        // complex-0 takes 17 decisions through the firmware and 18 in process, a difference not
-        // yet traced (docs/controller.md, "The firmware in the loop"). Until it is, one
-        // decision either way is tolerated, not more.
-        assert!(
-            got.steps.abs_diff(expected.steps) <= 1,
-            "{}: {} decisions through the firmware, {} in process",
-            scene.name,
-            got.steps,
-            expected.steps
-        );
+        // Printed as it comes: a run over many scenes shows its progress.
+        println!("{line}");
+        if got.fault.is_some()
+            || (got.status, got.collisions, got.steps)
+                != (expected.status, expected.collisions, expected.steps)
+        {
+            differs.push(format!("{line}; fault {:?}", got.fault));
+        }
         let checked = std::process::Command::new("python3")
             .arg(root().join("tools/check_dbc.py"))
             .arg(&log)
             .output()
             .expect("python3 runs tools/check_dbc.py");
-        assert!(
-            checked.status.success(),
-            "{}: the bus log does not decode with ODrive's DBC: {}",
-            scene.name,
-            String::from_utf8_lossy(&checked.stderr)
-        );
+        if !checked.status.success() {
+            differs.push(format!(
+                "{}: the bus log does not decode with ODrive's DBC: {}",
+                scene.name,
+                String::from_utf8_lossy(&checked.stderr)
+            ));
+        }
     }
-    println!("{}", lines.join("\n"));
+    assert!(
+        differs.is_empty(),
+        "{} of {count} scenes differ from the host's closed loop:\n{}",
+        differs.len(),
+        differs.join("\n")
+    );
 }
 
 /// Runs scene 0 with `faults` and checks the firmware's safe stop: its reason, that it came

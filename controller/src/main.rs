@@ -17,6 +17,7 @@ use core::arch::asm;
 use core::mem::MaybeUninit;
 use core::panic::PanicInfo;
 use core::ptr::{read_volatile, write_volatile};
+use core::sync::atomic::{AtomicBool, Ordering};
 
 use cortex_m_rt::{entry, exception};
 use wheelleg_controller::control::{
@@ -51,20 +52,38 @@ static DECIDER: Buffer<ControllerDecider> = Buffer::new(ControllerDecider::new()
 #[link_section = ".uninit.STACK"]
 static STACK: Buffer<MaybeUninit<Stack<'static, 'static>>> = Buffer::new(MaybeUninit::uninit());
 
-/// Interrupts of the vector table: the 32 of QEMU's mps2-an386 (CMSDK peripherals), none
-/// used (the controller polls its peripherals), each parked in a loop.
+/// Interrupts of the vector table: none is enabled (the controller polls its UARTs, and
+/// SysTick is an exception), so the table has only the one entry cortex-m-rt's link script
+/// asks for; an interrupt that fired anyway would find no handler past it.
 #[link_section = ".vector_table.interrupts"]
 #[no_mangle]
-static __INTERRUPTS: [unsafe extern "C" fn(); 32] = [unused_interrupt; 32];
+static __INTERRUPTS: [unsafe extern "C" fn(); 1] = [unused_interrupt];
 
 /// An interrupt nothing enabled: stop here.
 unsafe extern "C" fn unused_interrupt() {
     halt()
 }
 
-/// SysTick's interrupt only wakes the core from `wfi` at the period's start.
+/// A control period began and [`period_began`] has not yet said so.
+static PERIOD_BEGAN: AtomicBool = AtomicBool::new(false);
+
+/// SysTick's interrupt marks the period's start and wakes the core.
 #[exception]
-fn SysTick() {}
+fn SysTick() {
+    PERIOD_BEGAN.store(true, Ordering::Relaxed);
+}
+
+/// Sleeps until the next period's start unless it began already. Interrupts are masked from
+/// the test to the `wfi`, so that a SysTick taken between them cannot leave the core asleep
+/// through a whole period; `wfi` still wakes for a masked exception.
+fn sleep_until_period() {
+    // SAFETY: masking and unmasking interrupts, and `wfi`, touch no memory.
+    unsafe { asm!("cpsid i", options(nomem, nostack)) };
+    if !PERIOD_BEGAN.load(Ordering::Relaxed) {
+        unsafe { asm!("wfi", options(nomem, nostack)) };
+    }
+    unsafe { asm!("cpsie i", options(nomem, nostack)) };
+}
 
 /// Stops the core (an unused interrupt, a panic, a failed boot check).
 fn halt() -> ! {
@@ -118,10 +137,9 @@ impl Uart {
     }
 }
 
-/// Whether SysTick wrapped since the last reading: a control period began. Reading clears it.
+/// Whether a control period began since the last asking.
 fn period_began() -> bool {
-    // SAFETY: SysTick's control register; reading it clears COUNTFLAG (bit 16).
-    unsafe { read_volatile(0xE000_E010 as *const u32) & (1 << 16) != 0 }
+    PERIOD_BEGAN.swap(false, Ordering::Relaxed)
 }
 
 /// The CAN bus behind an SLCAN adapter on a UART: frames out as `t` lines, the adapter's frame
@@ -231,8 +249,7 @@ impl Board for SlcanBoard {
         while !core::mem::take(&mut self.can.period_pending) {
             self.can.period_pending = period_began();
             if !self.can.period_pending {
-                // SAFETY: `wfi` only waits for an interrupt (SysTick's, at the period's start).
-                unsafe { asm!("wfi", options(nomem, nostack)) };
+                sleep_until_period();
             }
         }
         self.can.uart.write(b"F\r");

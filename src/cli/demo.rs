@@ -490,6 +490,7 @@ fn run_qemu(args: &Args, scenario: &Scenario, origin: &str) -> CliResult {
     let episode = episode?;
     taken.map_err(|e| format!("cannot write the bus log: {e}"))?;
     log_file.commit()?;
+    let ram = hil.ram_use()?;
     hil.shutdown()?;
     let report = &episode.report;
     let png = args.out.join("path.png");
@@ -502,6 +503,13 @@ fn run_qemu(args: &Args, scenario: &Scenario, origin: &str) -> CliResult {
         png.display(),
         args.out.join("bus.log").display(),
         report.traffic.frames
+    );
+    outln!(
+        "RAM:       {} bytes in use on the controller (statics {}, stack at its deepest {}, \
+         painted by QEMU's loader)",
+        ram.total_bytes(),
+        ram.statics_bytes,
+        ram.peak_stack_bytes
     );
     match report.fault {
         Some(fault) => Err(format!("robot stopped: {fault}").into()),

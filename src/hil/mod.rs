@@ -17,6 +17,7 @@
 //! snaps to the lattice, and a step the world refuses is backed out of by the firmware
 //! (`Collided`).
 
+pub mod memory;
 pub mod onboard;
 pub mod plant;
 #[path = "../../controller/src/wire.rs"]
@@ -43,6 +44,7 @@ use wheelleg_sim::height_map::MapGrid;
 
 use crate::closed_loop::driver::observation_mm;
 use crate::closed_loop::{EpisodeReport, Fault, StepError, Tolerance, Tracking, BITRATE_BPS};
+use memory::{RamLayout, RamUse};
 use plant::{Plant, PlantFault};
 use wire::{stop_reason, FromController, ToController};
 
@@ -201,6 +203,10 @@ impl std::fmt::Display for ControllerStop {
 pub struct Hil {
     qemu: Child,
     obs: TcpStream,
+    monitor: TcpStream,
+    layout: RamLayout,
+    /// The paint file and the RAM QEMU saves (removed with the `Hil`).
+    scratch: PathBuf,
     received: Vec<u8>,
     plant: Arc<Mutex<Plant>>,
     can: Option<JoinHandle<Result<(), String>>>,
@@ -253,25 +259,37 @@ impl Hil {
         if !qemu_available() {
             return Err(HilError::NoQemu);
         }
+        let layout = RamLayout::of_image(image)?;
         let plant = Plant::new(&WHEELLEG, start)
             .map_err(|e| HilError::Io(format!("the start legs have no IK solution: {e:?}")))?;
         let (obs_listener, obs_port) = listener()?;
         let (can_listener, can_port) = listener()?;
+        let (monitor_listener, monitor_port) = listener()?;
+        let scratch =
+            std::env::temp_dir().join(format!("wheelleg-hil-{}-{obs_port}", std::process::id()));
+        std::fs::create_dir_all(&scratch).map_err(io("creating the scratch folder"))?;
+        let paint = layout.write_paint(&scratch)?;
         // UART 0 is the console (unused), UART 1 the observation link, UART 2 the CAN
-        // adapter. Instructions are counted (1 ns each) and idle time is skipped, so that the
-        // firmware's SysTick periods cost only what the firmware executes.
+        // adapter; Nagle's algorithm off on both, since QEMU writes a byte per segment and a
+        // delayed acknowledgement would hold the next one back. Instructions are counted
+        // (1 ns each) and idle time is skipped, so that the firmware's SysTick periods cost
+        // only what the firmware executes. The loader paints the free RAM before the core
+        // starts, and the monitor saves it at the end ([`Hil::ram_use`]).
         let mut qemu = Command::new("qemu-system-arm")
+            .args(["-machine", "mps2-an386", "-display", "none"])
             .args([
-                "-machine",
-                "mps2-an386",
-                "-display",
-                "none",
                 "-monitor",
-                "none",
+                &format!("tcp:127.0.0.1:{monitor_port},nodelay=on"),
             ])
             .args(["-serial", "null"])
-            .args(["-serial", &format!("tcp:127.0.0.1:{obs_port}")])
-            .args(["-serial", &format!("tcp:127.0.0.1:{can_port}")])
+            .args(["-serial", &format!("tcp:127.0.0.1:{obs_port},nodelay=on")])
+            .args(["-serial", &format!("tcp:127.0.0.1:{can_port},nodelay=on")])
+            .arg("-device")
+            .arg(format!(
+                "loader,file={},addr={:#x},force-raw=on",
+                paint.display(),
+                layout.stack_limit
+            ))
             .args(["-icount", "shift=0,sleep=off", "-kernel"])
             .arg(image)
             .stdin(Stdio::null())
@@ -282,6 +300,7 @@ impl Hil {
                 std::io::ErrorKind::NotFound => HilError::NoQemu,
                 _ => io("starting QEMU")(e),
             })?;
+        let monitor = accept(&monitor_listener, &mut qemu, "monitor")?;
         let obs = accept(&obs_listener, &mut qemu, "observation link (UART 1)")?;
         let can = accept(&can_listener, &mut qemu, "CAN adapter link (UART 2)")?;
         let plant = Arc::new(Mutex::new(plant));
@@ -289,15 +308,81 @@ impl Hil {
         let can = std::thread::spawn(move || serve_can(can, shared));
         let window = CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M)
             .fine_window(MapGrid::GUARD_FINE.side, MapGrid::GUARD_FINE.cell_m);
-        Ok(Hil {
+        let mut hil = Hil {
             qemu,
             obs,
+            monitor,
+            layout,
+            scratch,
             received: Vec::new(),
             plant,
             can: Some(can),
             window,
             fine: vec![0.0; MapGrid::GUARD_FINE.cells()],
             sim_observation: SimObservation::default(),
+        };
+        // The monitor's greeting ends in its first prompt.
+        hil.monitor_prompt()?;
+        Ok(hil)
+    }
+
+    /// Reads the monitor's output up to its next prompt.
+    fn monitor_prompt(&mut self) -> Result<String, HilError> {
+        let deadline = Instant::now() + ANSWER_TIMEOUT;
+        let mut out = Vec::new();
+        let mut buf = [0u8; 1024];
+        while !out.ends_with(b"(qemu) ") {
+            if Instant::now() > deadline {
+                return Err(HilError::Protocol("QEMU's monitor did not answer".into()));
+            }
+            self.monitor
+                .set_read_timeout(Some(Duration::from_secs(1)))
+                .map_err(io("QEMU's monitor"))?;
+            match self.monitor.read(&mut buf) {
+                Ok(0) => return Err(HilError::Protocol("QEMU closed its monitor".into())),
+                Ok(n) => out.extend_from_slice(&buf[..n]),
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                    ) => {}
+                Err(e) => return Err(io("reading QEMU's monitor")(e)),
+            }
+        }
+        Ok(String::from_utf8_lossy(&out).into_owned())
+    }
+
+    /// The firmware's RAM in use so far: its statics, and its stack at the deepest, from the
+    /// free RAM painted at the start and saved now by QEMU's monitor.
+    pub fn ram_use(&mut self) -> Result<RamUse, HilError> {
+        let dump = self.scratch.join("ram.bin");
+        let _ = std::fs::remove_file(&dump);
+        let command = format!(
+            "pmemsave {:#x} {} \"{}\"\n",
+            self.layout.stack_limit,
+            self.layout.free_bytes(),
+            dump.display()
+        );
+        self.monitor
+            .write_all(command.as_bytes())
+            .map_err(io("writing to QEMU's monitor"))?;
+        let answer = self.monitor_prompt()?;
+        let bytes = std::fs::read(&dump).map_err(|e| {
+            HilError::Protocol(format!(
+                "QEMU's monitor saved no RAM ({e}); it answered: {}",
+                answer.trim()
+            ))
+        })?;
+        if bytes.len() != self.layout.free_bytes() as usize {
+            return Err(HilError::Protocol(format!(
+                "QEMU's monitor saved {} bytes of RAM, not {}",
+                bytes.len(),
+                self.layout.free_bytes()
+            )));
+        }
+        Ok(RamUse {
+            statics_bytes: self.layout.stack_limit - self.layout.statics_start,
+            peak_stack_bytes: self.layout.peak_stack_bytes(&bytes),
         })
     }
 
@@ -646,6 +731,7 @@ impl Hil {
     fn stop_qemu(&mut self) {
         let _ = self.qemu.kill();
         let _ = self.qemu.wait();
+        let _ = std::fs::remove_dir_all(&self.scratch);
     }
 }
 

@@ -1,0 +1,20 @@
+#!/usr/bin/env bash
+# The controller firmware in the loop (tests/hil.rs): the production image in QEMU's
+# mps2-an386 between the world and the simulated motors, on its observation link (UART 1) and
+# its SLCAN adapter link (UART 2):
+#   - the first HIL_SCENES held-out complex scenes (default 2) reach the in-process closed
+#     loop's outcomes with the same on-board stack, and their bus logs decode with ODrive's DBC;
+#   - a silent axis, lost CAN frames, a dead CAN link, a stalled and a corrupt observation link
+#     each end in the documented safe stop within the documented timeout;
+#   - the firmware's RAM in use (statics and the stack painted by QEMU's loader) fits 32 KiB.
+# Installs the embedded toolchain and QEMU if needed (scripts/embedded-toolchain.sh).
+#
+#   bash scripts/hil.sh
+#   HIL_SCENES=50 bash scripts/hil.sh
+set -euo pipefail
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
+
+bash scripts/embedded-toolchain.sh >&2
+(cd controller && nice -n 10 cargo +nightly build --quiet --release --bin wheelleg-controller)
+WHEELLEG_HIL_SCENES="${HIL_SCENES:-2}" nice -n 10 cargo test --quiet --release --test hil -- \
+    --test-threads=1 --nocapture
