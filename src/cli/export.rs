@@ -7,7 +7,6 @@ use std::path::PathBuf;
 use wheelleg_sim::atomic_write;
 use wheelleg_trainer::checkpoint::Checkpoint;
 use wheelleg_trainer::export::{card_path, export_policy, ExportOptions};
-use wheelleg_trainer::lookahead::LookaheadConfig;
 use wheelleg_trainer::network::BackendKind;
 use wheelleg_trainer::quantize::qat::RECOMMENDED_STEPS;
 use wheelleg_trainer::quantize::{ActionRange, Agreement, QatOptions, RangeMethod};
@@ -69,15 +68,6 @@ pub struct Args {
     /// Fine-tuning steps between recalibrations of the activation ranges.
     #[arg(long, default_value_t = QatOptions::default().recalibrate_every)]
     qat_recalibrate_every: usize,
-    /// Expert iteration: fine-tune on the checkpoint's own decisions driving with the robot's
-    /// stack and the look-ahead of CANDIDATES (default 8), each target leaning towards the
-    /// action the look-ahead took (docs/results.md, "Expert iteration").
-    #[arg(long, value_name = "CANDIDATES", num_args = 0..=1, default_missing_value = "8",
-          value_parser = clap::value_parser!(u16).range(2..=243))]
-    expert_lookahead: Option<u16>,
-    /// Share of each target that goes to the look-ahead's action (0 to 1).
-    #[arg(long, default_value_t = 0.5, requires = "expert_lookahead")]
-    expert_weight: f32,
 }
 
 fn parse_range(text: &str) -> Result<RangeMethod, String> {
@@ -136,16 +126,8 @@ pub fn run(args: Args) -> CliResult {
         recalibrate_every: args.qat_recalibrate_every,
         observations: args.qat_observations,
         seed: args.qat_seed,
-        expert_weight: if args.expert_lookahead.is_some() {
-            args.expert_weight
-        } else {
-            0.0
-        },
         ..QatOptions::default()
     };
-    if args.expert_lookahead.is_some() && args.qat_steps == 0 {
-        return Err("--expert-lookahead trains the network: give --qat-steps above 0".into());
-    }
     qat.validate()?;
     let options = ExportOptions {
         qat,
@@ -155,10 +137,6 @@ pub fn run(args: Args) -> CliResult {
         calibration_observations: args.calibration,
         holdout_observations: args.holdout,
         range: parse_range(&args.range)?,
-        expert: args.expert_lookahead.map(|candidates| LookaheadConfig {
-            candidates: usize::from(candidates),
-            ..LookaheadConfig::default()
-        }),
     };
     let checkpoint = Checkpoint::load(&args.policy)?;
     let network = checkpoint.network.to_network()?;

@@ -3,11 +3,10 @@
 //! a check through the runtime itself, the agreement figure on held-out observations, and an
 //! atomic write.
 
-use crate::batch_policy::{BatchPolicy, FloatPolicy};
-use crate::evaluate::{collect_observations, run_episodes, EvalOptions, RecordedObservation};
-use crate::lookahead::LookaheadConfig;
+use crate::batch_policy::FloatPolicy;
+use crate::evaluate::{collect_observations, EvalOptions, RecordedObservation};
 use crate::network_f32::NetworkF32;
-use crate::quantize::qat::fine_tune_towards;
+use crate::quantize::qat::fine_tune;
 use crate::quantize::{
     agreement, quantize, ActionRange, Agreement, Calibration, EvalPolicy, QatOptions, QatReport,
     QatSettings, QuantizedNetwork, RangeMethod,
@@ -17,10 +16,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
-use wheelleg_runtime::action::Action;
-use wheelleg_runtime::guard::DEFAULT_MARGIN_M as DEFAULT_GUARD_MARGIN_M;
 use wheelleg_sim::generate::{generate_many, SceneKind};
-use wheelleg_sim::height_map::MapGrid;
 
 /// Where calibration and agreement observations come from.
 #[derive(Clone, Debug)]
@@ -41,11 +37,6 @@ pub struct ExportOptions {
     /// Quantization-aware fine-tuning before quantization (`steps: 0`, the default here:
     /// none; `wheelleg export` takes [`crate::quantize::qat::RECOMMENDED_STEPS`] by default).
     pub qat: QatOptions,
-    /// Expert iteration in the fine-tuning: its observations then come from the checkpoint
-    /// driving with the robot's stack (1 cm guard, arrival) and this look-ahead, and their
-    /// targets lean towards the actions the look-ahead took ([`QatOptions::expert_weight`]).
-    /// None: stochastic rollouts and the teacher alone.
-    pub expert: Option<LookaheadConfig>,
 }
 
 impl Default for ExportOptions {
@@ -61,7 +52,6 @@ impl Default for ExportOptions {
             // difference (docs/results.md, issue 5) and stays the default of `wheelleg export`.
             action_range: ActionRange::Contenders,
             qat: QatOptions::default(),
-            expert: None,
         }
     }
 }
@@ -112,20 +102,6 @@ pub struct QatCard {
     /// Greedy agreement of the plain post-training quantization of the original network (no
     /// fine-tuning) with it, on the same held-out observations: what the fine-tuning gained.
     pub ptq_agreement: Agreement,
-    /// The look-ahead whose choices the targets leaned towards (expert iteration), if any.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub expert: Option<ExpertCard>,
-}
-
-/// The expert of an expert-iteration fine-tuning.
-#[derive(Clone, Copy, Debug, Serialize)]
-pub struct ExpertCard {
-    /// Candidates weighed per decision.
-    pub candidates: usize,
-    /// Steps per rollout at most.
-    pub horizon_steps: u32,
-    /// Growth of the perceived boxes.
-    pub margin_m: f32,
 }
 
 /// Observations from stochastic rollouts of `network` in freshly generated scenes, until
@@ -162,51 +138,6 @@ pub fn rollout_observations(
         observations.extend(more);
     }
     Ok(observations)
-}
-
-/// Decisions of `policy` driving with the robot's stack (guard on the 1 cm map, arrival rule)
-/// and `lookahead` in freshly generated scenes, until `count` are collected: each observation
-/// and the action taken there. The training set of expert iteration.
-pub fn expert_decisions(
-    policy: &dyn BatchPolicy,
-    kind: SceneKind,
-    seed: u64,
-    count: usize,
-    lookahead: LookaheadConfig,
-) -> Result<(Vec<RecordedObservation>, Vec<Action>), String> {
-    let mut scenes_rng = ChaCha8Rng::seed_from_u64(seed);
-    let mut unused_rng = ChaCha8Rng::seed_from_u64(seed);
-    unused_rng.set_stream(1);
-    let options = EvalOptions {
-        planner_expansions: 0,
-        guard_margin_m: Some(DEFAULT_GUARD_MARGIN_M),
-        guard_grid: Some(MapGrid::GUARD_FINE),
-        arrival: true,
-        lookahead: Some(lookahead),
-        ..EvalOptions::default()
-    };
-    let mut observations = Vec::with_capacity(count);
-    let mut actions = Vec::with_capacity(count);
-    while observations.len() < count {
-        let before = observations.len();
-        let scenes = generate_many(kind, &mut scenes_rng, 64);
-        run_episodes(
-            policy,
-            &scenes,
-            &options,
-            &mut unused_rng,
-            &mut |decision| {
-                if observations.len() < count {
-                    observations.push((decision.height_map_m.to_vec(), decision.state.to_vec()));
-                    actions.push(decision.action);
-                }
-            },
-        )?;
-        if observations.len() == before {
-            return Err("expert rollouts produced no decisions".into());
-        }
-    }
-    Ok((observations, actions))
 }
 
 fn range_name(range: RangeMethod) -> String {
@@ -272,33 +203,17 @@ pub fn export_policy(
     } else {
         let (_, ptq, ptq_bytes) = calibrate_and_quantize(network)?;
         let ptq_agreement = measure(&ptq_bytes)?;
-        let (training_set, expert_actions) = match options.expert {
-            None => (
-                rollout_observations(
-                    &float,
-                    options.scene_kind,
-                    options.qat.seed,
-                    options.qat.observations,
-                )?,
-                None,
-            ),
-            Some(lookahead) => {
-                let (observations, actions) = expert_decisions(
-                    &float,
-                    options.scene_kind,
-                    options.qat.seed,
-                    options.qat.observations,
-                    lookahead,
-                )?;
-                (observations, Some(actions))
-            }
-        };
-        let (student, report) = fine_tune_towards(
+        let training_set = rollout_observations(
+            &float,
+            options.scene_kind,
+            options.qat.seed,
+            options.qat.observations,
+        )?;
+        let (student, report) = fine_tune(
             network,
             device,
             &calibration_set,
             &training_set,
-            expert_actions.as_deref(),
             &QatSettings {
                 range: options.range,
                 action_range: options.action_range,
@@ -311,11 +226,6 @@ pub fn export_policy(
             options: options.qat.clone(),
             report,
             ptq_agreement,
-            expert: options.expert.map(|l| ExpertCard {
-                candidates: l.candidates,
-                horizon_steps: l.horizon_steps,
-                margin_m: l.margin_m,
-            }),
         };
         (calibration, quantized, bytes, Some(card))
     };

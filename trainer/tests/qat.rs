@@ -8,15 +8,12 @@ use std::path::PathBuf;
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use wheelleg_runtime::action::{Action, Step};
 use wheelleg_runtime::model::format::FORMAT_VERSION;
 use wheelleg_runtime::model::DefaultPolicy;
-use wheelleg_trainer::batch_policy::{BatchPolicy, FloatPolicy};
 use wheelleg_trainer::checkpoint::Checkpoint;
 use wheelleg_trainer::export::{export_policy, ExportOptions};
 use wheelleg_trainer::network::BackendKind;
 use wheelleg_trainer::network_f32::NetworkF32;
-use wheelleg_trainer::quantize::qat::fine_tune_towards;
 use wheelleg_trainer::quantize::{fine_tune, ActionRange, QatOptions, QatSettings, RangeMethod};
 
 fn baseline() -> NetworkF32 {
@@ -154,95 +151,4 @@ fn fine_tuning_is_deterministic_and_checks_its_inputs() {
     assert!(error.contains("cells"), "{error}");
     let error = fine_tune(&network, &device, &[], &observations, &settings, &options).unwrap_err();
     assert!(error.contains("observations"), "{error}");
-}
-
-#[test]
-fn an_expert_pulls_the_students_choices_towards_its_own() {
-    let network = baseline();
-    let device = BackendKind::Flex.device().unwrap();
-    let observations = random_observations(6);
-    // The expert always drives backwards.
-    let back = Action {
-        move_x: Step::Minus,
-        ..Action::IDLE
-    };
-    let experts = vec![back; observations.len()];
-    let settings = QatSettings {
-        range: RangeMethod::MinMax,
-        action_range: ActionRange::Contenders,
-        version: FORMAT_VERSION,
-    };
-    let options = QatOptions {
-        steps: 60,
-        batch: 32,
-        learning_rate: 1e-3,
-        expert_weight: 0.9,
-        seed: 3,
-        ..QatOptions::default()
-    };
-    let backwards = |net: &NetworkF32| {
-        let policy = FloatPolicy::new(net, &device).unwrap();
-        observations
-            .iter()
-            .filter(|(h, s)| {
-                let out = policy.log_probs(h, s, 1).unwrap();
-                let move_x = &out.log_probs[..3];
-                move_x[0] > move_x[1] && move_x[0] > move_x[2]
-            })
-            .count()
-    };
-    let towards = |experts: &[Action], options: &QatOptions| {
-        fine_tune_towards(
-            &network,
-            &device,
-            &observations,
-            &observations,
-            Some(experts),
-            &settings,
-            options,
-        )
-    };
-    let (student, _) = towards(&experts, &options).unwrap();
-    let (before, after) = (backwards(&network), backwards(&student));
-    assert!(
-        after >= before + 32,
-        "backwards at {before} of 64 observations before, {after} after"
-    );
-    // Without weight the expert changes nothing: the teacher's own targets.
-    let (plain, _) = towards(
-        &experts,
-        &QatOptions {
-            expert_weight: 0.0,
-            ..options.clone()
-        },
-    )
-    .unwrap();
-    let (teacher_only, _) = fine_tune(
-        &network,
-        &device,
-        &observations,
-        &observations,
-        &settings,
-        &QatOptions {
-            expert_weight: 0.0,
-            ..options.clone()
-        },
-    )
-    .unwrap();
-    assert!(
-        plain == teacher_only,
-        "a weight of 0 leaves the teacher's targets"
-    );
-    // One expert action per observation, and a weight within 0 to 1.
-    let error = towards(&experts[1..], &options).unwrap_err();
-    assert!(error.contains("expert actions"), "{error}");
-    let error = towards(
-        &experts,
-        &QatOptions {
-            expert_weight: 1.5,
-            ..options
-        },
-    )
-    .unwrap_err();
-    assert!(error.contains("expert weight"), "{error}");
 }

@@ -31,7 +31,7 @@ use burn::tensor::{Device, Gradients, Tensor, TensorData};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
-use wheelleg_runtime::action::{Action, Dim, CHOICES, DIMS};
+use wheelleg_runtime::action::{CHOICES, DIMS};
 use wheelleg_runtime::model::quant::{quantize_mm, quantize_mm16};
 
 use super::build::{quantize_for_version, QuantizedLayer, QuantizedNetwork};
@@ -74,10 +74,6 @@ pub struct QatOptions {
     pub seed: u64,
     /// Global gradient norm limit (0: none).
     pub max_grad_norm: f32,
-    /// Share of each dimension's target that goes to an expert's action where one is given
-    /// ([`fine_tune_towards`]): the target is `(1 - w) p_teacher + w onehot(expert)`. 0: the
-    /// teacher alone.
-    pub expert_weight: f32,
 }
 
 impl Default for QatOptions {
@@ -93,7 +89,6 @@ impl Default for QatOptions {
             observations: 20_000,
             seed: 2_000_002,
             max_grad_norm: 1.0,
-            expert_weight: 0.0,
         }
     }
 }
@@ -136,12 +131,6 @@ impl QatOptions {
                 "QAT recalibration interval (--qat-recalibrate-every) must be at least 1 step"
                     .into(),
             );
-        }
-        if !(self.expert_weight.is_finite() && (0.0..=1.0).contains(&self.expert_weight)) {
-            return Err(format!(
-                "QAT expert weight (--expert-weight) {} must be within 0 to 1",
-                self.expert_weight
-            ));
         }
         if !(self.max_grad_norm.is_finite() && self.max_grad_norm >= 0.0) {
             return Err(format!(
@@ -610,31 +599,6 @@ pub fn fine_tune(
     settings: &QatSettings,
     options: &QatOptions,
 ) -> Result<(NetworkF32, QatReport), String> {
-    fine_tune_towards(
-        teacher,
-        device,
-        calibration_set,
-        training_set,
-        None,
-        settings,
-        options,
-    )
-}
-
-/// [`fine_tune`] with an expert: `expert_actions[i]` is the action a better decision-maker
-/// (the look-ahead, `crate::lookahead`) took at `training_set[i]`, and each dimension's target
-/// moves [`QatOptions::expert_weight`] of its mass onto that action's choice. With the
-/// look-ahead as the expert this is one round of expert iteration: the network learns to take
-/// at once what its rollouts would have chosen.
-pub fn fine_tune_towards(
-    teacher: &NetworkF32,
-    device: &Device,
-    calibration_set: &[RecordedObservation],
-    training_set: &[RecordedObservation],
-    expert_actions: Option<&[Action]>,
-    settings: &QatSettings,
-    options: &QatOptions,
-) -> Result<(NetworkF32, QatReport), String> {
     let (method, action_range, version) = (settings.range, settings.action_range, settings.version);
     options.validate()?;
     network::check_policy_shape(teacher)?;
@@ -650,15 +614,6 @@ pub fn fine_tune_towards(
     }
     if calibration_set.is_empty() || training_set.is_empty() {
         return Err("QAT needs calibration and training observations".into());
-    }
-    if let Some(actions) = expert_actions {
-        if actions.len() != training_set.len() {
-            return Err(format!(
-                "{} expert actions for {} training observations",
-                actions.len(),
-                training_set.len()
-            ));
-        }
     }
     let arch = &teacher.arch;
     let cells = arch.height_rows * arch.height_cols;
@@ -696,20 +651,6 @@ pub fn fine_tune_towards(
             targets.extend(tempered.iter().map(|l| l - log_sum));
         }
     }
-    let w = options.expert_weight;
-    if let Some(actions) = expert_actions.filter(|_| w > 0.0) {
-        for (target, action) in targets.chunks_exact_mut(DIMS * CHOICES).zip(actions) {
-            for (dim, head) in Dim::ALL.iter().zip(target.chunks_exact_mut(CHOICES)) {
-                let expert = action.get(*dim).head_index();
-                for (choice, log_p) in head.iter_mut().enumerate() {
-                    let onehot = if choice == expert { w } else { 0.0 };
-                    // Floored so that a choice the mix leaves at 0 has a finite log.
-                    *log_p = ((1.0 - w) * log_p.exp() + onehot).max(1e-12).ln();
-                }
-            }
-        }
-    }
-
     let mut student = teacher.clone();
     let mut adam = Adam::new(&student);
     let mut calibration = calibrate_batched(&student, device, calibration_set, action_range)?;
