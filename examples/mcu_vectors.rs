@@ -26,24 +26,19 @@
 //! collision-free rates as JSON; `--whole-map` lets the guard read the whole 1 cm map in
 //! metres, as the host's `eval --guard-map fine` does, instead of the controller's window.
 
-#[path = "../controller/src/stack.rs"]
-#[allow(dead_code)]
-mod stack;
-
 use std::cell::RefCell;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::rc::Rc;
 
-use stack::{ControllerDecider, DecisionRecord, Observation, Stack, ROW_ELEMENTS, WORK_BYTES};
-use wheelleg::closed_loop::driver::observation_mm;
 use wheelleg::closed_loop::{ClosedLoop, Driver, DriverError, LoopConfig, StepKind};
+use wheelleg::hil::onboard::{DecisionRecord, Observation, OnboardDriver};
 use wheelleg_firmware_sim::candump::{CandumpWriter, DEFAULT_EPOCH_US};
 use wheelleg_runtime::action::Action;
 use wheelleg_runtime::can::decode;
 use wheelleg_runtime::guard::{CollisionGuard, GridMap, HeightMapRef, DEFAULT_MARGIN_M};
 use wheelleg_runtime::robot::WHEELLEG;
-use wheelleg_sim::env::{Env, EnvConfig, Observation as SimObservation, Status};
+use wheelleg_sim::env::{Env, EnvConfig, Status};
 use wheelleg_sim::height_map::MapGrid;
 use wheelleg_sim::scenario::Scenario;
 
@@ -107,32 +102,22 @@ struct Decided {
     full_map_verdict: bool,
 }
 
-/// The controller's decision stack on the world's observations.
+/// The controller's decision stack on the world's observations, with the whole fine map's
+/// verdict beside the window's.
 struct Robot<'w> {
-    stack: Stack<'w, 'static>,
-    fine: Vec<f32>,
-    sim_observation: SimObservation,
-    work: Vec<i8>,
-    row: Vec<i16>,
+    driver: OnboardDriver<'w>,
     guard: CollisionGuard,
 }
 
 impl<'w> Robot<'w> {
     fn new(weights: &'w [u8]) -> Result<Robot<'w>> {
-        // The firmware keeps the decision rule's memory in a static; here each robot has one
-        // for the life of the program.
-        let decider = Box::leak(Box::new(ControllerDecider::new()));
-        let stack = Stack::new(weights, decider).map_err(|e| format!("{WEIGHTS}: {e:?}"))?;
-        let window = stack.window();
+        let driver = OnboardDriver::new(weights).map_err(|e| format!("{WEIGHTS}: {}", e.0))?;
+        let window = driver.window();
         if window.side != MapGrid::GUARD_FINE.side || window.cell_m != MapGrid::GUARD_FINE.cell_m {
             return Err("the controller's fine map is not the host's GUARD_FINE".into());
         }
         Ok(Robot {
-            stack,
-            fine: vec![0.0; MapGrid::GUARD_FINE.cells()],
-            sim_observation: SimObservation::default(),
-            work: vec![0; WORK_BYTES],
-            row: vec![0; ROW_ELEMENTS],
+            driver,
             guard: CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M),
         })
     }
@@ -145,45 +130,19 @@ impl<'w> Robot<'w> {
     /// One decision; with `whole_map`, the guard reads the whole fine map in metres (the
     /// host's `--guard-map fine`) instead of the controller's window.
     fn decide_with(&mut self, env: &Env, whole_map: bool) -> Result<Decided> {
-        env.observe(&mut self.sim_observation);
-        let (height_mm, state_mm) = observation_mm(&self.sim_observation);
-        let mut observation = Observation::new();
-        observation
-            .height_mm
-            .copy_from_slice(height_mm.as_flattened());
-        observation.state_mm = state_mm;
-        env.observe_grid(MapGrid::GUARD_FINE, &mut self.fine);
-        let bounds = self.stack.window();
-        let side = bounds.side;
-        let mut window_mm_le = Vec::with_capacity(2 * bounds.cells());
-        for row in bounds.rows() {
-            for col in bounds.cols() {
-                let m = self.fine[row * side + col];
-                window_mm_le.extend_from_slice(&((m * 1000.0).round() as i16).to_le_bytes());
-            }
-        }
-        let outputs = self
-            .stack
-            .infer(&observation, &mut self.work, &mut self.row)
-            .map_err(|e| format!("inference: {e:?}"))?;
-        let grid = GridMap::new(&self.fine, side, bounds.cell_m).map_err(|e| e.to_string())?;
-        let record = if whole_map {
-            self.stack
-                .decide_on(&observation, &outputs, HeightMapRef::Grid(grid))
-        } else {
-            self.stack
-                .decide(&observation, &outputs, &window_mm_le)
-                .map_err(|e| format!("decision: {e:?}"))?
-        };
-        let greedy = Action::from_index(usize::from(record.greedy)).unwrap_or_default();
+        let decided = self.driver.decide_on(env, whole_map).map_err(|e| e.0)?;
+        let bounds = self.driver.window();
+        let grid = GridMap::new(self.driver.fine_map_m(), bounds.side, bounds.cell_m)
+            .map_err(|e| e.to_string())?;
+        let greedy = Action::from_index(usize::from(decided.record.greedy)).unwrap_or_default();
         let full_map_verdict = self
             .guard
-            .check(HeightMapRef::Grid(grid), observation.legs(), greedy)
+            .check(HeightMapRef::Grid(grid), decided.observation.legs(), greedy)
             .is_ok();
         Ok(Decided {
-            observation,
-            window_mm_le,
-            record,
+            observation: decided.observation,
+            window_mm_le: decided.window_mm_le,
+            record: decided.record,
             full_map_verdict,
         })
     }
@@ -211,7 +170,7 @@ fn write(path: &Path, bytes: &[u8]) -> Result<()> {
 
 fn vectors(weights: &[u8], scenes: &[Scenario], out: &Path, wanted: usize) -> Result<()> {
     let mut robot = Robot::new(weights)?;
-    let bounds = robot.stack.window();
+    let bounds = robot.driver.window();
     let mut records = Vec::new();
     let mut expected = Vec::new();
     let (mut count, mut episodes, mut disagreements) = (0usize, 0usize, 0usize);
@@ -220,7 +179,7 @@ fn vectors(weights: &[u8], scenes: &[Scenario], out: &Path, wanted: usize) -> Re
             break;
         }
         let mut env = Env::new(scene, EnvConfig::default()).map_err(|e| format!("{e:?}"))?;
-        robot.stack.reset();
+        robot.driver.reset();
         let mut first = true;
         while !env.status().is_done() {
             let decided = robot.decide(&env)?;
@@ -454,7 +413,7 @@ fn evaluate(weights: &[u8], scenes: &[Scenario], whole_map: bool) -> Result<()> 
     let mut failed = Vec::new();
     for scene in scenes {
         let mut env = Env::new(scene, EnvConfig::default()).map_err(|e| format!("{e:?}"))?;
-        robot.stack.reset();
+        robot.driver.reset();
         while !env.status().is_done() {
             let decided = robot.decide_with(&env, whole_map)?;
             decisions += 1;

@@ -691,15 +691,7 @@ impl Hil {
     /// The fine window of the world's 1 cm map around the robot, as the firmware reads it.
     fn window_bytes(&mut self, env: &Env) -> Vec<u8> {
         env.observe_grid(MapGrid::GUARD_FINE, &mut self.fine);
-        let side = self.window.side;
-        let mut out = Vec::with_capacity(2 * self.window.cells());
-        for row in self.window.rows() {
-            for col in self.window.cols() {
-                let m = self.fine[row * side + col];
-                out.extend_from_slice(&((m * 1000.0).round() as i16).to_le_bytes());
-            }
-        }
-        out
+        onboard::window_mm_le(&self.fine, &self.window)
     }
 
     /// Waits until the firmware has run `periods` more control periods (it holds the robot,

@@ -4,16 +4,41 @@
 //! can be held to this loop's outcomes.
 
 #[path = "../../controller/src/stack.rs"]
-#[allow(dead_code)]
-mod stack;
+pub mod stack;
 
-use stack::{ControllerDecider, Observation, Stack, ROW_ELEMENTS, WORK_BYTES};
+use stack::{ControllerDecider, Stack, ROW_ELEMENTS, WORK_BYTES};
+pub use stack::{DecisionRecord, Observation};
 use wheelleg_runtime::action::Action;
+use wheelleg_runtime::guard::{GridMap, HeightMapRef, WindowBounds};
 use wheelleg_sim::env::{Env, Observation as SimObservation};
 use wheelleg_sim::height_map::MapGrid;
 
 use crate::closed_loop::driver::observation_mm;
 use crate::closed_loop::{Driver, DriverError};
+
+/// The cells of `bounds` in the 1 cm map `fine_m` (metres, row-major, `bounds.side` cells a
+/// side) in whole millimetres, `i16` little-endian: the fine window the firmware's guard reads,
+/// as the observation link carries it.
+pub fn window_mm_le(fine_m: &[f32], bounds: &WindowBounds) -> Vec<u8> {
+    let mut out = Vec::with_capacity(2 * bounds.cells());
+    for row in bounds.rows() {
+        for col in bounds.cols() {
+            let m = fine_m.get(row * bounds.side + col).copied().unwrap_or(0.0);
+            out.extend_from_slice(&((m * 1000.0).round() as i16).to_le_bytes());
+        }
+    }
+    out
+}
+
+/// One decision of the on-board stack, with what it was fed.
+pub struct OnboardDecision {
+    /// The observation in millimetres, as the observation link carries it.
+    pub observation: Observation,
+    /// The guard's fine window ([`window_mm_le`]).
+    pub window_mm_le: Vec<u8>,
+    /// The stack's decision on them.
+    pub record: DecisionRecord,
+}
 
 /// The controller's decision stack (policy, decision rule, guard on the fine window, arrival).
 pub struct OnboardDriver<'w> {
@@ -41,6 +66,60 @@ impl<'w> OnboardDriver<'w> {
             first: true,
         })
     }
+
+    /// Starts a new episode: the decision rule forgets what it met.
+    pub fn reset(&mut self) {
+        self.stack.reset();
+        self.first = false;
+    }
+
+    /// The fine window the guard reads, within the 1 cm map.
+    pub fn window(&self) -> WindowBounds {
+        self.stack.window()
+    }
+
+    /// The whole 1 cm map of the last decision, in metres (`MapGrid::GUARD_FINE`).
+    pub fn fine_map_m(&self) -> &[f32] {
+        &self.fine
+    }
+
+    /// One decision on `env` as it is now. With `whole_map` the guard reads the whole 1 cm map
+    /// in metres (the host's `--guard-map fine`) instead of the firmware's window.
+    pub fn decide_on(
+        &mut self,
+        env: &Env,
+        whole_map: bool,
+    ) -> Result<OnboardDecision, DriverError> {
+        env.observe(&mut self.sim_observation);
+        let (height_mm, state_mm) = observation_mm(&self.sim_observation);
+        let mut observation = Observation::new();
+        observation
+            .height_mm
+            .copy_from_slice(height_mm.as_flattened());
+        observation.state_mm = state_mm;
+        env.observe_grid(MapGrid::GUARD_FINE, &mut self.fine);
+        let bounds = self.stack.window();
+        let window_mm_le = window_mm_le(&self.fine, &bounds);
+        let outputs = self
+            .stack
+            .infer(&observation, &mut self.work, &mut self.row)
+            .map_err(|e| DriverError(format!("inference: {e:?}")))?;
+        let record = if whole_map {
+            let grid = GridMap::new(&self.fine, bounds.side, bounds.cell_m)
+                .map_err(|e| DriverError(format!("the fine map: {e}")))?;
+            self.stack
+                .decide_on(&observation, &outputs, HeightMapRef::Grid(grid))
+        } else {
+            self.stack
+                .decide(&observation, &outputs, &window_mm_le)
+                .map_err(|e| DriverError(format!("decision: {e:?}")))?
+        };
+        Ok(OnboardDecision {
+            observation,
+            window_mm_le,
+            record,
+        })
+    }
 }
 
 impl Driver for OnboardDriver<'_> {
@@ -51,33 +130,9 @@ impl Driver for OnboardDriver<'_> {
     }
 
     fn decide(&mut self, env: &Env) -> Result<Action, DriverError> {
-        if std::mem::take(&mut self.first) {
-            self.stack.reset();
+        if self.first {
+            self.reset();
         }
-        env.observe(&mut self.sim_observation);
-        let (height_mm, state_mm) = observation_mm(&self.sim_observation);
-        let mut observation = Observation::new();
-        observation
-            .height_mm
-            .copy_from_slice(height_mm.as_flattened());
-        observation.state_mm = state_mm;
-        env.observe_grid(MapGrid::GUARD_FINE, &mut self.fine);
-        let bounds = self.stack.window();
-        let mut window_mm_le = Vec::with_capacity(2 * bounds.cells());
-        for row in bounds.rows() {
-            for col in bounds.cols() {
-                let m = self.fine[row * bounds.side + col];
-                window_mm_le.extend_from_slice(&((m * 1000.0).round() as i16).to_le_bytes());
-            }
-        }
-        let outputs = self
-            .stack
-            .infer(&observation, &mut self.work, &mut self.row)
-            .map_err(|e| DriverError(format!("inference: {e:?}")))?;
-        let record = self
-            .stack
-            .decide(&observation, &outputs, &window_mm_le)
-            .map_err(|e| DriverError(format!("decision: {e:?}")))?;
-        Ok(record.action())
+        Ok(self.decide_on(env, false)?.record.action())
     }
 }
