@@ -64,7 +64,9 @@ fn generate_plan_and_render_a_scenario_file() {
         assert!(out.status.success(), "{}", text(&out.stderr));
         serde_json::from_slice::<serde_json::Value>(&out.stdout).unwrap()
     };
-    let planned = eval(&[]);
+    let planned = eval(&["--stack", "policy"]);
+    assert_eq!(planned["arrival"], false, "{planned}");
+    assert!(planned["guard_margin_m"].is_null(), "{planned}");
     // Every scenario is in the split by what stands beside its target, exactly once.
     let split = planned["by_target_beside"].as_array().unwrap();
     let counted: u64 = split.iter().map(|b| b["scenarios"].as_u64().unwrap()).sum();
@@ -72,23 +74,18 @@ fn generate_plan_and_render_a_scenario_file() {
         counted as usize,
         planned["scenarios"].as_array().unwrap().len()
     );
-    // The robot's stack: the guard and the arrival rule.
-    let stack = eval(&["--guard", "--arrival"]);
+    // The robot's stack, on the policy's own map: the guard and the arrival rule.
+    let stack = eval(&["--guard-map", "policy"]);
     assert_eq!(stack["arrival"], true, "{stack}");
     assert!(stack["guard_margin_m"].is_number(), "{stack}");
     assert_eq!(stack["guard_cell_m"].as_f64(), Some(0.05), "{stack}");
-    // The guard on a finer map than the policy's.
-    let fine = eval(&["--guard", "--guard-map", "fine", "--arrival"]);
+    // The guard on a finer map than the policy's: the default stack.
+    let fine = eval(&[]);
     assert_eq!(fine["guard_cell_m"].as_f64(), Some(0.01), "{fine}");
+    assert_eq!(fine["arrival"], true, "{fine}");
     // And the search for the last metres: reported, and never worse on scenes the stack
     // already solves (it only runs after 10 decisions near the target).
-    let searched = eval(&[
-        "--guard",
-        "--guard-map",
-        "fine",
-        "--arrival",
-        "--last-metres",
-    ]);
+    let searched = eval(&["--stack", "full", "--lookahead-search", "0"]);
     assert!(
         searched["last_metres"]["searches"].is_number(),
         "{searched}"
@@ -100,7 +97,15 @@ fn generate_plan_and_render_a_scenario_file() {
     assert!(fine["last_metres"].is_null(), "{fine}");
     // The look-ahead: reported, and no episode of these open scenes is longer for it (its
     // rollouts keep the rule's own action unless another arrives strictly sooner).
-    let looked = eval(&["--guard", "--guard-map", "fine", "--arrival", "--lookahead"]);
+    let looked = eval(&[
+        "--stack",
+        "full",
+        "--lookahead-search",
+        "0",
+        "--last-metres",
+        "0",
+    ]);
+    assert!(looked["last_metres"].is_null(), "{looked}");
     assert_eq!(looked["lookahead"]["candidates"], 8, "{looked}");
     assert!(
         looked["lookahead"]["decisions"].as_u64() > Some(0),
@@ -125,14 +130,7 @@ fn generate_plan_and_render_a_scenario_file() {
         assert!(!without.0 || with.1 <= without.1, "{looked}");
     }
     // With the search for a shorter way: reported, no success lost, fewer steps in all.
-    let shorter = eval(&[
-        "--guard",
-        "--guard-map",
-        "fine",
-        "--arrival",
-        "--lookahead",
-        "--lookahead-search",
-    ]);
+    let shorter = eval(&["--stack", "full", "--last-metres", "0"]);
     assert_eq!(shorter["lookahead"]["search_expansions"], 500, "{shorter}");
     assert!(shorter["success_rate"].as_f64() >= looked["success_rate"].as_f64());
     let total = |report: &serde_json::Value| -> u64 { steps(report).iter().map(|s| s.1).sum() };
@@ -143,7 +141,6 @@ fn generate_plan_and_render_a_scenario_file() {
         policy,
         "--scenarios",
         file_arg,
-        "--guard",
         "--guard-map",
         "coarse",
     ]);
@@ -153,12 +150,35 @@ fn generate_plan_and_render_a_scenario_file() {
         "{}",
         text(&bad.stderr)
     );
+    // A layer option for a stack without that layer is an error that names it.
+    let bad = wheelleg(&[
+        "eval",
+        "--policy",
+        policy,
+        "--scenarios",
+        file_arg,
+        "--stack",
+        "policy",
+        "--guard-margin",
+        "0.01",
+    ]);
+    assert!(!bad.status.success());
+    assert!(
+        text(&bad.stderr).contains("--guard-margin"),
+        "{}",
+        text(&bad.stderr)
+    );
     let table = wheelleg(&["eval", "--policy", policy, "--scenarios", file_arg]);
     assert!(table.status.success(), "{}", text(&table.stderr));
     let table = text(&table.stdout);
     assert!(table.contains("beside the target"), "{table}");
     assert!(table.contains("  nothing"), "{table}");
-    let cached = eval(&["--planner-results", plan_file.to_str().unwrap()]);
+    let cached = eval(&[
+        "--stack",
+        "policy",
+        "--planner-results",
+        plan_file.to_str().unwrap(),
+    ]);
     assert!(planned["steps_vs_shortest"].is_number(), "{planned}");
     assert_eq!(planned["steps_vs_shortest"], cached["steps_vs_shortest"]);
     assert!(planned["median_steps_vs_shortest"].is_number(), "{planned}");

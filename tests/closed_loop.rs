@@ -18,14 +18,15 @@ use wheelleg_firmware_sim::candump::{parse_log, CandumpWriter, DEFAULT_EPOCH_US}
 use wheelleg_firmware_sim::rig::{true_wheel_speed_sum, StopReason};
 use wheelleg_runtime::action::{Action, Step};
 use wheelleg_runtime::can::node_map::{Axis, Joint};
-use wheelleg_runtime::guard::{CollisionGuard, DEFAULT_MARGIN_M};
+use wheelleg_runtime::guard::DEFAULT_MARGIN_M;
 use wheelleg_runtime::robot::{LegId, WHEELLEG};
 use wheelleg_sim::env::{Env, InvalidAction, Observation, Status};
 use wheelleg_sim::generate::{generate, Behaviour, SceneKind};
 use wheelleg_sim::height_map::MapGrid;
 use wheelleg_sim::planner::PlannerConfig;
 use wheelleg_sim::scenario::Scenario;
-use wheelleg_trainer::lookahead::LookaheadConfig;
+use wheelleg_stack::lookahead::LookaheadConfig;
+use wheelleg_stack::{GuardLayer, Preset, StackConfig};
 use wheelleg_trainer::network_f32::{Architecture, NetworkF32};
 use wheelleg_trainer::quantize::{quantize, Calibration, RangeMethod};
 
@@ -164,7 +165,7 @@ fn moving_random_policy(scenes: &[Scenario], min_moves: usize) -> Vec<u8> {
         let mut moves = 0;
         for scene in scenes {
             let mut env = Env::new(scene, LoopConfig::default().env).unwrap();
-            let mut driver = PolicyDriver::from_bytes(&bytes, "random").unwrap();
+            let mut driver = PolicyDriver::new(&bytes, "random", Preset::Policy.config()).unwrap();
             while !env.status().is_done() {
                 let before = *env.state();
                 env.step(driver.decide(&env).unwrap()).unwrap();
@@ -199,7 +200,7 @@ fn random_int8_policy_runs_the_loop_and_tracks_the_ideal_steps() {
             DEFAULT_EPOCH_US,
         ));
         closed_loop.start().unwrap();
-        let mut driver = PolicyDriver::from_bytes(&bytes, "random.wlw").unwrap();
+        let mut driver = PolicyDriver::new(&bytes, "random.wlw", Preset::Policy.config()).unwrap();
         let mut kinds = Vec::new();
         while !closed_loop.is_done() {
             let action = driver.decide(closed_loop.env()).unwrap();
@@ -231,7 +232,7 @@ fn random_int8_policy_runs_the_loop_and_tracks_the_ideal_steps() {
         }
         // The world through the motors is the world of pure simulation: same verdict.
         let mut env = Env::new(scene, LoopConfig::default().env).unwrap();
-        let mut driver = PolicyDriver::from_bytes(&bytes, "random.wlw").unwrap();
+        let mut driver = PolicyDriver::new(&bytes, "random.wlw", Preset::Policy.config()).unwrap();
         let status = simulate(&mut env, &mut driver).unwrap();
         assert_eq!(status, report.status);
         assert_eq!(env.steps(), report.steps);
@@ -469,7 +470,7 @@ fn demo_binary_reports_a_silent_node_with_a_non_zero_exit() {
 #[test]
 fn demo_binary_refuses_bad_input_with_a_clear_message() {
     let dir = scratch_dir("bad-input");
-    let cases: [(&[&str], &[&str]); 4] = [
+    let cases: [(&[&str], &[&str]); 5] = [
         // No vcan here: a clear error naming the interface and what to run, never a panic.
         // (Where a vcan exists but no firmware_sim runs, the message names firmware_sim too.)
         (
@@ -481,6 +482,11 @@ fn demo_binary_refuses_bad_input_with_a_clear_message() {
         (
             &["--silent-node", "40", "--silent-at-step", "1"],
             &["--silent-node 40"],
+        ),
+        // A layer option for a stack without that layer, as in `eval`.
+        (
+            &["--stack", "policy", "--guard-margin", "0.01"],
+            &["--guard-margin", "no collision guard"],
         ),
     ];
     for (args, needles) in cases {
@@ -546,7 +552,7 @@ fn trained_policy_closed_loop_success_is_within_2_points_of_simulation() {
         .map(|i| generate(SceneKind::Complex, &mut rng, format!("held-out-{i}")))
         .collect();
     let comparison = compare_success(&scenes, &LoopConfig::default(), |_| {
-        PolicyDriver::from_bytes(&bytes, "weights/policy.wlw")
+        PolicyDriver::new(&bytes, "weights/policy.wlw", Preset::Policy.config())
     })
     .unwrap();
     eprintln!("{comparison:?}");
@@ -574,19 +580,15 @@ fn the_collision_guard_spares_collisions_and_arrival_adds_successes() {
         let mut tally = (0, 0, 0);
         for scene in &scenes {
             let mut env = Env::new(scene, Default::default()).unwrap();
-            let driver = PolicyDriver::from_bytes(&bytes, "weights/policy.wlw").unwrap();
-            let driver = match (guarded, fine_map) {
-                (false, _) => driver,
-                (true, false) => driver.with_guard(CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M)),
-                (true, true) => driver
-                    .with_guard(CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M))
-                    .with_guard_map(MapGrid::GUARD_FINE),
+            let stack = StackConfig {
+                guard: guarded.then_some(GuardLayer {
+                    margin_m: DEFAULT_MARGIN_M,
+                    grid: fine_map.then_some(MapGrid::GUARD_FINE),
+                }),
+                arrival,
+                ..Preset::Policy.config()
             };
-            let mut driver = if arrival {
-                driver.with_arrival(env.config().success_radius_m)
-            } else {
-                driver
-            };
+            let mut driver = PolicyDriver::new(&bytes, "weights/policy.wlw", stack).unwrap();
             let status = simulate(&mut env, &mut driver).unwrap();
             let success = status == Status::Success;
             tally.0 += usize::from(success);
@@ -649,15 +651,11 @@ fn the_look_ahead_and_its_search_shorten_the_drivers_way_and_lose_no_success() {
             .iter()
             .map(|scene| {
                 let mut env = Env::new(scene, Default::default()).unwrap();
-                let driver = PolicyDriver::from_bytes(&bytes, "weights/policy.wlw")
-                    .unwrap()
-                    .with_guard(CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M))
-                    .with_guard_map(MapGrid::GUARD_FINE)
-                    .with_arrival(env.config().success_radius_m);
-                let mut driver = match lookahead {
-                    Some(config) => driver.with_lookahead(config).unwrap(),
-                    None => driver,
+                let stack = StackConfig {
+                    lookahead,
+                    ..Preset::Robot.config()
                 };
+                let mut driver = PolicyDriver::new(&bytes, "weights/policy.wlw", stack).unwrap();
                 assert_eq!(
                     driver.describe().contains("look-ahead"),
                     lookahead.is_some(),

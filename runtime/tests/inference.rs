@@ -10,12 +10,12 @@ use rand_chacha::ChaCha8Rng;
 use wheelleg_runtime::model::kernel::{self, Kernel};
 use wheelleg_runtime::model::load::Linear;
 use wheelleg_runtime::model::{DefaultPolicy, Outputs};
-use wheelleg_trainer::quantize::{EvalPolicy, RangeMethod};
+use wheelleg_trainer::quantize::{Int8Policy, RangeMethod};
 
 use common::*;
 
 fn check_against_reference(
-    policy: &EvalPolicy<'_>,
+    policy: &Int8Policy<'_>,
     outputs: &Outputs,
     expected: &(Vec<i16>, Option<i8>),
 ) {
@@ -43,7 +43,7 @@ fn int8_inference_is_bit_exact_with_the_reference_on_random_networks() {
         let version = if net_index % 3 == 2 { 1 } else { 2 };
         let (_, quantized) = random_quantized_version(&mut rng, &arch, method, version);
         let bytes = quantized.to_bytes().unwrap();
-        let mut policy = EvalPolicy::from_bytes(&bytes)
+        let mut policy = Int8Policy::from_bytes(&bytes)
             .unwrap_or_else(|e| panic!("network {net_index} {arch:?}: {e}"));
         assert_eq!(policy.model().version, version);
         for _ in 0..20 {
@@ -446,7 +446,7 @@ fn one_channel_3x3_conv_path_is_bit_exact() {
                 };
                 let (_, quantized) = random_quantized(&mut rng, &arch, RangeMethod::MinMax);
                 let bytes = quantized.to_bytes().unwrap();
-                let mut policy = EvalPolicy::from_bytes(&bytes).unwrap();
+                let mut policy = Int8Policy::from_bytes(&bytes).unwrap();
                 for _ in 0..5 {
                     let (height, state) = random_inputs_mm(&mut rng, &arch);
                     let expected = reference_forward(&quantized, &height, &state);

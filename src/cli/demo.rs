@@ -1,4 +1,4 @@
-//! `wheelleg demo [--scenario FILE] [--weights FILE | --planner] [--can IFACE |
+//! `wheelleg demo [--scenario FILE] [--weights FILE | --planner] [--stack policy|robot|full] [--can IFACE |
 //! slcan:tcp:HOST:PORT] [--controller host|qemu] [--out DIR] [--seed S]`: the closed loop (world -> policy or planner -> CAN -> motors -> measured motion
 //! -> world) on one scene, with a picture of the achieved path and the bus traffic as a
 //! `candump -L` log. The shipped policy is built into the binary, so the demo drives the same
@@ -11,6 +11,7 @@
 //! node, axis error, step off its ideal) or the loop could not run at all. Outputs are written
 //! in every case where the loop started.
 
+use super::stack_args::StackArgs;
 use super::CliResult;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -24,14 +25,12 @@ use wheelleg::closed_loop::{
 use wheelleg_firmware_sim::candump::{CandumpWriter, DEFAULT_EPOCH_US};
 use wheelleg_firmware_sim::rig::RigError;
 use wheelleg_runtime::can::node_map::Axis;
-use wheelleg_runtime::guard::{CollisionGuard, DEFAULT_MARGIN_M};
 use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::env::{Env, Status};
 use wheelleg_sim::generate::{generate, SceneKind};
 use wheelleg_sim::planner::PlannerConfig;
 use wheelleg_sim::render::top_view;
 use wheelleg_sim::scenario::Scenario;
-use wheelleg_trainer::lookahead::LookaheadConfig;
 
 /// The shipped int8 policy (`weights/policy.wlw`, its model card beside it), built into the
 /// binary: the demo's driver when neither `--weights` nor `--planner` is given.
@@ -97,38 +96,9 @@ pub struct Args {
     /// ...from this decision on (1-based).
     #[arg(long, requires = "silent_node")]
     silent_at_step: Option<u32>,
-    /// How far the collision guard grows every height-map column, in metres per side: each of
-    /// the policy's actions is checked against the map before it is sent
-    /// (`wheelleg_runtime::guard`; docs/results.md, "Collision guard").
-    #[arg(long, value_name = "MARGIN_M", default_value_t = DEFAULT_MARGIN_M,
-          allow_negative_numbers = true)]
-    guard_margin: f32,
-    /// The map the guard reads: `fine` (a 1 cm map of the robot's surroundings, as a robot's
-    /// elevation mapping keeps; the default) or `policy` (the policy's own 5 cm map, for a
-    /// robot that has no finer one). docs/results.md, "A finer map for the guard".
-    #[arg(long, value_name = "MAP", default_value = "fine")]
-    guard_map: super::GuardMapArg,
-    /// Send the policy's actions unchecked (the policy alone, as `wheelleg eval` measures it
-    /// without `--guard`).
-    #[arg(long)]
-    no_guard: bool,
-    /// Leave the last step to the policy too: by default, whenever some action ends within the
-    /// success radius of the target, the policy's most probable such action is taken
-    /// (`wheelleg_runtime::arrival`; docs/results.md, "The last step").
-    #[arg(long)]
-    no_arrival: bool,
-    /// Weigh the rule's first CANDIDATES actions (default 8) at every decision by rollouts of
-    /// the policy on the robot's own map, and take the one that arrives soonest (host-side;
-    /// docs/results.md, "Rollouts on the robot's map").
-    #[arg(long, value_name = "CANDIDATES", num_args = 0..=1, default_missing_value = "8",
-          value_parser = clap::value_parser!(u16).range(2..=243))]
-    lookahead: Option<u16>,
-    /// With the look-ahead, also search the robot's map for a way shorter than the best
-    /// rollout's (the planner's exact search within EXPANSIONS, default 500) and keep the way
-    /// taken while it holds (docs/results.md, "A search for a shorter way").
-    #[arg(long, value_name = "EXPANSIONS", num_args = 0..=1, default_missing_value = "500",
-          requires = "lookahead", value_parser = clap::value_parser!(u32).range(1..))]
-    lookahead_search: Option<u32>,
+    /// The decision stack.
+    #[command(flatten)]
+    stack: StackArgs,
 }
 
 /// The scene to run and how it was chosen.
@@ -312,28 +282,7 @@ pub fn run(args: Args) -> CliResult {
 
     // Both drivers decide from the world as it is at the start of the episode.
     let mut driver: Box<dyn Driver + '_> = match &weights {
-        Some((bytes, label)) => {
-            let mut driver = PolicyDriver::from_bytes(bytes, label)?;
-            if !args.no_arrival {
-                driver = driver.with_arrival(closed_loop.env().config().success_radius_m);
-            }
-            if let Some(candidates) = args.lookahead {
-                driver = driver.with_lookahead(LookaheadConfig {
-                    candidates: usize::from(candidates),
-                    search_expansions: args.lookahead_search.map_or(0, |e| e as usize),
-                    ..LookaheadConfig::default()
-                })?;
-            }
-            if args.no_guard {
-                Box::new(driver)
-            } else {
-                let driver = driver.with_guard(CollisionGuard::new(WHEELLEG, args.guard_margin));
-                match args.guard_map.grid() {
-                    Some(grid) => Box::new(driver.with_guard_map(grid)),
-                    None => Box::new(driver),
-                }
-            }
-        }
+        Some((bytes, label)) => Box::new(PolicyDriver::new(bytes, label, args.stack.config()?)?),
         None => Box::new(
             PlannerDriver::new(closed_loop.env(), &planner)
                 .map_err(|e| format!("--planner: the planner cannot drive: {e}"))?,
@@ -439,13 +388,10 @@ fn run_qemu(args: &Args, scenario: &Scenario, origin: &str) -> CliResult {
             args.weights.is_some(),
             "--weights (the firmware's policy is built into its image)",
         ),
-        (args.lookahead.is_some(), "--lookahead (host-side)"),
         (
-            args.no_guard || args.no_arrival,
-            "--no-guard / --no-arrival",
+            !args.stack.is_robot_default(),
+            "a stack other than the default robot one",
         ),
-        (args.guard_margin != DEFAULT_MARGIN_M, "--guard-margin"),
-        (args.guard_map.grid().is_none(), "--guard-map policy"),
     ];
     if let Some((_, what)) = refused.iter().find(|(given, _)| *given) {
         return Err(format!(

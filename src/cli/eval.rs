@@ -1,7 +1,8 @@
 //! `wheelleg eval --policy CKPT|WEIGHTS (--scenarios FILE | --generated N --kind K) --seed S [--json]
-//! [--stochastic | --argmax | --guard [MARGIN_M] [--guard-map policy|fine] --arrival
-//! --last-metres [EXPANSIONS]] [--planner-expansions N | --planner-results PLAN.json]`.
+//! [--stack policy|robot|full] [--rule untried|argmax|sample] [layer options, shared with demo]
+//! [--planner-expansions N | --planner-results PLAN.json]`.
 
+use super::stack_args::StackArgs;
 use super::CliResult;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -9,12 +10,11 @@ use std::path::PathBuf;
 use wheelleg_runtime::model::format::MAGIC;
 use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::generate::generate_many;
-use wheelleg_sim::local_plan::{LastMetresConfig, LocalPlannerConfig};
+use wheelleg_stack::policy::Int8Policy;
+use wheelleg_stack::{DecisionRule, Preset};
 use wheelleg_trainer::batch_policy::FloatPolicy;
-use wheelleg_trainer::evaluate::{evaluate, DecisionRule, EvalOptions};
-use wheelleg_trainer::lookahead::LookaheadConfig;
+use wheelleg_trainer::evaluate::{evaluate, EvalOptions};
 use wheelleg_trainer::network::BackendKind;
-use wheelleg_trainer::quantize::EvalPolicy;
 
 /// Arguments of `eval`.
 #[derive(clap::Args)]
@@ -38,14 +38,14 @@ pub struct Args {
     /// Print JSON instead of a table.
     #[arg(long)]
     json: bool,
-    /// Sample actions instead of taking the most probable.
-    #[arg(long, conflicts_with = "argmax")]
-    stochastic: bool,
-    /// Take each head's most probable choice even when that action was just refused (by
-    /// default an action already taken at the same observation is not repeated; see
-    /// docs/results.md, "Decision rule").
-    #[arg(long)]
-    argmax: bool,
+    /// How the policy's heads become one action: `untried` (the most probable action not yet
+    /// taken at this observation, what the robot runs; the default), `argmax` (each head's most
+    /// probable choice, even when that action was just refused) or `sample` (a draw from each
+    /// head, the training rule). argmax and sample only with `--stack policy` (docs/results.md,
+    /// "Decision rule").
+    #[arg(long, value_name = "RULE", default_value = "untried",
+          value_parser = ["untried", "argmax", "sample"])]
+    rule: String,
     /// Planner budget per scenario (expanded states) for the shortest-path ratio; 0 skips it.
     #[arg(long, default_value_t = 20_000)]
     planner_expansions: usize,
@@ -53,55 +53,9 @@ pub struct Args {
     /// the planner is then not run, so one planner pass serves every policy.
     #[arg(long, conflicts_with = "planner_expansions")]
     planner_results: Option<PathBuf>,
-    /// Check each action against the height map before taking it, as a robot running the
-    /// runtime's collision guard does, growing every map column by MARGIN_M metres on each side
-    /// (default 0.005; negative shrinks them). Only with the default decision rule.
-    #[arg(long, value_name = "MARGIN_M", num_args = 0..=1, allow_negative_numbers = true,
-          default_missing_value = "0.005", conflicts_with_all = ["stochastic", "argmax"])]
-    guard: Option<f32>,
-    /// The map the guard reads: `policy` (the policy's own 5 cm map) or `fine` (a 1 cm map
-    /// of the robot's surroundings, as a robot's elevation mapping keeps; docs/results.md, "A
-    /// finer map for the guard").
-    #[arg(long, value_name = "MAP", default_value = "policy", requires = "guard")]
-    guard_map: super::GuardMapArg,
-    /// Whenever some action ends within the success radius of the target, take the policy's
-    /// most probable such action (after the guard, if on), as a robot running the runtime's
-    /// arrival rule does. Only with the default decision rule.
-    #[arg(long, conflicts_with_all = ["stochastic", "argmax"])]
-    arrival: bool,
-    /// Once the policy has spent 10 decisions within 0.5 m of the target, search the way there
-    /// on the robot's own map (a 2.56 m elevation map of 1 cm cells around it) with the
-    /// planner, at most EXPANSIONS nodes (default 1000), and take the plan found; once more
-    /// after 10 more such decisions if none is found (docs/results.md, "A search for the last
-    /// metres").
-    #[arg(long, value_name = "EXPANSIONS", num_args = 0..=1, default_missing_value = "1000",
-          conflicts_with_all = ["stochastic", "argmax"])]
-    last_metres: Option<usize>,
-    /// At each decision, weigh the rule's own action and the next CANDIDATES-1 it would fall
-    /// back to (default 8 in all) by rolling the policy out from each, at most 40 steps, in
-    /// the scene as the robot's own map shows it (2.56 m, 1 cm cells), and take the one that
-    /// arrives soonest; ties keep the rule's order (docs/results.md, "Rollouts on the robot's
-    /// map").
-    #[arg(long, value_name = "CANDIDATES", num_args = 0..=1, default_missing_value = "8",
-          value_parser = clap::value_parser!(u16).range(2..=243),
-          conflicts_with_all = ["stochastic", "argmax"])]
-    lookahead: Option<u16>,
-    /// Steps a look-ahead rollout may take before it counts as not arriving.
-    #[arg(long, value_name = "STEPS", default_value = "40", requires = "lookahead",
-          value_parser = clap::value_parser!(u32).range(1..))]
-    lookahead_horizon: u32,
-    /// Where none of the look-ahead's candidates arrives within its horizon, weigh this many
-    /// in all (the policy is lost there; such decisions make most of the excess steps).
-    #[arg(long, value_name = "CANDIDATES", default_value = "8", requires = "lookahead",
-          value_parser = clap::value_parser!(u16).range(1..=243))]
-    lookahead_stuck: u16,
-    /// Where the best rollout arrives, also search the robot's map for a shorter way (the
-    /// planner's exact search within EXPANSIONS, default 500, limited to fewer steps than the
-    /// rollout) and take it where the guard allows its first step; the way taken is then kept
-    /// and followed while it still holds (docs/results.md, "A search for a shorter way").
-    #[arg(long, value_name = "EXPANSIONS", num_args = 0..=1, default_missing_value = "500",
-          requires = "lookahead", value_parser = clap::value_parser!(u32).range(1..))]
-    lookahead_search: Option<u32>,
+    /// The decision stack.
+    #[command(flatten)]
+    stack: StackArgs,
 }
 
 /// Runs `eval`.
@@ -128,33 +82,25 @@ pub fn run(args: Args) -> CliResult {
         }
         None => None,
     };
+    let mut stack = args.stack.config()?;
+    stack.rule = match args.rule.as_str() {
+        "argmax" => DecisionRule::Argmax,
+        "sample" => DecisionRule::Sample,
+        _ => DecisionRule::Untried,
+    };
+    if stack.rule != DecisionRule::Untried && args.stack.preset()? != Preset::Policy {
+        return Err(format!(
+            "--rule {}: only with --stack policy (the guard, arrival and the look-ahead build on \
+             the untried rule's memory of what it took)",
+            args.rule
+        )
+        .into());
+    }
+    stack.check()?;
     let options = EvalOptions {
-        decision: if args.stochastic {
-            DecisionRule::Sample
-        } else if args.argmax {
-            DecisionRule::Argmax
-        } else {
-            DecisionRule::Untried
-        },
+        stack,
         planner_expansions: args.planner_expansions,
         known_shortest,
-        guard_margin_m: args.guard,
-        guard_grid: args.guard_map.grid(),
-        arrival: args.arrival,
-        last_metres: args.last_metres.map(|max_expansions| LastMetresConfig {
-            planner: LocalPlannerConfig {
-                max_expansions,
-                ..LocalPlannerConfig::default()
-            },
-            ..LastMetresConfig::default()
-        }),
-        lookahead: args.lookahead.map(|candidates| LookaheadConfig {
-            candidates: usize::from(candidates),
-            horizon_steps: args.lookahead_horizon,
-            stuck_candidates: usize::from(args.lookahead_stuck),
-            search_expansions: args.lookahead_search.map_or(0, |e| e as usize),
-            ..LookaheadConfig::default()
-        }),
         ..EvalOptions::default()
     };
     let mut rng = ChaCha8Rng::seed_from_u64(args.seed);
@@ -162,7 +108,7 @@ pub fn run(args: Args) -> CliResult {
     let bytes = std::fs::read(&args.policy)
         .map_err(|e| format!("cannot read {}: {e}", args.policy.display()))?;
     let report = if bytes.starts_with(&MAGIC) {
-        let policy = EvalPolicy::from_bytes(&bytes)
+        let policy = Int8Policy::from_bytes(&bytes)
             .map_err(|e| format!("{}: {e}", args.policy.display()))?;
         evaluate(&policy, &scenarios, &options, &mut rng)?
     } else {

@@ -20,27 +20,8 @@ pub mod plan;
 pub mod plot;
 pub mod relevance;
 pub mod render;
+pub mod stack_args;
 pub mod train;
-
-/// The map the collision guard reads (`--guard-map` of `eval` and `demo`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum GuardMapArg {
-    /// The policy's own 5 cm map.
-    Policy,
-    /// A 1 cm map of the robot's surroundings, as a robot's elevation mapping keeps
-    /// (`MapGrid::GUARD_FINE`; docs/results.md, "A finer map for the guard").
-    Fine,
-}
-
-impl GuardMapArg {
-    /// The layout of the map the guard reads when it is not the policy's.
-    pub fn grid(self) -> Option<wheelleg_sim::height_map::MapGrid> {
-        match self {
-            GuardMapArg::Policy => None,
-            GuardMapArg::Fine => Some(wheelleg_sim::height_map::MapGrid::GUARD_FINE),
-        }
-    }
-}
 
 /// A command's failure: a message for the user.
 pub type CliResult = Result<(), Box<dyn std::error::Error>>;

@@ -1,4 +1,5 @@
-//! Who decides the next action: the int8 policy from a weights file, or the exact planner.
+//! Who decides the next action: the int8 policy from a weights file through a decision stack,
+//! or the exact planner.
 //!
 //! Both look at the same world ([`Env`]) and answer with one lattice [`Action`] per decision,
 //! so the closed loop cannot tell them apart. The policy sees exactly what it would see on the
@@ -13,11 +14,14 @@ use wheelleg_runtime::guard::{CollisionGuard, HeightMapRef};
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::model::DefaultPolicy;
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, HEIGHT_MAP_SIDE, STATE_LEN};
+use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::env::{Env, GuardMap, Observation};
-use wheelleg_sim::height_map::MapGrid;
+use wheelleg_sim::local_plan::LastMetres;
 use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig};
-use wheelleg_trainer::lookahead::{candidates, mark_taken, settled, Lookahead, LookaheadConfig};
-use wheelleg_trainer::quantize::EvalPolicy;
+use wheelleg_stack::lookahead::Lookahead;
+use wheelleg_stack::policy::Int8Policy;
+use wheelleg_stack::rule::{candidates, mark_taken, settled, GuardAt, RobotRule};
+use wheelleg_stack::{DecisionRule, StackConfig};
 
 /// A decision maker of the closed loop.
 pub trait Driver {
@@ -97,7 +101,10 @@ impl Driver for PlannerDriver {
     }
 }
 
-/// The robot's int8 policy, run by the runtime's integer inference on the world's observation.
+/// The robot's int8 policy, run by the runtime's integer inference on the world's observation,
+/// through a decision stack (`wheelleg_stack`): the rule, the guard and arrival as the
+/// controller firmware runs them, and the host's look-ahead and searches where the stack has
+/// them.
 #[derive(Clone, Debug)]
 pub struct PolicyDriver<'a> {
     policy: DefaultPolicy<'a>,
@@ -106,81 +113,82 @@ pub struct PolicyDriver<'a> {
     /// Never repeats an action already taken at the same observation (see
     /// `wheelleg_runtime::decision`).
     decider: Decider,
-    /// Checks each action against the height map first, when set.
+    /// The layers that run.
+    stack: StackConfig,
+    /// The guard, where the stack checks actions.
     guard: Option<CollisionGuard>,
     /// The map the guard reads when it is not the policy's: its layout and its cells.
     guard_map: Option<GuardMap>,
-    /// Takes an action that reaches the target within this radius when one does, when set.
-    arrival_radius_m: Option<f32>,
-    /// Weighs the rule's first candidates by rollouts of the same network on the robot's map
-    /// (`wheelleg_trainer::lookahead`), when set. Host-side: a batched copy of the policy.
-    lookahead: Option<(Lookahead, EvalPolicy<'a>)>,
-    bytes: &'a [u8],
+    /// Weighs the rule's first candidates by rollouts of the same network on the robot's map,
+    /// where the stack has the look-ahead. Host-side: a batched copy of the policy.
+    lookahead: Option<(Lookahead, Int8Policy<'a>)>,
+    /// The search for the last metres, where the stack has it.
+    last_metres: Option<LastMetres>,
+    /// The collision count when the last action handed out was a searched plan's: a rise
+    /// by the next decision means the world refused it, and the rest of the plan is dropped.
+    plan_step_collisions: Option<u32>,
 }
 
 impl<'a> PolicyDriver<'a> {
-    /// Loads a `.wlw` weights file's bytes; `label` names the file in messages.
-    pub fn from_bytes(bytes: &'a [u8], label: &str) -> Result<PolicyDriver<'a>, DriverError> {
-        let policy = DefaultPolicy::from_bytes(bytes)
-            .map_err(|e| DriverError(format!("{label}: not a usable policy weights file: {e}")))?;
+    /// Loads a `.wlw` weights file's bytes; `label` names the file in messages. It decides
+    /// through `stack`.
+    pub fn new(
+        bytes: &'a [u8],
+        label: &str,
+        stack: StackConfig,
+    ) -> Result<PolicyDriver<'a>, DriverError> {
+        let unusable = |e: &dyn fmt::Display| {
+            DriverError(format!("{label}: not a usable policy weights file: {e}"))
+        };
+        stack.check().map_err(DriverError)?;
+        if stack.rule != DecisionRule::Untried {
+            return Err(DriverError(format!(
+                "the robot decides by the untried rule, not {:?}",
+                stack.rule
+            )));
+        }
+        let policy = DefaultPolicy::from_bytes(bytes).map_err(|e| unusable(&e))?;
+        let lookahead = match stack.lookahead {
+            Some(config) => Some((
+                Lookahead::new(config),
+                Int8Policy::from_bytes(bytes).map_err(|e| unusable(&e))?,
+            )),
+            None => None,
+        };
         Ok(PolicyDriver {
             policy,
             label: label.to_owned(),
             observation: Observation::default(),
             decider: Decider::new(),
-            guard: None,
-            guard_map: None,
-            arrival_radius_m: None,
-            lookahead: None,
-            bytes,
+            guard: stack
+                .guard
+                .map(|g| CollisionGuard::new(WHEELLEG, g.margin_m)),
+            guard_map: stack.guard.and_then(|g| g.grid).map(GuardMap::new),
+            lookahead,
+            last_metres: stack.last_metres.map(LastMetres::new),
+            plan_step_collisions: None,
+            stack,
         })
     }
 
-    /// Weighs the rule's first `config.candidates` actions at every decision by rollouts of
-    /// the same network in the scene as the robot's map shows it, and takes the one that
-    /// arrives soonest (`wheelleg_trainer::lookahead`; docs/results.md, "Rollouts on the
-    /// robot's map").
-    pub fn with_lookahead(
-        mut self,
-        config: LookaheadConfig,
-    ) -> Result<PolicyDriver<'a>, DriverError> {
-        let policy = EvalPolicy::from_bytes(self.bytes).map_err(|e| {
-            DriverError(format!(
-                "{}: not a usable policy weights file: {e}",
-                self.label
-            ))
-        })?;
-        self.lookahead = Some((Lookahead::new(config), policy));
-        Ok(self)
-    }
-
-    /// Checks every action with `guard` before taking it (`wheelleg_runtime::guard`): the
-    /// policy's most probable action that the guard passes is taken.
-    pub fn with_guard(mut self, guard: CollisionGuard) -> PolicyDriver<'a> {
-        self.guard = Some(guard);
-        self
-    }
-
-    /// Lets the guard read a map of layout `grid` (for example the 1 cm
-    /// `MapGrid::GUARD_FINE`, as a robot's elevation mapping keeps) instead of the policy's
-    /// 5 cm map; the policy still sees its own.
-    pub fn with_guard_map(mut self, grid: MapGrid) -> PolicyDriver<'a> {
-        self.guard_map = Some(GuardMap::new(grid));
-        self
-    }
-
-    /// Takes the policy's most probable action that ends within `radius_m` of the target
-    /// whenever one does (`wheelleg_runtime::arrival`; after the guard, if one is set).
-    pub fn with_arrival(mut self, radius_m: f32) -> PolicyDriver<'a> {
-        self.arrival_radius_m = Some(radius_m);
-        self
+    /// The next action of a searched plan, if one is being followed or is due now.
+    fn planned_step(&mut self, env: &Env) -> Option<Action> {
+        let last_metres = self.last_metres.as_mut()?;
+        if let Some(before) = self.plan_step_collisions.take() {
+            if env.collisions() > before {
+                last_metres.abandon();
+            }
+        }
+        let action = last_metres.next_action(env)?;
+        self.plan_step_collisions = Some(env.collisions());
+        Some(action)
     }
 }
 
 impl Driver for PolicyDriver<'_> {
     fn describe(&self) -> String {
         format!(
-            "int8 policy {} ({:?} kernel){}{}{}",
+            "int8 policy {} ({:?} kernel){}{}{}{}",
             self.label,
             self.policy.kernel(),
             self.guard.map_or(String::new(), |g| format!(
@@ -192,8 +200,11 @@ impl Driver for PolicyDriver<'_> {
                         .grid()
                         .cell_m)
             )),
-            self.arrival_radius_m
-                .map_or(String::new(), |r| format!(", arrival within {r} m")),
+            if self.stack.arrival {
+                ", arrival rule"
+            } else {
+                ""
+            },
             self.lookahead
                 .as_ref()
                 .map_or(String::new(), |(l, _)| format!(
@@ -204,11 +215,18 @@ impl Driver for PolicyDriver<'_> {
                         0 => String::new(),
                         n => format!(", a search for a shorter way within {n} expansions"),
                     }
-                ))
+                )),
+            self.stack.last_metres.map_or(String::new(), |l| format!(
+                ", a search for the last metres within {} expansions",
+                l.planner.max_expansions
+            ))
         )
     }
 
     fn decide(&mut self, env: &Env) -> Result<Action, DriverError> {
+        if let Some(action) = self.planned_step(env) {
+            return Ok(action);
+        }
         env.observe(&mut self.observation);
         let (height_mm, state_mm) = observation_mm(&self.observation);
         let outputs = self
@@ -216,13 +234,6 @@ impl Driver for PolicyDriver<'_> {
             .evaluate(height_mm.as_flattened(), &state_mm)
             .map_err(|e| DriverError(format!("{}: inference failed: {e}", self.label)))?;
         let key = ObservationKey::of_mm(height_mm.as_flattened(), &state_mm);
-        let arrival = self
-            .arrival_radius_m
-            .map(|radius_m| Arrival::from_state_mm(&state_mm, radius_m));
-        let legs = LegConfig {
-            clearance_m: state_mm[0] as f32 * 1.0e-3,
-            track_m: state_mm[1] as f32 * 1.0e-3,
-        };
         let cells: &[i16; HEIGHT_MAP_CELLS] = height_mm
             .as_flattened()
             .try_into()
@@ -236,38 +247,58 @@ impl Driver for PolicyDriver<'_> {
                     .map_err(|e| DriverError(format!("guard map: {e}")))?,
             ),
         };
+        let success_radius_m = env.config().success_radius_m;
+        let rule = RobotRule {
+            guard: self.guard.as_ref().zip(map).map(|(guard, map)| GuardAt {
+                guard,
+                map,
+                legs: LegConfig {
+                    clearance_m: state_mm[0] as f32 * 1.0e-3,
+                    track_m: state_mm[1] as f32 * 1.0e-3,
+                },
+            }),
+            arrival: self
+                .stack
+                .arrival
+                .then(|| Arrival::from_state_mm(&state_mm, success_radius_m)),
+        };
         let logits = &outputs.action_logits;
-        let guard = self.guard;
-        let decide = |decider: &mut Decider| match (&guard, map) {
-            (Some(guard), Some(map)) => {
-                guard
-                    .choose(decider, key, logits, map, legs, arrival.as_ref())
-                    .action
-            }
-            _ => match &arrival {
-                Some(arrival) => arrival.choose(decider, key, logits).action,
-                None => decider.choose(key, logits),
-            },
-        };
         let Some((lookahead, policy)) = &mut self.lookahead else {
-            return Ok(decide(&mut self.decider));
+            return Ok(rule.choose(&mut self.decider, key, logits));
         };
-        let found = candidates(&self.decider, lookahead.candidates_wanted(), decide);
-        let action = match settled(&found, arrival.as_ref()) {
+        let found = candidates(&self.decider, lookahead.candidates_wanted(), |d| {
+            rule.choose(d, key, logits)
+        });
+        let action = match settled(&found, rule.arrival.as_ref()) {
             Some(first) => first,
             None => {
                 let first = found.first().copied().unwrap_or_default();
-                let allows = |action| match (&guard, map) {
-                    (Some(guard), Some(map)) => guard.check(map, legs, action).is_ok(),
-                    _ => true,
-                };
+                let allows = |action| rule.allows(action);
                 lookahead.push(0, env, &self.decider, key, found, &allows);
-                let success_radius_m = env.config().success_radius_m;
-                lookahead
-                    .weigh(&*policy, arrival.is_some(), success_radius_m)
-                    .map_err(|e| DriverError(format!("{}: look-ahead: {e}", self.label)))?
-                    .first()
-                    .map_or(first, |w| w.action)
+                let weighed = lookahead
+                    .weigh(&*policy, self.stack.arrival, success_radius_m)
+                    .map_err(|e| DriverError(format!("{}: look-ahead: {e}", self.label)))?;
+                let weighed = weighed.first();
+                // No candidate arrives within the horizon: the policy is lost here, so the
+                // search (when on) runs now rather than when it is next due.
+                let lost = weighed.is_some_and(|w| !w.arrives);
+                let searched = match &mut self.last_metres {
+                    Some(search) if lost => {
+                        if search.search_now(env) {
+                            search.next_action(env)
+                        } else {
+                            None
+                        }
+                    }
+                    _ => None,
+                };
+                match searched {
+                    Some(action) => {
+                        self.plan_step_collisions = Some(env.collisions());
+                        action
+                    }
+                    None => weighed.map_or(first, |w| w.action),
+                }
             }
         };
         mark_taken(&mut self.decider, key, action);

@@ -10,7 +10,7 @@ use wheelleg_trainer::checkpoint::Checkpoint;
 use wheelleg_trainer::export::{rollout_observations, ExportOptions};
 use wheelleg_trainer::network::BackendKind;
 use wheelleg_trainer::quantize::{
-    agreement, quantize_for_version, ActionRange, Calibration, EvalPolicy,
+    agreement, quantize_for_version, ActionRange, Calibration, Int8Policy,
 };
 
 fn main() {
@@ -50,7 +50,7 @@ fn main() {
             let quantized =
                 quantize_for_version(&network, &calibration, options.range, version).unwrap();
             let bytes = quantized.to_bytes().unwrap();
-            let policy = EvalPolicy::from_bytes(&bytes).unwrap();
+            let policy = Int8Policy::from_bytes(&bytes).unwrap();
             let a = agreement(&network, &policy, &holdout).unwrap();
             println!(
                 "v{version} {range:?}: per dimension {:?} whole {:.4} worst {:.4} logit error {:.4}",

@@ -1,31 +1,21 @@
 //! Evaluation (paper, "Evaluation"): run the policy on fixed scenarios and report success rate,
 //! collision-free success rate, mean path length and its ratio to the planner's shortest path.
 //!
-//! All scenarios run in lock-step so the policy is evaluated once per step on the whole batch.
-//! Deterministic by default: the most probable joint action not yet taken at the same observation
-//! (`wheelleg_runtime::decision::Decider`, the rule the robot runs). Plain per-head argmax, which
-//! repeats a refused action until the step limit, is kept for comparison; stochastic draws come
-//! from the caller's seeded RNG.
+//! The episodes run through a decision stack (`wheelleg_stack`: the rule, the guard, arrival,
+//! the look-ahead and the searches), all scenarios in lock-step so that the policy is evaluated
+//! once per step on the whole batch; stochastic draws come from the caller's seeded RNG.
 
-use crate::batch_policy::BatchPolicy;
-use crate::lookahead::{candidates, mark_taken, settled, Lookahead, LookaheadConfig};
 use crate::network_f32::NetworkF32;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
-use wheelleg_runtime::action::{Action, CHOICES, DIMS};
-use wheelleg_runtime::arrival::Arrival;
-use wheelleg_runtime::decision::{Decider, ObservationKey};
-use wheelleg_runtime::guard::{CollisionGuard, HeightMapRef};
-use wheelleg_runtime::leg::LegConfig;
-use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
-use wheelleg_runtime::robot::WHEELLEG;
-use wheelleg_sim::env::{Env, EnvConfig, GuardMap, Observation, Status};
+use wheelleg_sim::env::{Env, EnvConfig, Status};
 use wheelleg_sim::generate::{ComposedVariant, SceneKind};
-use wheelleg_sim::height_map::MapGrid;
-use wheelleg_sim::local_plan::{LastMetres, LastMetresConfig};
 use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig};
 use wheelleg_sim::scenario::Scenario;
+use wheelleg_stack::episodes::{run_episodes, LookaheadStats};
+use wheelleg_stack::policy::BatchPolicy;
+use wheelleg_stack::{DecisionRule, StackConfig};
 
 /// One scenario's result.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -56,28 +46,6 @@ pub struct ScenarioResult {
     pub local_plans: u32,
     /// What the look-ahead did (zeros without it).
     pub lookahead: LookaheadStats,
-}
-
-/// What the look-ahead did in one episode.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
-pub struct LookaheadStats {
-    /// Decisions it weighed candidates at (not those with one candidate or an arriving one).
-    pub decisions: u32,
-    /// Of them, those where it took another action than the rule's own.
-    pub overrides: u32,
-}
-
-/// A finished episode and what the last-metres search and the look-ahead did in it.
-#[derive(Clone, Debug)]
-pub struct FinishedEpisode {
-    /// What the look-ahead did (zeros without it).
-    pub lookahead: LookaheadStats,
-    /// The episode at its end.
-    pub env: Env,
-    /// Searches of the last metres run.
-    pub local_searches: u32,
-    /// Of them, those that found a plan.
-    pub local_plans: u32,
 }
 
 /// How near an obstacle's footprint must come to the target for the target to count as beside
@@ -175,7 +143,7 @@ pub struct EvalReport {
     /// Whether the last metres were searched on the robot's map
     /// (`wheelleg_sim::local_plan`), and if so how often and with what luck.
     pub last_metres: Option<LastMetresReport>,
-    /// Whether the look-ahead weighed candidates (`crate::lookahead`), and if so how often it
+    /// Whether the look-ahead weighed candidates (`wheelleg_stack::lookahead`), and if so how often it
     /// took another action than the rule's.
     pub lookahead: Option<LookaheadReport>,
     /// Fraction of scenarios reached.
@@ -232,25 +200,11 @@ pub struct LastMetresReport {
     pub plans: u32,
 }
 
-/// How the policy's five heads become one action.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum DecisionRule {
-    /// The most probable joint action not yet taken at the same observation (deterministic;
-    /// what the robot runs).
-    #[default]
-    Untried,
-    /// Each head's most probable choice, even if that action was just refused.
-    Argmax,
-    /// A draw from each head's distribution (the training rule).
-    Sample,
-}
-
 /// Options of an evaluation.
 #[derive(Clone, Debug)]
 pub struct EvalOptions {
-    /// How actions are chosen.
-    pub decision: DecisionRule,
+    /// The layers between the policy's logits and the action sent.
+    pub stack: StackConfig,
     /// Planner budget (expanded states) per scenario; 0 skips the planner.
     pub planner_expansions: usize,
     /// Episode rules.
@@ -260,25 +214,6 @@ pub struct EvalOptions {
     /// given, the planner is not run: one planner pass over a held-out set then serves every
     /// policy evaluated on it.
     pub known_shortest: Option<HashMap<String, Option<usize>>>,
-    /// Check each action against the height map before taking it
-    /// (`wheelleg_runtime::guard::CollisionGuard` with this margin), as a robot running the
-    /// guard does; only with [`DecisionRule::Untried`]. None: the policy alone.
-    pub guard_margin_m: Option<f32>,
-    /// The map the guard reads: none, the policy's own; a layout, a map of it rendered from
-    /// the scene at every step (a robot that keeps a finer elevation map than the policy's
-    /// input, docs/results.md "A finer map for the guard").
-    pub guard_grid: Option<MapGrid>,
-    /// Take the policy's most probable action that reaches the target whenever one does
-    /// (`wheelleg_runtime::arrival`, at the episode's success radius); only with
-    /// [`DecisionRule::Untried`].
-    pub arrival: bool,
-    /// Search the robot's own map for the last metres when the policy lingers near the
-    /// target (`wheelleg_sim::local_plan`), and take the plan found; none: the policy alone.
-    pub last_metres: Option<LastMetresConfig>,
-    /// Weigh the rule's first few candidate actions by rollouts of the policy on the robot's
-    /// own map, and take the one that arrives soonest (`crate::lookahead`); none: the rule's
-    /// own action.
-    pub lookahead: Option<LookaheadConfig>,
 }
 
 #[derive(Deserialize)]
@@ -309,231 +244,15 @@ pub fn read_plan_results(json: &str) -> Result<HashMap<String, Option<usize>>, S
 }
 
 impl Default for EvalOptions {
+    /// The `robot` stack, a planner pass of 20,000 expansions per scenario.
     fn default() -> Self {
         EvalOptions {
-            decision: DecisionRule::Untried,
+            stack: StackConfig::default(),
             planner_expansions: 20_000,
             env_config: EnvConfig::default(),
             known_shortest: None,
-            guard_margin_m: None,
-            guard_grid: None,
-            arrival: false,
-            last_metres: None,
-            lookahead: None,
         }
     }
-}
-
-/// One decision the policy took part in: the observation it read (height map in metres,
-/// row-major; state) and the action taken there, whoever chose it (the rule, the guard, the
-/// arrival rule or the look-ahead; steps of a search's plan are not decisions).
-#[derive(Clone, Copy, Debug)]
-pub struct Decision<'a> {
-    /// The height map the policy read.
-    pub height_map_m: &'a [f32],
-    /// The state it read.
-    pub state: &'a [f32],
-    /// The action taken.
-    pub action: Action,
-}
-
-/// Runs every scenario to its end in lock-step (one batched policy call per step), calling
-/// `on_decision` at each decision. Returns the finished episodes.
-pub fn run_episodes(
-    policy: &dyn BatchPolicy,
-    scenarios: &[Scenario],
-    options: &EvalOptions,
-    rng: &mut impl Rng,
-    on_decision: &mut dyn FnMut(Decision<'_>),
-) -> Result<Vec<FinishedEpisode>, String> {
-    let mut envs = scenarios
-        .iter()
-        .map(|s| Env::new(s, options.env_config).map_err(|e| format!("scenario {}: {e:?}", s.name)))
-        .collect::<Result<Vec<_>, _>>()?;
-    let mut obs = Observation::default();
-    let mut deciders: Vec<Decider> = vec![Decider::new(); envs.len()];
-    let mut keys = vec![ObservationKey(0); envs.len()];
-    if options.arrival && options.decision != DecisionRule::Untried {
-        return Err(format!(
-            "arrival needs the untried decision rule, not {:?}",
-            options.decision
-        ));
-    }
-    let guard = match (options.guard_margin_m, options.decision) {
-        (None, _) => None,
-        (Some(margin_m), DecisionRule::Untried) => Some(CollisionGuard::new(WHEELLEG, margin_m)),
-        (Some(_), rule) => {
-            return Err(format!(
-                "the collision guard needs the untried decision rule, not {rule:?}"
-            ))
-        }
-    };
-    let mut guard_map = options.guard_grid.map(GuardMap::new);
-    let mut lookahead = Lookahead::new(options.lookahead.unwrap_or_default());
-    let mut lookahead_stats = vec![LookaheadStats::default(); envs.len()];
-    let mut last_metres: Vec<Option<LastMetres>> = envs
-        .iter()
-        .map(|_| options.last_metres.map(LastMetres::new))
-        .collect();
-    loop {
-        // Episodes following a local plan step without the policy.
-        for (env, last_metres) in envs.iter_mut().zip(&mut last_metres) {
-            let Some(last_metres) = last_metres else {
-                continue;
-            };
-            while !env.status().is_done() {
-                let Some(action) = last_metres.next_action(env) else {
-                    break;
-                };
-                let outcome = env
-                    .step(action)
-                    .map_err(|_| "stepped a finished episode".to_string())?;
-                if outcome.invalid.is_some() {
-                    last_metres.abandon();
-                }
-            }
-        }
-        let running: Vec<usize> = (0..envs.len())
-            .filter(|&i| !envs[i].status().is_done())
-            .collect();
-        if running.is_empty() {
-            break;
-        }
-        let mut heights = Vec::with_capacity(running.len() * HEIGHT_MAP_CELLS);
-        let mut states = Vec::with_capacity(running.len() * STATE_LEN);
-        for &i in &running {
-            envs[i].observe(&mut obs);
-            keys[i] = ObservationKey::of_metres(&obs.height_map, &obs.state);
-            heights.extend_from_slice(&obs.height_map);
-            states.extend_from_slice(&obs.state);
-        }
-        let out = policy.log_probs(&heights, &states, running.len())?;
-        // Each running episode's action, or its candidates when the look-ahead picks.
-        let mut chosen: Vec<Option<Action>> = vec![None; running.len()];
-        for (k, &i) in running.iter().enumerate() {
-            let action = match options.decision {
-                DecisionRule::Sample => from_choices(out.sample(k, rng)),
-                DecisionRule::Argmax => from_choices(out.greedy(k)),
-                DecisionRule::Untried => {
-                    let mut logits = [0.0f32; DIMS * CHOICES];
-                    logits.copy_from_slice(
-                        &out.log_probs[k * DIMS * CHOICES..(k + 1) * DIMS * CHOICES],
-                    );
-                    let state = &states[k * STATE_LEN..(k + 1) * STATE_LEN];
-                    let arrival = options
-                        .arrival
-                        .then(|| Arrival::from_state_m(state, options.env_config.success_radius_m));
-                    let legs = LegConfig {
-                        clearance_m: state[0],
-                        track_m: state[1],
-                    };
-                    let map = match (&guard, &mut guard_map) {
-                        (None, _) => None,
-                        (Some(_), None) => {
-                            let cells = &heights[k * HEIGHT_MAP_CELLS..(k + 1) * HEIGHT_MAP_CELLS];
-                            let cells: &[f32; HEIGHT_MAP_CELLS] = cells
-                                .try_into()
-                                .map_err(|_| "height map of the wrong size".to_string())?;
-                            Some(HeightMapRef::Metres(cells))
-                        }
-                        (Some(_), Some(guard_map)) => Some(
-                            guard_map
-                                .observe(&envs[i])
-                                .map_err(|e| format!("guard map: {e}"))?,
-                        ),
-                    };
-                    let key = keys[i];
-                    let decide = |decider: &mut Decider| match (&guard, map) {
-                        (Some(guard), Some(map)) => {
-                            guard
-                                .choose(decider, key, &logits, map, legs, arrival.as_ref())
-                                .action
-                        }
-                        _ => match &arrival {
-                            Some(arrival) => arrival.choose(decider, key, &logits).action,
-                            None => decider.choose(key, &logits),
-                        },
-                    };
-                    match &options.lookahead {
-                        None => decide(&mut deciders[i]),
-                        Some(_) => {
-                            let wanted = lookahead.candidates_wanted();
-                            let found = candidates(&deciders[i], wanted, decide);
-                            match settled(&found, arrival.as_ref()) {
-                                Some(first) => {
-                                    mark_taken(&mut deciders[i], key, first);
-                                    first
-                                }
-                                None => {
-                                    let allows = |action| match (&guard, map) {
-                                        (Some(guard), Some(map)) => {
-                                            guard.check(map, legs, action).is_ok()
-                                        }
-                                        _ => true,
-                                    };
-                                    lookahead.push(i, &envs[i], &deciders[i], key, found, &allows);
-                                    continue;
-                                }
-                            }
-                        }
-                    }
-                }
-            };
-            chosen[k] = Some(action);
-        }
-        for weighed in
-            lookahead.weigh(policy, options.arrival, options.env_config.success_radius_m)?
-        {
-            // Slots are episodes, so that a way kept for one is offered to it again.
-            let i = weighed.slot;
-            let k = running
-                .binary_search(&i)
-                .map_err(|_| "the look-ahead weighed an episode not running")?;
-            // No candidate arrives within the horizon: the policy is lost here, so the search
-            // (when on) runs now rather than when it is next due.
-            if !weighed.arrives {
-                if let Some(search) = &mut last_metres[i] {
-                    if search.search_now(&envs[i]) {
-                        if let Some(action) = search.next_action(&envs[i]) {
-                            mark_taken(&mut deciders[i], keys[i], action);
-                            chosen[k] = Some(action);
-                            continue;
-                        }
-                    }
-                }
-            }
-            mark_taken(&mut deciders[i], keys[i], weighed.action);
-            lookahead_stats[i].decisions += 1;
-            lookahead_stats[i].overrides += u32::from(weighed.overridden);
-            chosen[k] = Some(weighed.action);
-        }
-        for (k, &i) in running.iter().enumerate() {
-            let action = chosen[k].ok_or("no action chosen")?;
-            on_decision(Decision {
-                height_map_m: &heights[k * HEIGHT_MAP_CELLS..(k + 1) * HEIGHT_MAP_CELLS],
-                state: &states[k * STATE_LEN..(k + 1) * STATE_LEN],
-                action,
-            });
-            envs[i]
-                .step(action)
-                .map_err(|_| "stepped a finished episode".to_string())?;
-        }
-    }
-    Ok(envs
-        .into_iter()
-        .zip(last_metres)
-        .zip(lookahead_stats)
-        .map(|((env, last_metres), lookahead)| FinishedEpisode {
-            env,
-            lookahead,
-            local_searches: last_metres.as_ref().map_or(0, LastMetres::searches),
-            local_plans: last_metres.as_ref().map_or(0, LastMetres::plans),
-        })
-        .collect())
-}
-
-fn from_choices(choices: [u8; DIMS]) -> Action {
-    Action::from_head_indices(choices.map(usize::from)).unwrap_or_default()
 }
 
 /// One observation as plain vectors: height map (metres, row-major) and state.
@@ -549,11 +268,19 @@ pub fn collect_observations(
     limit: usize,
 ) -> Result<Vec<RecordedObservation>, String> {
     let mut observations = Vec::new();
-    run_episodes(policy, scenarios, options, rng, &mut |decision| {
-        if observations.len() < limit {
-            observations.push((decision.height_map_m.to_vec(), decision.state.to_vec()));
-        }
-    })?;
+    let stack = &options.stack;
+    run_episodes(
+        policy,
+        scenarios,
+        stack,
+        options.env_config,
+        rng,
+        &mut |decision| {
+            if observations.len() < limit {
+                observations.push((decision.height_map_m.to_vec(), decision.state.to_vec()));
+            }
+        },
+    )?;
     Ok(observations)
 }
 
@@ -564,7 +291,15 @@ pub fn evaluate(
     options: &EvalOptions,
     rng: &mut impl Rng,
 ) -> Result<EvalReport, String> {
-    let episodes = run_episodes(policy, scenarios, options, rng, &mut |_| {})?;
+    let stack = &options.stack;
+    let episodes = run_episodes(
+        policy,
+        scenarios,
+        stack,
+        options.env_config,
+        rng,
+        &mut |_| {},
+    )?;
     let planner = PlannerConfig {
         max_expansions: options.planner_expansions,
         ..PlannerConfig::default()
@@ -651,22 +386,21 @@ pub fn evaluate(
     });
     by_composed_variant.sort_by(|a, b| a.name.cmp(&b.name));
     Ok(EvalReport {
-        decision: options.decision,
-        guard_margin_m: options.guard_margin_m,
-        guard_cell_m: options.guard_margin_m.map(|_| {
-            options
-                .guard_grid
+        decision: stack.rule,
+        guard_margin_m: stack.guard.map(|g| g.margin_m),
+        guard_cell_m: stack.guard.map(|g| {
+            g.grid
                 .map_or(wheelleg_runtime::observation::HEIGHT_MAP_CELL_M, |g| {
                     g.cell_m
                 })
         }),
-        arrival: options.arrival,
-        last_metres: options.last_metres.map(|_| LastMetresReport {
+        arrival: stack.arrival,
+        last_metres: stack.last_metres.map(|_| LastMetresReport {
             episodes_searched: results.iter().filter(|r| r.local_searches > 0).count(),
             searches: results.iter().map(|r| r.local_searches).sum(),
             plans: results.iter().map(|r| r.local_plans).sum(),
         }),
-        lookahead: options.lookahead.map(|config| LookaheadReport {
+        lookahead: stack.lookahead.map(|config| LookaheadReport {
             candidates: config.candidates,
             search_expansions: config.search_expansions,
             stuck_candidates: config.stuck_candidates,
@@ -707,25 +441,29 @@ pub fn load_policy(path: &std::path::Path) -> Result<NetworkF32, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::batch_policy::Fixated;
     use nalgebra::Point2;
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
     use wheelleg_sim::obstacle::{Obstacle, ObstacleKind, ObstacleYaw};
     use wheelleg_sim::state::RobotState;
+    use wheelleg_stack::lookahead::LookaheadConfig;
+    use wheelleg_stack::policy::Fixated;
+    use wheelleg_stack::Preset;
 
-    /// [`Fixated`] on `scenario` alone, without the planner.
-    fn fixated_on(scenario: &Scenario, options: EvalOptions) -> Result<EvalReport, String> {
+    /// [`Fixated`] on `scenario` alone through `stack`, without the planner. What each layer
+    /// does is tested with the stack (`stack/tests/episodes.rs`); here, what the report says.
+    fn fixated_on(scenario: &Scenario, stack: StackConfig) -> Result<EvalReport, String> {
         let options = EvalOptions {
+            stack,
             planner_expansions: 0,
-            ..options
+            ..EvalOptions::default()
         };
         let mut rng = ChaCha8Rng::seed_from_u64(0);
         evaluate(&Fixated, std::slice::from_ref(scenario), &options, &mut rng)
     }
 
     #[test]
-    fn arrival_takes_the_one_step_the_policy_would_not() {
+    fn the_report_names_the_layers_and_splits_by_what_stands_beside_the_target() {
         // The target 6 cm to the robot's right: one step right arrives; the policy only ever
         // wants forward, then left.
         let scenario = Scenario {
@@ -734,26 +472,17 @@ mod tests {
             target: Point2::new(0.0, 0.065),
             obstacles: vec![],
         };
-        let run = |arrival| {
-            fixated_on(
-                &scenario,
-                EvalOptions {
-                    arrival,
-                    ..EvalOptions::default()
-                },
-            )
-            .unwrap()
-        };
-        let alone = run(false);
-        assert!(!alone.arrival);
+        let alone = fixated_on(&scenario, Preset::Policy.config()).unwrap();
+        assert!(!alone.arrival && alone.guard_margin_m.is_none() && alone.lookahead.is_none());
         assert_ne!(alone.scenarios[0].status, "Success");
-        let arriving = run(true);
-        assert!(arriving.arrival);
-        assert_eq!(arriving.scenarios[0].status, "Success");
-        assert_eq!(arriving.scenarios[0].steps, 1);
-        assert!(arriving.scenarios[0].final_distance_m <= 0.05);
+        let robot = fixated_on(&scenario, Preset::Robot.config()).unwrap();
+        assert!(robot.arrival);
+        assert_eq!(robot.guard_cell_m, Some(0.01));
+        assert_eq!(robot.scenarios[0].status, "Success");
+        assert_eq!(robot.scenarios[0].steps, 1);
+        assert!(robot.scenarios[0].final_distance_m <= 0.05);
         assert_eq!(
-            arriving.by_target_beside,
+            robot.by_target_beside,
             [TargetBeside {
                 beside: "nothing".into(),
                 scenarios: 1,
@@ -761,21 +490,9 @@ mod tests {
                 collision_free: 1,
             }]
         );
-        // Not with a rule that does not remember what it took.
-        let argmax = EvalOptions {
-            decision: DecisionRule::Argmax,
-            arrival: true,
-            ..EvalOptions::default()
-        };
-        assert!(fixated_on(&scenario, argmax).is_err());
-    }
-
-    #[test]
-    fn the_default_rule_does_not_repeat_a_refused_action_and_argmax_does() {
-        // A block straight ahead: "forward" is refused once the robot reaches it.
-        let scenario = Scenario {
+        // A block 0.175 m short of the target.
+        let block = Scenario {
             name: "block-ahead".into(),
-            start: RobotState::new(Point2::new(0.0, 0.125), 0),
             target: Point2::new(0.9, 0.125),
             obstacles: vec![Obstacle::new(
                 ObstacleKind::Block,
@@ -783,111 +500,38 @@ mod tests {
                 0.125,
                 ObstacleYaw::Deg0,
             )],
+            ..scenario
         };
-        let run = |decision| {
-            fixated_on(
-                &scenario,
-                EvalOptions {
-                    decision,
-                    ..EvalOptions::default()
-                },
-            )
-            .unwrap()
-            .scenarios
-            .remove(0)
+        let argmax = StackConfig {
+            rule: DecisionRule::Argmax,
+            ..Preset::Policy.config()
         };
-        let argmax = run(DecisionRule::Argmax);
-        assert_eq!(argmax.status, "StepLimit");
-        // The block's far face is 0.175 m short of the target.
-        assert_eq!(argmax.target_beside.as_deref(), Some("block"));
-        assert!(argmax.collisions > 80, "argmax pushes on: {argmax:?}");
-        let untried = run(DecisionRule::Untried);
-        // After each refusal it takes the next most probable action (forward and left, then
-        // left), which slides it along the block's face until forward is free again; argmax
-        // pushes into the block every step.
-        assert!(untried.collisions > 0, "it did meet the block: {untried:?}");
-        assert!(
-            untried.collisions * 4 < argmax.collisions,
-            "untried {untried:?}, argmax {argmax:?}"
-        );
-    }
-
-    #[test]
-    fn the_look_ahead_takes_a_later_choice_only_where_it_arrives_sooner() {
-        let lookahead = |candidates| EvalOptions {
-            lookahead: Some(LookaheadConfig {
-                candidates,
-                stuck_candidates: candidates,
-                ..LookaheadConfig::default()
-            }),
-            ..EvalOptions::default()
-        };
-        // Ahead and to the left: the policy only ever drives forward and passes it by; its
-        // second choice, forward and left, leads there diagonally.
+        let report = fixated_on(&block, argmax).unwrap();
+        assert_eq!(report.decision, DecisionRule::Argmax);
+        assert_eq!(report.scenarios[0].status, "StepLimit");
+        assert_eq!(report.scenarios[0].target_beside.as_deref(), Some("block"));
+        // The look-ahead's counts add up over the episodes.
         let ahead_left = Scenario {
             name: "ahead-left".into(),
-            start: RobotState::new(Point2::new(0.0, 0.125), 0),
             target: Point2::new(0.5, 0.625),
             obstacles: vec![],
+            ..block
         };
-        let alone = fixated_on(&ahead_left, EvalOptions::default()).unwrap();
-        assert_ne!(alone.scenarios[0].status, "Success");
-        assert!(alone.lookahead.is_none());
-        let looked = fixated_on(&ahead_left, lookahead(2)).unwrap();
-        let episode = &looked.scenarios[0];
-        assert_eq!(episode.status, "Success", "{episode:?}");
-        // 0.71 m at 0.0707 m a diagonal step, within the 0.05 m success radius.
-        assert!(episode.steps <= 10, "{episode:?}");
-        assert!(episode.lookahead.overrides > 0, "{episode:?}");
-        let report = looked.lookahead.unwrap();
-        assert_eq!(report.candidates, 2);
-        assert_eq!(report.overrides, u64::from(episode.lookahead.overrides));
-        // Straight ahead the policy's own choice is already the shortest: never overridden.
-        let ahead = Scenario {
-            name: "ahead".into(),
-            target: Point2::new(0.5, 0.125),
-            ..ahead_left
-        };
-        let alone = fixated_on(&ahead, EvalOptions::default()).unwrap();
-        let looked = fixated_on(&ahead, lookahead(4)).unwrap();
-        assert_eq!(looked.scenarios[0].status, "Success");
-        assert_eq!(looked.scenarios[0].steps, alone.scenarios[0].steps);
-        assert!(looked.scenarios[0].lookahead.decisions > 0);
-        assert_eq!(looked.scenarios[0].lookahead.overrides, 0);
-    }
-
-    #[test]
-    fn the_search_finds_the_shortest_way_where_every_rollout_is_longer() {
-        // Far ahead on open ground: the policy drives straight, one 5 cm step at a time; the
-        // shortest way turns so that the longer diagonal steps carry it.
-        let ahead = Scenario {
-            name: "far-ahead".into(),
-            start: RobotState::new(Point2::new(0.0, 0.125), 0),
-            target: Point2::new(0.9, 0.125),
-            obstacles: vec![],
-        };
-        let searching = |search_expansions| EvalOptions {
+        let looking = StackConfig {
             lookahead: Some(LookaheadConfig {
-                candidates: 4,
-                stuck_candidates: 4,
-                search_expansions,
+                candidates: 2,
+                stuck_candidates: 2,
                 ..LookaheadConfig::default()
             }),
-            ..EvalOptions::default()
+            ..Preset::Policy.config()
         };
-        let run = |options| fixated_on(&ahead, options).unwrap().scenarios.remove(0);
-        let rollouts = run(searching(0));
-        let searched = run(searching(2_000));
-        assert_eq!(rollouts.status, "Success", "{rollouts:?}");
-        assert_eq!(searched.status, "Success", "{searched:?}");
-        let env = Env::new(&ahead, EnvConfig::default()).unwrap();
-        let PlanOutcome::Solved { actions, .. } = plan(&env, &PlannerConfig::default()).outcome
-        else {
-            panic!("open ground is solvable");
-        };
-        let shortest = actions.len();
-        assert!(rollouts.steps > shortest as u32, "{rollouts:?}");
-        assert_eq!(searched.steps, shortest as u32, "{searched:?}");
-        assert!(searched.lookahead.overrides > 0);
+        let looked = fixated_on(&ahead_left, looking).unwrap();
+        let report = looked.lookahead.unwrap();
+        assert_eq!(report.candidates, 2);
+        assert!(report.overrides > 0);
+        assert_eq!(
+            report.overrides,
+            u64::from(looked.scenarios[0].lookahead.overrides)
+        );
     }
 }

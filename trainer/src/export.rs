@@ -8,7 +8,7 @@ use crate::evaluate::{collect_observations, EvalOptions, RecordedObservation};
 use crate::network_f32::NetworkF32;
 use crate::quantize::qat::fine_tune;
 use crate::quantize::{
-    agreement, quantize, ActionRange, Agreement, Calibration, EvalPolicy, QatOptions, QatReport,
+    agreement, quantize, ActionRange, Agreement, Calibration, Int8Policy, QatOptions, QatReport,
     QatSettings, QuantizedNetwork, RangeMethod,
 };
 use burn::tensor::Device;
@@ -118,7 +118,10 @@ pub fn rollout_observations(
     let mut actions_rng = ChaCha8Rng::seed_from_u64(seed);
     actions_rng.set_stream(1);
     let options = EvalOptions {
-        decision: crate::evaluate::DecisionRule::Sample,
+        stack: wheelleg_stack::StackConfig {
+            rule: wheelleg_stack::DecisionRule::Sample,
+            ..wheelleg_stack::Preset::Policy.config()
+        },
         planner_expansions: 0,
         ..EvalOptions::default()
     };
@@ -192,7 +195,7 @@ pub fn export_policy(
             Ok((calibration, quantized, bytes))
         };
     let measure = |bytes: &[u8]| -> Result<Agreement, String> {
-        let policy = EvalPolicy::from_bytes(bytes)
+        let policy = Int8Policy::from_bytes(bytes)
             .map_err(|e| format!("the runtime refuses the exported weights: {e}"))?;
         // Always against the original float network: that is the policy that was trained.
         agreement(network, &policy, &holdout)
@@ -230,7 +233,7 @@ pub fn export_policy(
         (calibration, quantized, bytes, Some(card))
     };
     let agreement = measure(&bytes)?;
-    let policy = EvalPolicy::from_bytes(&bytes)
+    let policy = Int8Policy::from_bytes(&bytes)
         .map_err(|e| format!("the runtime refuses the exported weights: {e}"))?;
     let (parameters, macs_per_decision) = (policy.model().parameter_count(), policy.model().macs());
     let (state_bits, logit_bits) = (policy.model().state_bits(), policy.model().logit_bits());

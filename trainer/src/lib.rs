@@ -14,7 +14,7 @@
 //! - [`curriculum`]: the paper's Algorithms 1 and 2 stage by stage (secondary policies,
 //!   trajectory batch, primary policy).
 //! - [`checkpoint`]: atomic, validated checkpoints for exact resumes.
-//! - [`batch_policy`]: the float (burn) or int8 (runtime) policy behind one batched interface.
+//! - [`batch_policy`]: the float network behind the decision stack's batched policy interface.
 //! - [`evaluate`]: success, collision-free success and path length against the planner.
 //! - [`plot`]: learning curves of runs.
 //! - [`network_f32`]: the policy network in plain f32 and its forward pass, the float
@@ -31,7 +31,6 @@ pub mod conv_kernel;
 pub mod curriculum;
 pub mod evaluate;
 pub mod export;
-pub mod lookahead;
 pub mod network;
 pub mod network_f32;
 pub mod plot;

@@ -21,6 +21,7 @@ use serde::{Deserialize, Serialize};
 use std::sync::{Mutex, PoisonError};
 use wheelleg_runtime::action::{CHOICES, DIMS};
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
+use wheelleg_stack::policy::{greedy_heads, sample_heads, LOG_PROBS};
 
 /// Adam (Kingma & Ba) over the flat parameter tensors, PyTorch semantics (bias-corrected
 /// moments, epsilon added to the root). Kept here rather than burn's optimizer so that the
@@ -124,37 +125,12 @@ impl PolicyOutput {
 
     /// Samples one choice per head for sample `i` (inverse CDF on one uniform draw per head).
     pub fn sample(&self, i: usize, rng: &mut impl Rng) -> [u8; DIMS] {
-        let mut out = [0u8; DIMS];
-        for (h, slot) in out.iter_mut().enumerate() {
-            let u: f32 = rng.random();
-            let mut acc = 0.0;
-            let mut choice = CHOICES - 1;
-            for c in 0..CHOICES {
-                acc += self.log_probs[(i * DIMS + h) * CHOICES + c].exp();
-                if u < acc {
-                    choice = c;
-                    break;
-                }
-            }
-            *slot = choice as u8;
-        }
-        out
+        sample_heads(&self.log_probs[i * LOG_PROBS..(i + 1) * LOG_PROBS], rng)
     }
 
     /// The most probable choice per head for sample `i` (greedy evaluation).
     pub fn greedy(&self, i: usize) -> [u8; DIMS] {
-        let mut out = [0u8; DIMS];
-        for (h, slot) in out.iter_mut().enumerate() {
-            let row = &self.log_probs[(i * DIMS + h) * CHOICES..(i * DIMS + h + 1) * CHOICES];
-            let mut best = 0;
-            for c in 1..CHOICES {
-                if row[c] > row[best] {
-                    best = c;
-                }
-            }
-            *slot = best as u8;
-        }
-        out
+        greedy_heads(&self.log_probs[i * LOG_PROBS..(i + 1) * LOG_PROBS])
     }
 }
 

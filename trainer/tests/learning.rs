@@ -14,7 +14,7 @@ use wheelleg_trainer::config::TrainConfig;
 use wheelleg_trainer::evaluate::{evaluate, EvalOptions};
 use wheelleg_trainer::export::{export_policy, ExportOptions};
 use wheelleg_trainer::network::BackendKind;
-use wheelleg_trainer::quantize::EvalPolicy;
+use wheelleg_trainer::quantize::Int8Policy;
 use wheelleg_trainer::runner::{read_metrics, train, train_stage, RunOptions, StageInputs};
 
 fn temp_dir(name: &str) -> PathBuf {
@@ -56,6 +56,7 @@ fn ppo_learns_to_drive_straight_to_the_target() {
         100,
     );
     let options = EvalOptions {
+        stack: wheelleg_stack::Preset::Policy.config(),
         planner_expansions: 0,
         ..EvalOptions::default()
     };
@@ -85,7 +86,7 @@ fn ppo_learns_to_drive_straight_to_the_target() {
         ..ExportOptions::default()
     };
     let (bytes, card) = export_policy(&net, &device, "test", &export).unwrap();
-    let int8 = EvalPolicy::from_bytes(&bytes).unwrap();
+    let int8 = Int8Policy::from_bytes(&bytes).unwrap();
     let int8_report =
         evaluate(&int8, &scenes, &options, &mut ChaCha8Rng::seed_from_u64(0)).unwrap();
     eprintln!(

@@ -1,7 +1,7 @@
 //! How often the int8 policy takes the float policy's greedy action (the model card's agreement
 //! figure), per action dimension, on observations the calibration did not see.
 
-use super::EvalPolicy;
+use super::Int8Policy;
 use crate::network_f32::NetworkF32;
 use serde::Serialize;
 use wheelleg_runtime::action::{CHOICES, DIMS};
@@ -46,7 +46,7 @@ fn argmax(values: &[f32]) -> usize {
 /// (height map in metres, state).
 pub fn agreement(
     float: &NetworkF32,
-    int8: &EvalPolicy<'_>,
+    int8: &Int8Policy<'_>,
     observations: &[crate::evaluate::RecordedObservation],
 ) -> Result<Agreement, String> {
     let mut same = [0usize; DIMS];

@@ -13,7 +13,7 @@
 //! 5. [`qat`]: quantization-aware fine-tuning by distillation, for when post-training
 //!    quantization alone flips too many near-tie decisions: the result goes through 1-3 again.
 //!
-//! The int8 network is then run by `wheelleg_runtime::model` itself ([`EvalPolicy`]).
+//! The int8 network is then run by `wheelleg_runtime::model` itself ([`Int8Policy`]).
 
 pub mod agreement;
 pub mod build;
@@ -30,11 +30,7 @@ pub use calibrate::{ActionRange, Calibration, RangeMethod, RangeObserver};
 pub use params::{quantize_multiplier, ActQuant};
 pub use qat::{dequantize, fine_tune, QatOptions, QatReport, QatSettings};
 
-use wheelleg_runtime::model::Policy;
-
-/// The runtime policy with buffers large enough for any architecture the trainer is likely to
-/// try (64 KiB activations, 8 Ki-element rows): evaluation on the host, not the robot.
-pub type EvalPolicy<'a> = Policy<'a, 65_536, 8_192>;
+pub use wheelleg_stack::policy::Int8Policy;
 
 /// An observation in the runtime's integer units: heights in millimetres (i16, saturating) and
 /// state in millimetres (i32), rounded half away from zero like `Policy::evaluate_m`.

@@ -37,11 +37,12 @@ use wheelleg_runtime::model::quant::{quantize_mm, quantize_mm16};
 use super::build::{quantize_for_version, QuantizedLayer, QuantizedNetwork};
 use super::calibrate::{ActionRange, Calibration, RangeMethod};
 use super::params::ActQuant;
-use crate::batch_policy::{BatchPolicy, FloatPolicy};
+use crate::batch_policy::FloatPolicy;
 use crate::evaluate::RecordedObservation;
 use crate::network::{self, to_vec};
 use crate::network_f32::{DenseF32, NetworkF32, Trace};
 use crate::ppo::{clip_global_norm, Adam};
+use wheelleg_stack::policy::BatchPolicy;
 
 /// Fine-tuning steps `wheelleg export` takes by default: on the final baseline checkpoint 300
 /// steps took the worst action dimension's agreement from 98.81% (plain PTQ) to 99.26%, and
@@ -639,7 +640,7 @@ pub fn fine_tune(
     for chunk in training_set.chunks(CHUNK) {
         let (heights, states) = flatten(chunk);
         let out = teacher_policy.log_probs(&heights, &states, chunk.len())?;
-        for head in out.log_probs.chunks_exact(CHOICES) {
+        for head in out.chunks_exact(CHOICES) {
             // Log-probabilities differ from logits by a constant per head: same margins.
             let mut sorted = head.to_vec();
             sorted.sort_by(|a, b| b.total_cmp(a));
@@ -744,7 +745,7 @@ mod tests {
     use super::*;
     use crate::network::BackendKind;
     use crate::network_f32::Architecture;
-    use crate::quantize::{quantize, EvalPolicy};
+    use crate::quantize::{quantize, Int8Policy};
     use wheelleg_runtime::model::format::FORMAT_VERSION;
 
     fn observation(rng: &mut ChaCha8Rng) -> RecordedObservation {
@@ -778,7 +779,7 @@ mod tests {
         );
         let quantized = quantize(&network, &calibration, RangeMethod::MinMax).unwrap();
         let bytes = quantized.to_bytes().unwrap();
-        let int8 = EvalPolicy::from_bytes(&bytes).unwrap();
+        let int8 = Int8Policy::from_bytes(&bytes).unwrap();
         let (fq, _) =
             fake_quant_params(&network, &calibration, RangeMethod::MinMax, FORMAT_VERSION).unwrap();
         let (mut heights, mut states) = (Vec::new(), Vec::new());

@@ -3,7 +3,7 @@
 //! look-ahead's rollouts on the robot's map, and with its search for a shorter way as well.
 //! The figures are the ratios to the stack alone, per episode.
 //!
-//! `cargo bench -p wheelleg-trainer --bench lookahead`. Figures: docs/results.md, "Rollouts on
+//! `cargo bench -p wheelleg-stack --bench lookahead`. Figures: docs/results.md, "Rollouts on
 //! the robot's map" and "A search for a shorter way".
 
 #![allow(missing_docs)] // criterion_group! generates an undocumented function.
@@ -13,42 +13,36 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use std::path::Path;
 use std::time::Duration;
-use wheelleg_runtime::guard::DEFAULT_MARGIN_M;
 use wheelleg_runtime::robot::WHEELLEG;
-use wheelleg_sim::height_map::MapGrid;
-use wheelleg_trainer::evaluate::{run_episodes, EvalOptions};
-use wheelleg_trainer::lookahead::LookaheadConfig;
-use wheelleg_trainer::quantize::EvalPolicy;
+use wheelleg_sim::env::EnvConfig;
+use wheelleg_stack::episodes::run_episodes;
+use wheelleg_stack::lookahead::LookaheadConfig;
+use wheelleg_stack::policy::Int8Policy;
+use wheelleg_stack::{Preset, StackConfig};
 
 const EPISODES: usize = 16;
 
 fn episodes(c: &mut Criterion) {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let bytes = std::fs::read(root.join("weights/policy.wlw")).expect("weights/policy.wlw");
-    let policy = EvalPolicy::from_bytes(&bytes).expect("a weights file");
+    let policy = Int8Policy::from_bytes(&bytes).expect("a weights file");
     let scenarios = wheelleg_sim::scenario_file::load(
         &root.join("eval/heldout-complex-s1000000.json"),
         &WHEELLEG,
     )
     .expect("the held-out scenes");
     let scenarios = &scenarios[..EPISODES];
-    let stack = EvalOptions {
-        planner_expansions: 0,
-        guard_margin_m: Some(DEFAULT_MARGIN_M),
-        guard_grid: Some(MapGrid::GUARD_FINE),
-        arrival: true,
-        ..EvalOptions::default()
-    };
-    let looking = EvalOptions {
+    let stack = Preset::Robot.config();
+    let looking = StackConfig {
         lookahead: Some(LookaheadConfig::default()),
-        ..stack.clone()
+        ..stack
     };
-    let searching = EvalOptions {
+    let searching = StackConfig {
         lookahead: Some(LookaheadConfig {
             search_expansions: 500,
             ..LookaheadConfig::default()
         }),
-        ..stack.clone()
+        ..stack
     };
     let mut group = c.benchmark_group("episodes");
     group.throughput(Throughput::Elements(EPISODES as u64));
@@ -62,8 +56,15 @@ fn episodes(c: &mut Criterion) {
         group.bench_function(name, |b| {
             b.iter(|| {
                 let mut rng = ChaCha8Rng::seed_from_u64(0);
-                run_episodes(&policy, scenarios, options, &mut rng, &mut |_| {})
-                    .expect("episodes run")
+                run_episodes(
+                    &policy,
+                    scenarios,
+                    options,
+                    EnvConfig::default(),
+                    &mut rng,
+                    &mut |_| {},
+                )
+                .expect("episodes run")
             })
         });
     }

@@ -35,8 +35,9 @@
 //! keeps the cost of the search to the decisions where the way changed, and keeps the robot
 //! from switching between ways of equal length as its map shifts.
 
-use crate::batch_policy::BatchPolicy;
-use wheelleg_runtime::action::{Action, CHOICES, DIMS, MOVE_STEP_M};
+use crate::policy::{BatchPolicy, LOG_PROBS};
+use crate::rule::{mark_taken, RobotRule};
+use wheelleg_runtime::action::{Action, MOVE_STEP_M};
 use wheelleg_runtime::arrival::Arrival;
 use wheelleg_runtime::decision::{Decider, ObservationKey};
 use wheelleg_runtime::observation::STATE_LEN;
@@ -154,7 +155,7 @@ impl Lookahead {
         &self.config
     }
 
-    /// How many of the rule's candidates ([`candidates`]) a decision needs: enough for the
+    /// How many of the rule's candidates ([`crate::rule::candidates`]) a decision needs: enough for the
     /// wider look where none of the first arrives.
     pub fn candidates_wanted(&self) -> usize {
         self.config.candidates.max(self.config.stuck_candidates)
@@ -163,7 +164,7 @@ impl Lookahead {
     /// Queues a decision of episode `slot` (a number that stays with the episode, so that the
     /// way kept for it is offered again): `env` as it stands (the look-ahead sees it only
     /// through its robot's map), the robot's `decider` before deciding, the observation's
-    /// `key`, the rule's `candidates` in order ([`candidates`], at least `stuck_candidates` of
+    /// `key`, the rule's `candidates` in order ([`crate::rule::candidates`], at least `stuck_candidates` of
     /// them where the rule has that many), and whether the robot's guard `allows` an action
     /// now (asked only with the search on: a searched or kept way's next step must pass it,
     /// and must not have been taken at `key` already).
@@ -386,35 +387,29 @@ impl PolicyInputs {
         &self.states[k * STATE_LEN..(k + 1) * STATE_LEN]
     }
 
-    fn logits<'a>(
-        &self,
-        log_probs: &'a [f32],
-        k: usize,
-    ) -> Result<&'a [f32; DIMS * CHOICES], String> {
+    fn logits<'a>(&self, log_probs: &'a [f32], k: usize) -> Result<&'a [f32; LOG_PROBS], String> {
         log_probs
-            .get(k * DIMS * CHOICES..(k + 1) * DIMS * CHOICES)
+            .get(k * LOG_PROBS..(k + 1) * LOG_PROBS)
             .and_then(|l| l.try_into().ok())
             .ok_or_else(|| "the policy returned too few log-probabilities".to_string())
     }
 }
 
-/// The robot's rule without its guard: the decider's choice, or the arrival rule's where
-/// `arrival` is on.
+/// The robot's rule without its guard (the perceived scene refuses what the guard would):
+/// the untried rule, with the arrival rule at `success_radius_m` where `arrival` is on.
 fn rule_action(
     decider: &mut Decider,
     key: ObservationKey,
-    logits: &[f32; DIMS * CHOICES],
+    logits: &[f32; LOG_PROBS],
     state: &[f32],
     arrival: bool,
     success_radius_m: f32,
 ) -> Action {
-    if arrival {
-        Arrival::from_state_m(state, success_radius_m)
-            .choose(decider, key, logits)
-            .action
-    } else {
-        decider.choose(key, logits)
+    RobotRule {
+        guard: None,
+        arrival: arrival.then(|| Arrival::from_state_m(state, success_radius_m)),
     }
+    .choose(decider, key, logits)
 }
 
 /// One candidate's rollout: the perceived episode after the candidate, and the decider that
@@ -511,9 +506,9 @@ pub fn rollout_costs(
             break;
         }
         let inputs = PolicyInputs::of(running.iter().map(|&i| &rollouts[i].env));
-        let out = policy.log_probs(&inputs.heights, &inputs.states, running.len())?;
+        let log_probs = policy.log_probs(&inputs.heights, &inputs.states, running.len())?;
         for (k, &i) in running.iter().enumerate() {
-            let logits = inputs.logits(&out.log_probs, k)?;
+            let logits = inputs.logits(&log_probs, k)?;
             let rollout = &mut rollouts[i];
             let action = rule_action(
                 &mut rollout.decider,
@@ -590,48 +585,6 @@ pub fn best_candidate(costs: &[f32]) -> Option<usize> {
     best.map(|(i, _)| i)
 }
 
-/// The candidate actions at one decision, in the rule's order of preference: `decide` is the
-/// robot's rule applied to a decider; called on a copy of `decider` again and again, it names
-/// the rule's own action and then what it would fall back to, each marked taken in the copy.
-/// At most `count`, all distinct.
-pub fn candidates(
-    decider: &Decider,
-    count: usize,
-    mut decide: impl FnMut(&mut Decider) -> Action,
-) -> Vec<Action> {
-    let mut copy = decider.clone();
-    let mut found: Vec<Action> = Vec::with_capacity(count);
-    // The rule may repeat itself once every action was taken at an observation (its memory
-    // starts over); a bounded number of calls keeps that from looping.
-    for _ in 0..count.saturating_mul(2) {
-        if found.len() >= count {
-            break;
-        }
-        let action = decide(&mut copy);
-        if !found.contains(&action) {
-            found.push(action);
-        }
-    }
-    found
-}
-
-/// The rule's own action when there is nothing to weigh: fewer than two candidates, or the
-/// first (the rule's own) already reaches the target under `arrival`. `None`: weigh them.
-pub fn settled(found: &[Action], arrival: Option<&Arrival>) -> Option<Action> {
-    let first = found.first().copied().unwrap_or_default();
-    let arrives = arrival.is_some_and(|a| a.reached_by(first));
-    (found.len() < 2 || arrives).then_some(first)
-}
-
-/// Marks `action` taken at `key` in `decider`, as if its rule had chosen it.
-pub fn mark_taken(decider: &mut Decider, key: ObservationKey, action: Action) {
-    if decider.was_taken(key, action) {
-        return;
-    }
-    let logits = [0.0f32; DIMS * CHOICES];
-    decider.choose_checked(key, &logits, 1, |_, a| a == action);
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -648,46 +601,9 @@ mod tests {
     }
 
     #[test]
-    fn one_candidate_or_an_arriving_first_needs_no_weighing() {
-        let ahead = Action {
-            move_x: wheelleg_runtime::action::Step::Plus,
-            ..Action::IDLE
-        };
-        let near = Arrival::new(nalgebra::Vector2::new(0.05, 0.0), 0.05);
-        let far = Arrival::new(nalgebra::Vector2::new(0.5, 0.0), 0.05);
-        assert_eq!(settled(&[ahead], None), Some(ahead));
-        assert_eq!(settled(&[ahead, Action::IDLE], Some(&near)), Some(ahead));
-        assert_eq!(settled(&[ahead, Action::IDLE], Some(&far)), None);
-        assert_eq!(settled(&[ahead, Action::IDLE], None), None);
-    }
-
-    #[test]
     fn ties_go_to_the_policys_preference() {
         assert_eq!(best_candidate(&[12.0, 11.0, 11.0, 15.0]), Some(1));
         assert_eq!(best_candidate(&[12.0, 12.0]), Some(0));
         assert_eq!(best_candidate(&[]), None);
-    }
-
-    #[test]
-    fn candidates_are_the_rules_choices_in_order_and_distinct() {
-        let mut logits = [0.0f32; DIMS * CHOICES];
-        // Head move x prefers Plus, then Zero; everything else Zero.
-        for dim in 0..DIMS {
-            logits[dim * CHOICES + 1] = 1.0;
-        }
-        logits[2] = 2.0;
-        let key = ObservationKey(7);
-        let decider: Decider = Decider::new();
-        let found = candidates(&decider, 3, |d| d.choose(key, &logits));
-        assert_eq!(found.len(), 3);
-        assert_eq!(found[0].move_x, wheelleg_runtime::action::Step::Plus);
-        assert_eq!(found[1].move_x, wheelleg_runtime::action::Step::Zero);
-        assert_ne!(found[1], found[2]);
-        // The robot's own decider is untouched.
-        assert_eq!(decider.taken_count(key), 0);
-        let mut decider = decider;
-        mark_taken(&mut decider, key, found[2]);
-        assert!(decider.was_taken(key, found[2]));
-        assert_eq!(decider.taken_count(key), 1);
     }
 }
