@@ -135,39 +135,24 @@ fn generate_plan_and_render_a_scenario_file() {
     assert!(shorter["success_rate"].as_f64() >= looked["success_rate"].as_f64());
     let total = |report: &serde_json::Value| -> u64 { steps(report).iter().map(|s| s.1).sum() };
     assert!(total(&shorter) < total(&looked), "{shorter}\n{looked}");
-    let bad = wheelleg(&[
-        "eval",
-        "--policy",
-        policy,
-        "--scenarios",
-        file_arg,
-        "--guard-map",
-        "coarse",
-    ]);
-    assert!(!bad.status.success());
-    assert!(
-        text(&bad.stderr).contains("--guard-map"),
-        "{}",
-        text(&bad.stderr)
-    );
-    // A layer option for a stack without that layer is an error that names it.
-    let bad = wheelleg(&[
-        "eval",
-        "--policy",
-        policy,
-        "--scenarios",
-        file_arg,
-        "--stack",
-        "policy",
-        "--guard-margin",
-        "0.01",
-    ]);
-    assert!(!bad.status.success());
-    assert!(
-        text(&bad.stderr).contains("--guard-margin"),
-        "{}",
-        text(&bad.stderr)
-    );
+    // A bad value, a layer option for a stack without that layer, a rule the layers cannot
+    // build on: each an error that names the option.
+    for (extra, named) in [
+        (&["--guard-map", "coarse"][..], "--guard-map"),
+        (
+            &["--stack", "policy", "--guard-margin", "0.01"],
+            "--guard-margin",
+        ),
+        (&["--rule", "argmax"], "--rule argmax"),
+    ] {
+        let mut args = vec!["eval", "--policy", policy, "--scenarios", file_arg];
+        args.extend_from_slice(extra);
+        let bad = wheelleg(&args);
+        assert!(!bad.status.success(), "{extra:?}");
+        let stderr = text(&bad.stderr);
+        assert!(stderr.contains(named), "{extra:?}: {stderr}");
+        assert!(!stderr.contains("panicked"), "{extra:?}: {stderr}");
+    }
     let table = wheelleg(&["eval", "--policy", policy, "--scenarios", file_arg]);
     assert!(table.status.success(), "{}", text(&table.stderr));
     let table = text(&table.stdout);
