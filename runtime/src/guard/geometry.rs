@@ -1,0 +1,174 @@
+//! The robot's parts against one map column: the distances and crossings the guard's check is
+//! made of.
+
+use crate::leg::LegConfig;
+use crate::robot::{LegId, RobotGeometry};
+use nalgebra::Point3;
+
+/// The indices in both ranges.
+pub(super) fn intersect(
+    a: core::ops::Range<usize>,
+    b: core::ops::Range<usize>,
+) -> core::ops::Range<usize> {
+    let start = a.start.max(b.start);
+    start..a.end.min(b.end).max(start)
+}
+
+/// Overlap the lenient check forgives on top of the current pose's, per column: rounding.
+pub(super) const OVERLAP_TOLERANCE_M: f32 = 1.0e-4;
+
+/// A column of the height map in the frame of the robot at the checked pose: a square from the
+/// ground up to its height.
+pub(super) struct Column {
+    pub(super) x_m: f32,
+    pub(super) y_m: f32,
+    pub(super) half_m: f32,
+    pub(super) height_m: f32,
+}
+
+/// The robot's parts at one leg configuration, in its own frame with z measured from the ground.
+pub(super) struct Parts {
+    clearance_m: f32,
+    body_half_x_m: f32,
+    body_half_y_m: f32,
+    /// Per leg: hip, knee and wheel centre.
+    legs: [[Point3<f32>; 3]; 4],
+    link_radius_m: f32,
+    wheel_radius_m: f32,
+    wheel_half_width_m: f32,
+    /// Half the extent of the whole robot along its x and y: a column beyond cannot touch it.
+    half_extent_m: (f32, f32),
+}
+
+impl Parts {
+    pub(super) fn place(geometry: &RobotGeometry, legs: LegConfig) -> Option<Parts> {
+        let joints = geometry.leg_ik(legs).ok()?;
+        let centre_height_m = geometry.body_centre_height_m(legs.clearance_m);
+        let mut points = [[Point3::origin(); 3]; 4];
+        for (slot, leg) in points.iter_mut().zip(LegId::ALL) {
+            let p = geometry.leg_points(leg, joints);
+            *slot = [p.hip, p.knee, p.wheel].map(|q| Point3::new(q.x, q.y, q.z + centre_height_m));
+        }
+        let mut half_extent_m = (0.5 * geometry.body_length_m, 0.5 * geometry.body_width_m);
+        for [hip, knee, wheel] in &points {
+            let reach_x_m = hip.x.abs() + geometry.wheel_radius_m.max(geometry.link_radius_m);
+            let reach_y_m = (wheel.y.abs() + 0.5 * geometry.wheel_width_m)
+                .max(knee.y.abs().max(hip.y.abs()) + geometry.link_radius_m);
+            half_extent_m.0 = half_extent_m.0.max(reach_x_m);
+            half_extent_m.1 = half_extent_m.1.max(reach_y_m);
+        }
+        Some(Parts {
+            half_extent_m,
+            clearance_m: legs.clearance_m,
+            body_half_x_m: 0.5 * geometry.body_length_m,
+            body_half_y_m: 0.5 * geometry.body_width_m,
+            legs: points,
+            link_radius_m: geometry.link_radius_m,
+            wheel_radius_m: geometry.wheel_radius_m,
+            wheel_half_width_m: 0.5 * geometry.wheel_width_m,
+        })
+    }
+
+    /// Whether `column` is within the robot's extent at all (if not, it overlaps nothing).
+    pub(super) fn may_touch(&self, column: &Column) -> bool {
+        column.x_m.abs() - column.half_m <= self.half_extent_m.0
+            && column.y_m.abs() - column.half_m <= self.half_extent_m.1
+    }
+
+    /// How deep the deepest part reaches into `column` (0: touching, as the simulator counts
+    /// it; negative: apart). For the body box it is the least of its overlaps along x, y and z;
+    /// for the round parts, radius minus distance.
+    pub(super) fn overlap_m(&self, column: &Column) -> f32 {
+        let half_m = column.half_m;
+        let body_m = (self.body_half_x_m + half_m - column.x_m.abs())
+            .min(self.body_half_y_m + half_m - column.y_m.abs())
+            .min(column.height_m - self.clearance_m);
+        let (link_reach_m, wheel_reach_m) = (self.link_radius_m, self.wheel_radius_m);
+        let mut deepest_m = body_m;
+        for [hip, knee, wheel] in &self.legs {
+            // Every point of a leg is in its leg plane, at the hip's x.
+            let dx_m = ((column.x_m - hip.x).abs() - half_m).max(0.0);
+            for (a, b) in [(hip, knee), (knee, wheel)] {
+                let d_yz_m = segment_rect_distance_m(
+                    (a.y, a.z),
+                    (b.y, b.z),
+                    (column.y_m - half_m, 0.0),
+                    (column.y_m + half_m, column.height_m),
+                );
+                deepest_m = deepest_m.max(link_reach_m - crate::trig::hypot(dx_m, d_yz_m));
+            }
+            // Wheel: a disc in the x-z plane, as wide as the wheel along y.
+            let dy_m = (column.y_m - wheel.y).abs() - half_m;
+            let side_m = self.wheel_half_width_m - dy_m;
+            let dx_m = ((column.x_m - wheel.x).abs() - half_m).max(0.0);
+            let dz_m = (wheel.z - column.height_m).max(0.0);
+            deepest_m = deepest_m.max(side_m.min(wheel_reach_m - crate::trig::hypot(dx_m, dz_m)));
+        }
+        deepest_m
+    }
+}
+
+/// Distance in a plane from the segment `a`-`b` to the axis-aligned rectangle `lo`-`hi` (0 when
+/// they meet). Two disjoint convex polygons are nearest at a vertex of one of them, so the
+/// distance is the least of the segment's ends to the rectangle and the rectangle's corners to
+/// the segment, once a crossing is ruled out.
+pub(super) fn segment_rect_distance_m(
+    a: (f32, f32),
+    b: (f32, f32),
+    lo: (f32, f32),
+    hi: (f32, f32),
+) -> f32 {
+    if segment_crosses_rect(a, b, lo, hi) {
+        return 0.0;
+    }
+    let point_to_rect = |p: (f32, f32)| {
+        let dx = (lo.0 - p.0).max(p.0 - hi.0).max(0.0);
+        let dy = (lo.1 - p.1).max(p.1 - hi.1).max(0.0);
+        crate::trig::hypot(dx, dy)
+    };
+    let point_to_segment = |p: (f32, f32)| {
+        let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+        let length_sq = dx * dx + dy * dy;
+        let t = if length_sq > 0.0 {
+            (((p.0 - a.0) * dx + (p.1 - a.1) * dy) / length_sq).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        crate::trig::hypot(a.0 + t * dx - p.0, a.1 + t * dy - p.1)
+    };
+    let corners = [lo, (hi.0, lo.1), hi, (lo.0, hi.1)];
+    corners
+        .into_iter()
+        .map(point_to_segment)
+        .chain([a, b].into_iter().map(point_to_rect))
+        .fold(f32::INFINITY, f32::min)
+}
+
+/// Whether the segment `a`-`b` has a point in the closed rectangle `lo`-`hi` (Liang-Barsky
+/// clipping: the parameter interval left after each slab must stay non-empty).
+pub(super) fn segment_crosses_rect(
+    a: (f32, f32),
+    b: (f32, f32),
+    lo: (f32, f32),
+    hi: (f32, f32),
+) -> bool {
+    let (mut t0, mut t1) = (0.0f32, 1.0f32);
+    for (start, delta, min, max) in [(a.0, b.0 - a.0, lo.0, hi.0), (a.1, b.1 - a.1, lo.1, hi.1)] {
+        if delta == 0.0 {
+            if start < min || start > max {
+                return false;
+            }
+            continue;
+        }
+        let (mut enter, mut leave) = ((min - start) / delta, (max - start) / delta);
+        if enter > leave {
+            core::mem::swap(&mut enter, &mut leave);
+        }
+        t0 = t0.max(enter);
+        t1 = t1.min(leave);
+        if t0 > t1 {
+            return false;
+        }
+    }
+    true
+}
