@@ -132,7 +132,7 @@ pub struct RunConfig {
     pub checkpoint_interval: usize,
     /// Worker threads stepping environments (std threads, each owns a fixed slice of envs).
     pub threads: usize,
-    /// Deep-learning backend: `flex` (default), `ndarray`, `cubecl-cpu`, `cuda`.
+    /// Deep-learning backend: `flex` (default) or `cuda` (with the cargo feature `cuda`).
     pub backend: String,
     /// Start yaw of the training scenes: within this many degrees of the world x axis
     /// (facing the target or away from it); 90 or more: any yaw, the task as specified.

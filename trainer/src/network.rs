@@ -28,10 +28,6 @@ pub const ACTION_HEAD_INIT_SCALE: f32 = 0.01;
 pub enum BackendKind {
     /// burn's pure-Rust CPU backend (default).
     Flex,
-    /// burn's deprecated ndarray backend (feature `ndarray`).
-    NdArray,
-    /// CubeCL's CPU backend (feature `cubecl-cpu`).
-    CubeclCpu,
     /// CUDA GPU 0 (feature `cuda`).
     Cuda,
 }
@@ -41,12 +37,8 @@ impl BackendKind {
     pub fn from_name(name: &str) -> Result<BackendKind, String> {
         match name {
             "flex" => Ok(BackendKind::Flex),
-            "ndarray" => Ok(BackendKind::NdArray),
-            "cubecl-cpu" => Ok(BackendKind::CubeclCpu),
             "cuda" => Ok(BackendKind::Cuda),
-            other => Err(format!(
-                "unknown backend {other:?} (expected flex, ndarray, cubecl-cpu or cuda)"
-            )),
+            other => Err(format!("unknown backend {other:?} (expected flex or cuda)")),
         }
     }
 
@@ -58,17 +50,6 @@ impl BackendKind {
                 #[cfg(feature = "flex")]
                 return Ok(Device::flex());
                 Err("backend flex needs the cargo feature `flex`".into())
-            }
-            BackendKind::NdArray => {
-                #[cfg(feature = "ndarray")]
-                #[allow(deprecated)]
-                return Ok(Device::ndarray());
-                Err("backend ndarray needs the cargo feature `ndarray`".into())
-            }
-            BackendKind::CubeclCpu => {
-                #[cfg(feature = "cubecl-cpu")]
-                return Ok(Device::cpu());
-                Err("backend cubecl-cpu needs the cargo feature `cubecl-cpu`".into())
             }
             BackendKind::Cuda => {
                 #[cfg(feature = "cuda")]
