@@ -1,6 +1,6 @@
 //! Writes the fuzz targets' seed corpora (fuzz/seeds/TARGET/) from files the project really
 //! makes: weights files from the trainer's quantizer (the default network with random weights,
-//! as `runtime/examples/random_policy.rs` writes it, and small networks), scenario files as
+//! as `trainer/examples/random_policy.rs` writes it, and small networks), scenario files as
 //! `wheelleg generate` writes them, checkpoints of small networks as the trainer writes them, and
 //! the bus traffic of the closed loop as `firmware_sim/examples/closed_loop_log.rs` logs it.
 //!
@@ -113,7 +113,7 @@ fn quantized_version(
 }
 
 fn weights_seeds(out: &Path) {
-    // The default network as runtime/examples/random_policy.rs writes it.
+    // The default network as trainer/examples/random_policy.rs writes it.
     let default = Architecture::default_policy();
     let network = NetworkF32::random(&default, &mut ChaCha8Rng::seed_from_u64(7));
     let mut rng = ChaCha8Rng::seed_from_u64(1);

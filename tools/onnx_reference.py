@@ -430,7 +430,7 @@ def runtime_cpu_us(weights, count):
     a run of `count` decisions minus a run of 0, as children's rusage."""
     import resource
 
-    subprocess.check_call(["cargo", "build", "--release", "-q", "-p", "wheelleg-runtime",
+    subprocess.check_call(["cargo", "build", "--release", "-q", "-p", "wheelleg-trainer",
                            "--example", "decisions"], cwd=ROOT)
     target = os.environ.get("CARGO_TARGET_DIR", os.path.join(ROOT, "target"))
     binary = os.path.join(target, "release", "examples", "decisions")
@@ -491,8 +491,8 @@ def main():
     work = tempfile.mkdtemp(prefix="wheelleg-onnx-")
     if weights is None:
         weights = os.path.join(work, "random.wlw")
-        print("weights/policy.wlw not found: using a random policy (runtime/examples/random_policy.rs)")
-        subprocess.check_call(["cargo", "run", "--release", "-q", "-p", "wheelleg-runtime",
+        print("weights/policy.wlw not found: using a random policy (trainer/examples/random_policy.rs)")
+        subprocess.check_call(["cargo", "run", "--release", "-q", "-p", "wheelleg-trainer",
                                "--example", "random_policy", "--", weights], cwd=ROOT)
     with open(weights, "rb") as f:
         model = parse_wlw(f.read())

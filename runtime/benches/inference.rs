@@ -1,7 +1,8 @@
-//! Per-decision latency of the shipped network at batch 1: the int8 runtime with the scalar and
-//! the AVX2 kernel (seeded random weights, and `weights/policy.wlw` when it exists), and the
-//! trainer's f32 forward pass as the float reference, in one run. onnxruntime's figures for the
-//! same network come from `tools/onnx_reference.py` (docs/model.md, "Speed"). The collision
+//! Per-decision latency of the shipped network (`weights/policy.wlw`) at batch 1: the int8
+//! runtime with each kernel this CPU runs, through `act` with its stack scratch, and the load
+//! and validation of the file. onnxruntime's figures for the same network come from
+//! `tools/onnx_reference.py` (docs/model.md, "Speed"); the trainer's f32 forward pass as the
+//! float reference is `cargo bench -p wheelleg-trainer --bench inference_f32`. The collision
 //! guard's check of one action, in the same group, puts its cost beside a decision's.
 //!
 //! `cargo bench -p wheelleg-runtime --bench inference`
@@ -24,15 +25,14 @@ use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::model::{DefaultPolicy, Kernel, Scratch};
 use wheelleg_runtime::observation::HEIGHT_MAP_CELLS;
 use wheelleg_runtime::robot::WHEELLEG;
-use wheelleg_trainer::network_f32::{Architecture, NetworkF32};
-use wheelleg_trainer::quantize::{observation_mm, quantize, Calibration, RangeMethod};
 
-/// A few boxes on flat ground, and a plausible state.
-fn observation(rng: &mut ChaCha8Rng) -> (Vec<f32>, Vec<f32>) {
-    let mut height = vec![0.0f32; 32 * 32];
+/// A few boxes on flat ground (millimetres), and a plausible state (clearance, track, target x,
+/// target y, millimetres).
+fn observation_mm(rng: &mut ChaCha8Rng) -> (Vec<i16>, Vec<i32>) {
+    let mut height = vec![0i16; 32 * 32];
     for _ in 0..4 {
         let (r0, c0) = (rng.random_range(0..28), rng.random_range(0..28));
-        let top = rng.random_range(0.05..0.45);
+        let top = rng.random_range(50..450);
         for r in r0..r0 + 4 {
             for c in c0..c0 + 4 {
                 height[r * 32 + c] = top;
@@ -40,30 +40,22 @@ fn observation(rng: &mut ChaCha8Rng) -> (Vec<f32>, Vec<f32>) {
         }
     }
     let state = vec![
-        0.2,
-        0.4,
-        rng.random_range(-3.0..3.0),
-        rng.random_range(-3.0..3.0),
+        200,
+        400,
+        rng.random_range(-3000..3000),
+        rng.random_range(-3000..3000),
     ];
     (height, state)
 }
 
 fn bench_decision(c: &mut Criterion) {
     let mut rng = ChaCha8Rng::seed_from_u64(2024);
-    let network = NetworkF32::random(&Architecture::default_policy(), &mut rng);
-    let observations: Vec<_> = (0..64).map(|_| observation(&mut rng)).collect();
-    let calibration = Calibration::from_observations(
-        &network,
-        observations
-            .iter()
-            .map(|(h, s)| (h.as_slice(), s.as_slice())),
-    );
-    let bytes = quantize(&network, &calibration, RangeMethod::MinMax)
-        .unwrap()
-        .to_bytes()
-        .unwrap();
-    let (height_m, state) = &observations[0];
-    let (height_mm, state_mm) = observation_mm(height_m, state);
+    let bytes = std::fs::read(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../weights/policy.wlw"
+    ))
+    .expect("weights/policy.wlw is committed with the repository");
+    let (height_mm, state_mm) = observation_mm(&mut rng);
 
     let mut group = c.benchmark_group("decision");
     for kernel in Kernel::ALL.into_iter().filter(|k| k.is_supported()) {
@@ -78,24 +70,6 @@ fn bench_decision(c: &mut Criterion) {
             })
         });
     }
-    // The shipped weights, when exported: the same architecture, so the same time (no kernel
-    // branches on values); measured to show it.
-    let shipped = std::fs::read(concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/../weights/policy.wlw"
-    ));
-    if let Ok(shipped) = &shipped {
-        let policy = DefaultPolicy::from_bytes(shipped).unwrap();
-        let mut scratch = Scratch::new();
-        let name = format!("int8_{:?}_weights_policy_wlw", policy.kernel()).to_lowercase();
-        group.bench_function(name, |b| {
-            b.iter(|| {
-                policy
-                    .evaluate_with(&mut scratch, black_box(&height_mm), black_box(&state_mm))
-                    .unwrap()
-            })
-        });
-    }
     let policy = DefaultPolicy::from_bytes(&bytes).unwrap();
     group.bench_function("int8_act_detected_kernel_stack_scratch", |b| {
         let mut map = [[0i16; 32]; 32];
@@ -103,9 +77,6 @@ fn bench_decision(c: &mut Criterion) {
             row.copy_from_slice(chunk);
         }
         b.iter(|| policy.act(black_box(&map), black_box(&state_mm)).unwrap())
-    });
-    group.bench_function("f32_trainer_forward", |b| {
-        b.iter(|| network.forward(black_box(height_m), black_box(state)))
     });
     group.bench_function("load_and_validate", |b| {
         b.iter(|| DefaultPolicy::from_bytes(black_box(&bytes)).unwrap())

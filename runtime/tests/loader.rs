@@ -1,4 +1,6 @@
-//! The loader answers every bad file with the right typed error and never panics.
+//! The loader answers every bad file with the right typed error and never panics: the shipped
+//! weights file, edits of it, and synthetic files of other architectures written by the tests'
+//! own writer of the format records.
 #![allow(clippy::unwrap_used, clippy::indexing_slicing, clippy::expect_used)]
 
 mod common;
@@ -8,14 +10,30 @@ use rand_chacha::ChaCha8Rng;
 use wheelleg_runtime::model::format::{FORMAT_VERSION, MAGIC, OLDEST_FORMAT_VERSION};
 use wheelleg_runtime::model::load::{Model, MAX_CONV_LAYERS};
 use wheelleg_runtime::model::{Capacity, DefaultPolicy, LayerRef, LoadError, Policy};
-use wheelleg_trainer::network_f32::{Architecture, ConvSpec};
-use wheelleg_trainer::quantize::build::envelope_bytes;
-use wheelleg_trainer::quantize::RangeMethod;
 
 use common::*;
 
 fn default_bytes() -> Vec<u8> {
-    default_quantized(3).1.to_bytes().unwrap()
+    shipped_bytes()
+}
+
+/// The tests' writer reproduces the shipped file byte for byte, so that its edits below differ
+/// from a real file only where they are meant to.
+#[test]
+fn the_tests_writer_reproduces_the_shipped_file() {
+    let bytes = default_bytes();
+    let file = WeightsFile::parse(&bytes);
+    assert_eq!(file.to_bytes(), bytes);
+    assert_eq!(file.version, FORMAT_VERSION);
+    assert_eq!(
+        file.architecture().convs.len(),
+        3,
+        "the default architecture"
+    );
+    let mut rng = ChaCha8Rng::seed_from_u64(2);
+    let synthetic = WeightsFile::synthetic(&mut rng, &file.architecture());
+    assert_eq!(WeightsFile::parse(&synthetic.to_bytes()), synthetic);
+    assert!(DefaultPolicy::from_bytes(&synthetic.to_bytes()).is_ok());
 }
 
 #[test]
@@ -61,7 +79,7 @@ fn magic_version_checksum_and_trailing_bytes_are_checked() {
     }
     assert_eq!((OLDEST_FORMAT_VERSION, FORMAT_VERSION), (1, 2));
     // A validly written file of another version is refused the same way.
-    let future = envelope_bytes(FORMAT_VERSION + 1, b"anything").unwrap();
+    let future = envelope_bytes(FORMAT_VERSION + 1, b"anything");
     assert!(matches!(
         Model::parse(&future),
         Err(LoadError::UnsupportedVersion { found, .. }) if found == FORMAT_VERSION + 1
@@ -111,12 +129,11 @@ fn models_larger_than_the_buffers_are_refused_with_the_capacity() {
 
     // A stride-1 first layer keeps 32 x 32 x 8 = 8192 activations: too large for the default.
     let mut rng = ChaCha8Rng::seed_from_u64(1);
-    let mut arch = Architecture::default_policy();
+    let mut arch = WeightsFile::shipped().architecture();
     arch.convs[0].out_channels = 8;
     arch.convs[0].stride = 1;
     arch.convs[1].in_channels = 8;
-    let (_, quantized) = random_quantized(&mut rng, &arch, RangeMethod::MinMax);
-    let big = quantized.to_bytes().unwrap();
+    let big = WeightsFile::synthetic(&mut rng, &arch).to_bytes();
     assert_eq!(
         DefaultPolicy::from_bytes(&big).err(),
         Some(LoadError::ExceedsCapacity {
@@ -128,9 +145,9 @@ fn models_larger_than_the_buffers_are_refused_with_the_capacity() {
     assert!(Policy::<8192, 2052>::from_bytes(&big).is_ok());
 
     // More conv layers than the layer table holds.
-    let mut deep = Architecture::default_policy();
+    let mut deep = WeightsFile::shipped().architecture();
     deep.convs = (0..=MAX_CONV_LAYERS)
-        .map(|_| ConvSpec {
+        .map(|_| ConvShape {
             in_channels: 1,
             out_channels: 1,
             kernel: 1,
@@ -138,9 +155,9 @@ fn models_larger_than_the_buffers_are_refused_with_the_capacity() {
             padding: 0,
         })
         .collect();
-    let (_, quantized) = random_quantized(&mut rng, &deep, RangeMethod::MinMax);
+    let quantized = WeightsFile::synthetic(&mut rng, &deep);
     assert_eq!(
-        Model::parse(&quantized.to_bytes().unwrap()).err(),
+        Model::parse(&quantized.to_bytes()).err(),
         Some(LoadError::ExceedsCapacity {
             what: Capacity::ConvLayers,
             required: MAX_CONV_LAYERS + 1,
@@ -151,12 +168,12 @@ fn models_larger_than_the_buffers_are_refused_with_the_capacity() {
 
 #[test]
 fn inconsistent_layers_are_shape_or_parameter_errors() {
-    let (_, good) = default_quantized(4);
+    let good = WeightsFile::shipped();
 
     let mut short = good.clone();
     short.convs[1].layer.weights.pop();
     assert_eq!(
-        Model::parse(&short.to_bytes().unwrap()).err(),
+        Model::parse(&short.to_bytes()).err(),
         Some(LoadError::ShapeMismatch {
             layer: LayerRef::Conv(1),
             what: "weights bytes",
@@ -168,7 +185,7 @@ fn inconsistent_layers_are_shape_or_parameter_errors() {
     let mut channels = good.clone();
     channels.convs[2].spec.in_channels = 16;
     assert!(matches!(
-        Model::parse(&channels.to_bytes().unwrap()),
+        Model::parse(&channels.to_bytes()),
         Err(LoadError::ShapeMismatch {
             layer: LayerRef::Conv(2),
             what: "input channels",
@@ -183,7 +200,7 @@ fn inconsistent_layers_are_shape_or_parameter_errors() {
     head.action_head.layer.multipliers.pop();
     head.action_head.layer.shifts.pop();
     assert_eq!(
-        Model::parse(&head.to_bytes().unwrap()).err(),
+        Model::parse(&head.to_bytes()).err(),
         Some(LoadError::ShapeMismatch {
             layer: LayerRef::ActionHead,
             what: "outputs",
@@ -195,7 +212,7 @@ fn inconsistent_layers_are_shape_or_parameter_errors() {
     let mut dense_in = good.clone();
     dense_in.hidden[0].in_features = 512;
     assert!(matches!(
-        Model::parse(&dense_in.to_bytes().unwrap()),
+        Model::parse(&dense_in.to_bytes()),
         Err(LoadError::ShapeMismatch {
             layer: LayerRef::Dense(0),
             what: "input features",
@@ -207,7 +224,7 @@ fn inconsistent_layers_are_shape_or_parameter_errors() {
     let mut shift = good.clone();
     shift.hidden[0].layer.shifts[3] = 31;
     assert_eq!(
-        Model::parse(&shift.to_bytes().unwrap()).err(),
+        Model::parse(&shift.to_bytes()).err(),
         Some(LoadError::InvalidParameter {
             layer: LayerRef::Dense(0),
             what: "shift"
@@ -218,7 +235,7 @@ fn inconsistent_layers_are_shape_or_parameter_errors() {
     let mut logit_zero_point = good.clone();
     logit_zero_point.action_head.layer.output.zero_point = 3;
     assert_eq!(
-        Model::parse(&logit_zero_point.to_bytes().unwrap()).err(),
+        Model::parse(&logit_zero_point.to_bytes()).err(),
         Some(LoadError::InvalidParameter {
             layer: LayerRef::ActionHead,
             what: "logit zero point (must be 0)"
@@ -227,7 +244,7 @@ fn inconsistent_layers_are_shape_or_parameter_errors() {
     let mut logit_relu = good.clone();
     logit_relu.action_head.layer.relu = true;
     assert_eq!(
-        Model::parse(&logit_relu.to_bytes().unwrap()).err(),
+        Model::parse(&logit_relu.to_bytes()).err(),
         Some(LoadError::InvalidParameter {
             layer: LayerRef::ActionHead,
             what: "ReLU on the logits"
@@ -235,20 +252,20 @@ fn inconsistent_layers_are_shape_or_parameter_errors() {
     );
     for mut old in [logit_zero_point, logit_relu] {
         old.version = 1;
-        let bytes = old.to_bytes().unwrap();
+        let bytes = old.to_bytes();
         let model = Model::parse(&bytes).unwrap();
         assert_eq!(model.version, 1);
         // Version 1: int8 state and logits; version 2: int16 both (what `inspect` prints).
         assert_eq!((model.state_bits(), model.logit_bits()), (8, 8));
     }
-    let bytes = good.to_bytes().unwrap();
+    let bytes = good.to_bytes();
     let current = Model::parse(&bytes).unwrap();
     assert_eq!((current.state_bits(), current.logit_bits()), (16, 16));
 
     let mut multiplier = good.clone();
     multiplier.action_head.layer.multipliers[0] = -1;
     assert_eq!(
-        Model::parse(&multiplier.to_bytes().unwrap()).err(),
+        Model::parse(&multiplier.to_bytes()).err(),
         Some(LoadError::InvalidParameter {
             layer: LayerRef::ActionHead,
             what: "multiplier"
@@ -258,7 +275,7 @@ fn inconsistent_layers_are_shape_or_parameter_errors() {
     let mut bias = good.clone();
     bias.convs[0].layer.bias[0] = i32::MAX;
     assert_eq!(
-        Model::parse(&bias.to_bytes().unwrap()).err(),
+        Model::parse(&bias.to_bytes()).err(),
         Some(LoadError::InvalidParameter {
             layer: LayerRef::Conv(0),
             what: "bias magnitude"
@@ -268,7 +285,7 @@ fn inconsistent_layers_are_shape_or_parameter_errors() {
     let mut stride = good.clone();
     stride.convs[0].spec.stride = 0;
     assert!(matches!(
-        Model::parse(&stride.to_bytes().unwrap()),
+        Model::parse(&stride.to_bytes()),
         Err(LoadError::InvalidParameter {
             layer: LayerRef::Conv(0),
             ..
@@ -277,7 +294,7 @@ fn inconsistent_layers_are_shape_or_parameter_errors() {
 
     // A payload with a valid envelope but garbage inside.
     assert!(matches!(
-        Model::parse(&envelope_bytes(FORMAT_VERSION, &[0xff; 40]).unwrap()),
+        Model::parse(&envelope_bytes(FORMAT_VERSION, &[0xff; 40])),
         Err(LoadError::Corrupt { .. })
     ));
 }
@@ -288,17 +305,17 @@ fn inconsistent_layers_are_shape_or_parameter_errors() {
 #[test]
 fn random_mutations_never_panic() {
     let mut rng = ChaCha8Rng::seed_from_u64(77);
-    let (_, quantized) = default_quantized(6);
-    let file = quantized.to_bytes().unwrap();
-    let payload = quantized.payload_bytes().unwrap();
+    let quantized = WeightsFile::shipped();
+    let file = quantized.to_bytes();
+    let payload = quantized.payload_bytes();
     // A small architecture too, so mutations hit the structure more often than the tensors.
-    let (_, small) = random_quantized(
+    let small = WeightsFile::synthetic(
         &mut rng,
         &Architecture {
             height_rows: 6,
             height_cols: 5,
             state_len: 2,
-            convs: vec![ConvSpec {
+            convs: vec![ConvShape {
                 in_channels: 1,
                 out_channels: 3,
                 kernel: 3,
@@ -308,9 +325,8 @@ fn random_mutations_never_panic() {
             hidden: vec![7],
             value_head: true,
         },
-        RangeMethod::MinMax,
     );
-    let small_payload = small.payload_bytes().unwrap();
+    let small_payload = small.payload_bytes();
     let mut loaded = 0;
     for iteration in 0..10_000 {
         let (base, wrap) = match iteration % 3 {
@@ -341,7 +357,7 @@ fn random_mutations_never_panic() {
             }
         }
         let bytes = if wrap {
-            envelope_bytes(FORMAT_VERSION, &bytes).unwrap()
+            envelope_bytes(FORMAT_VERSION, &bytes)
         } else {
             bytes
         };

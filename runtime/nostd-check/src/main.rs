@@ -60,7 +60,7 @@ fn panic(_info: &PanicInfo) -> ! {
 #[no_mangle]
 extern "C" fn rust_eh_personality() {}
 
-/// The same observation as `examples/random_policy.rs`, in millimetres.
+/// The same observation as `trainer/examples/random_policy.rs`, in millimetres.
 fn observation() -> ([[i16; 32]; 32], [i32; 4]) {
     let mut height_mm = [[0i16; 32]; 32];
     for row in height_mm.iter_mut().take(8).skip(2) {

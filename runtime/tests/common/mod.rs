@@ -1,21 +1,418 @@
-//! Shared by the inference tests: random architectures of the supported family, random
-//! observations, quantized networks, and an independent, plainly written integer reference.
-// The reference indexes plainly on purpose: it should read like the arithmetic it checks.
+//! Shared by the runtime's tests: weights files as owned, editable values, read from and written
+//! to bytes with the runtime's own format records (`model::format`), the shipped file, and
+//! synthetic files of any architecture (valid random integer parameters, no float network).
 #![allow(
     dead_code,
-    clippy::needless_range_loop,
     clippy::unwrap_used,
     clippy::indexing_slicing,
-    clippy::expect_used
+    clippy::expect_used,
+    clippy::std_instead_of_core
 )]
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use wheelleg_runtime::model::format::FORMAT_VERSION;
-use wheelleg_trainer::network_f32::{Architecture, ConvSpec, NetworkF32};
-use wheelleg_trainer::quantize::{
-    quantize_for_version, Calibration, QuantizedLayer, QuantizedNetwork, RangeMethod,
+use serde::Serialize;
+use wheelleg_runtime::model::crc32::crc32;
+use wheelleg_runtime::model::format::{
+    ActQuantRecord, ConvRecord, DenseRecord, Envelope, InputQuantRecord, InputRecord,
+    FORMAT_VERSION, MAGIC,
 };
+use wheelleg_runtime::model::load::open_envelope;
+
+/// The shipped weights file (`weights/policy.wlw`, in the repository): the default architecture,
+/// 3 convs 16-32-32 over the 32 x 32 map, 4 state features, one hidden layer of 128, the action
+/// head and a value head, format version 2.
+pub fn shipped_bytes() -> Vec<u8> {
+    std::fs::read(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../weights/policy.wlw"
+    ))
+    .expect("weights/policy.wlw is committed with the repository")
+}
+
+/// Integer tensors and quantization of one conv or dense layer, as in the file.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Layer {
+    /// int8 weights (conv: OHWI; dense: row-major `[out][in]`).
+    pub weights: Vec<i8>,
+    /// One per output.
+    pub bias: Vec<i32>,
+    /// One per output.
+    pub multipliers: Vec<i32>,
+    /// One per output.
+    pub shifts: Vec<i8>,
+    /// Output quantization.
+    pub output: ActQuantRecord,
+    /// Fused ReLU.
+    pub relu: bool,
+}
+
+/// Shape of one conv layer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ConvShape {
+    pub in_channels: usize,
+    pub out_channels: usize,
+    pub kernel: usize,
+    pub stride: usize,
+    pub padding: usize,
+}
+
+impl ConvShape {
+    /// Output side for an input side (floor, as the runtime computes it).
+    pub fn output_side(&self, side: usize) -> usize {
+        (side + 2 * self.padding - self.kernel) / self.stride + 1
+    }
+}
+
+/// One conv layer of a file.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Conv {
+    pub spec: ConvShape,
+    pub layer: Layer,
+}
+
+/// One dense layer of a file.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Dense {
+    pub in_features: usize,
+    pub out_features: usize,
+    pub layer: Layer,
+}
+
+/// A whole weights file, owned and editable; [`WeightsFile::to_bytes`] writes it back.
+#[derive(Clone, Debug, PartialEq)]
+pub struct WeightsFile {
+    pub version: u16,
+    pub input: InputRecord,
+    pub state: Vec<InputQuantRecord>,
+    pub convs: Vec<Conv>,
+    pub hidden: Vec<Dense>,
+    pub action_head: Dense,
+    pub value_head: Option<Dense>,
+}
+
+/// An architecture for [`WeightsFile::synthetic`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct Architecture {
+    pub height_rows: usize,
+    pub height_cols: usize,
+    pub state_len: usize,
+    pub convs: Vec<ConvShape>,
+    pub hidden: Vec<usize>,
+    pub value_head: bool,
+}
+
+/// Outputs of the action head (five 3-way heads).
+pub const ACTION_OUTPUTS: usize = 15;
+
+fn le_bytes(values: &[i32]) -> Vec<u8> {
+    values.iter().flat_map(|v| v.to_le_bytes()).collect()
+}
+
+fn from_le(bytes: &[u8]) -> Vec<i32> {
+    bytes
+        .chunks_exact(4)
+        .map(|c| i32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect()
+}
+
+fn as_u8(values: &[i8]) -> Vec<u8> {
+    values.iter().map(|&v| v as u8).collect()
+}
+
+fn as_i8(bytes: &[u8]) -> Vec<i8> {
+    bytes.iter().map(|&b| b as i8).collect()
+}
+
+/// Byte tensors of a layer, as the records borrow them.
+struct LayerBytes {
+    weights: Vec<u8>,
+    bias: Vec<u8>,
+    multipliers: Vec<u8>,
+    shifts: Vec<u8>,
+}
+
+impl Layer {
+    fn bytes(&self) -> LayerBytes {
+        LayerBytes {
+            weights: as_u8(&self.weights),
+            bias: le_bytes(&self.bias),
+            multipliers: le_bytes(&self.multipliers),
+            shifts: as_u8(&self.shifts),
+        }
+    }
+
+    /// Random valid parameters: any int8 weight, small biases, multipliers in `[2^30, 2^31)`
+    /// and shifts that keep the outputs spread over the int8 range.
+    fn random(rng: &mut ChaCha8Rng, rows: usize, row_len: usize, relu: bool) -> Layer {
+        let shift = -(((row_len as f64).sqrt() * 128.0).log2().round() as i8) + 2;
+        Layer {
+            weights: (0..rows * row_len).map(|_| rng.random()).collect(),
+            bias: (0..rows).map(|_| rng.random_range(-5000..=5000)).collect(),
+            multipliers: (0..rows)
+                .map(|_| rng.random_range(1 << 30..i32::MAX))
+                .collect(),
+            shifts: vec![shift.clamp(-31, 30); rows],
+            output: ActQuantRecord {
+                scale: rng.random_range(0.01..0.1),
+                zero_point: rng.random_range(-100..=20),
+            },
+            relu,
+        }
+    }
+}
+
+fn dense_record<'a>(dense: &Dense, bytes: &'a LayerBytes) -> DenseRecord<'a> {
+    DenseRecord {
+        in_features: dense.in_features as u16,
+        out_features: dense.out_features as u16,
+        relu: dense.layer.relu,
+        output: dense.layer.output,
+        weights: &bytes.weights,
+        bias: &bytes.bias,
+        multipliers: &bytes.multipliers,
+        shifts: &bytes.shifts,
+    }
+}
+
+fn dense_from(record: &DenseRecord<'_>) -> Dense {
+    Dense {
+        in_features: usize::from(record.in_features),
+        out_features: usize::from(record.out_features),
+        layer: Layer {
+            weights: as_i8(record.weights),
+            bias: from_le(record.bias),
+            multipliers: from_le(record.multipliers),
+            shifts: as_i8(record.shifts),
+            output: record.output,
+            relu: record.relu,
+        },
+    }
+}
+
+/// Appends the postcard encoding of `value`.
+fn push<T: Serialize>(out: &mut Vec<u8>, value: &T) {
+    let mut buffer = vec![0u8; 1 << 22];
+    let used = postcard::to_slice(value, &mut buffer).unwrap().len();
+    out.extend_from_slice(&buffer[..used]);
+}
+
+/// Decodes one postcard value from the front of `bytes`.
+fn take<'a, T: serde::Deserialize<'a>>(bytes: &mut &'a [u8]) -> T {
+    let (value, rest) = postcard::take_from_bytes::<T>(bytes).unwrap();
+    *bytes = rest;
+    value
+}
+
+/// A file of any version around any payload: magic, version, payload, CRC-32, as the format
+/// describes it (whether or not this runtime reads that version).
+pub fn envelope_bytes(version: u16, payload: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    push(
+        &mut out,
+        &Envelope {
+            magic: MAGIC,
+            version,
+            payload,
+            crc32_le: [0; 4],
+        },
+    );
+    out.truncate(out.len() - 4);
+    let crc = crc32(&out);
+    out.extend_from_slice(&crc.to_le_bytes());
+    out
+}
+
+impl WeightsFile {
+    /// Reads a file this runtime accepts the envelope of (panics otherwise: test input).
+    pub fn parse(bytes: &[u8]) -> WeightsFile {
+        let (version, mut payload) = open_envelope(bytes).unwrap();
+        let input: InputRecord = take(&mut payload);
+        let count: u32 = take(&mut payload);
+        let state = (0..count).map(|_| take(&mut payload)).collect();
+        let count: u32 = take(&mut payload);
+        let convs = (0..count)
+            .map(|_| {
+                let record: ConvRecord<'_> = take(&mut payload);
+                Conv {
+                    spec: ConvShape {
+                        in_channels: usize::from(record.in_channels),
+                        out_channels: usize::from(record.out_channels),
+                        kernel: usize::from(record.kernel),
+                        stride: usize::from(record.stride),
+                        padding: usize::from(record.padding),
+                    },
+                    layer: Layer {
+                        weights: as_i8(record.weights),
+                        bias: from_le(record.bias),
+                        multipliers: from_le(record.multipliers),
+                        shifts: as_i8(record.shifts),
+                        output: record.output,
+                        relu: record.relu,
+                    },
+                }
+            })
+            .collect();
+        let count: u32 = take(&mut payload);
+        let hidden = (0..count)
+            .map(|_| dense_from(&take::<DenseRecord<'_>>(&mut payload)))
+            .collect();
+        let action_head = dense_from(&take::<DenseRecord<'_>>(&mut payload));
+        let value_head = take::<Option<DenseRecord<'_>>>(&mut payload).map(|r| dense_from(&r));
+        assert!(payload.is_empty(), "bytes after the value head");
+        WeightsFile {
+            version,
+            input,
+            state,
+            convs,
+            hidden,
+            action_head,
+            value_head,
+        }
+    }
+
+    /// The shipped file.
+    pub fn shipped() -> WeightsFile {
+        WeightsFile::parse(&shipped_bytes())
+    }
+
+    /// The payload: the six parts of the format, one after another.
+    pub fn payload_bytes(&self) -> Vec<u8> {
+        let mut out = Vec::new();
+        push(&mut out, &self.input);
+        push(&mut out, &(self.state.len() as u32));
+        for quant in &self.state {
+            push(&mut out, quant);
+        }
+        push(&mut out, &(self.convs.len() as u32));
+        for conv in &self.convs {
+            let bytes = conv.layer.bytes();
+            push(
+                &mut out,
+                &ConvRecord {
+                    in_channels: conv.spec.in_channels as u16,
+                    out_channels: conv.spec.out_channels as u16,
+                    kernel: conv.spec.kernel as u8,
+                    stride: conv.spec.stride as u8,
+                    padding: conv.spec.padding as u8,
+                    relu: conv.layer.relu,
+                    output: conv.layer.output,
+                    weights: &bytes.weights,
+                    bias: &bytes.bias,
+                    multipliers: &bytes.multipliers,
+                    shifts: &bytes.shifts,
+                },
+            );
+        }
+        push(&mut out, &(self.hidden.len() as u32));
+        for dense in &self.hidden {
+            let bytes = dense.layer.bytes();
+            push(&mut out, &dense_record(dense, &bytes));
+        }
+        let bytes = self.action_head.layer.bytes();
+        push(&mut out, &dense_record(&self.action_head, &bytes));
+        let value = self
+            .value_head
+            .as_ref()
+            .map(|head| (head, head.layer.bytes()));
+        push(
+            &mut out,
+            &value
+                .as_ref()
+                .map(|(head, bytes)| dense_record(head, bytes)),
+        );
+        out
+    }
+
+    /// The whole file.
+    pub fn to_bytes(&self) -> Vec<u8> {
+        envelope_bytes(self.version, &self.payload_bytes())
+    }
+
+    /// The file's architecture.
+    pub fn architecture(&self) -> Architecture {
+        Architecture {
+            height_rows: usize::from(self.input.rows),
+            height_cols: usize::from(self.input.cols),
+            state_len: self.state.len(),
+            convs: self.convs.iter().map(|conv| conv.spec).collect(),
+            hidden: self.hidden.iter().map(|dense| dense.out_features).collect(),
+            value_head: self.value_head.is_some(),
+        }
+    }
+
+    /// A valid current-version file of `arch` with random integer parameters.
+    pub fn synthetic(rng: &mut ChaCha8Rng, arch: &Architecture) -> WeightsFile {
+        let quant = |rng: &mut ChaCha8Rng| InputQuantRecord {
+            scale_m: 0.004,
+            zero_point: rng.random_range(-128..=-100),
+            multiplier: rng.random_range(1 << 30..i32::MAX),
+            shift: -2,
+        };
+        let input = InputRecord {
+            rows: arch.height_rows as u16,
+            cols: arch.height_cols as u16,
+            height: quant(rng),
+        };
+        let state = (0..arch.state_len).map(|_| quant(rng)).collect();
+        let (mut h, mut w, mut c) = (arch.height_rows, arch.height_cols, 1);
+        let convs = arch
+            .convs
+            .iter()
+            .map(|&spec| {
+                assert_eq!(spec.in_channels, c, "conv input channels");
+                h = spec.output_side(h);
+                w = spec.output_side(w);
+                c = spec.out_channels;
+                let row_len = spec.kernel * spec.kernel * spec.in_channels;
+                Conv {
+                    spec,
+                    layer: Layer::random(rng, spec.out_channels, row_len, true),
+                }
+            })
+            .collect();
+        let mut width = h * w * c + arch.state_len;
+        let hidden = arch
+            .hidden
+            .iter()
+            .map(|&out| {
+                let dense = Dense {
+                    in_features: width,
+                    out_features: out,
+                    layer: Layer::random(rng, out, width, true),
+                };
+                width = out;
+                dense
+            })
+            .collect();
+        let mut head_layer = Layer::random(rng, ACTION_OUTPUTS, width, false);
+        head_layer.output.zero_point = 0;
+        let action_head = Dense {
+            in_features: width,
+            out_features: ACTION_OUTPUTS,
+            layer: head_layer,
+        };
+        let value_head = arch.value_head.then(|| Dense {
+            in_features: width,
+            out_features: 1,
+            layer: Layer::random(rng, 1, width, false),
+        });
+        WeightsFile {
+            version: FORMAT_VERSION,
+            input,
+            state,
+            convs,
+            hidden,
+            action_head,
+            value_head,
+        }
+    }
+
+    /// [`WeightsFile::synthetic`] from a seed.
+    pub fn synthetic_seeded(seed: u64, arch: &Architecture) -> WeightsFile {
+        WeightsFile::synthetic(&mut ChaCha8Rng::seed_from_u64(seed), arch)
+    }
+}
 
 /// A random architecture of the family: 0-3 convs of random channels, kernel, stride and
 /// padding on a random non-square map, 0-5 state features, 0-2 hidden layers, value head or not.
@@ -25,19 +422,17 @@ pub fn random_architecture(rng: &mut ChaCha8Rng) -> Architecture {
     let (mut h, mut w, mut c) = (height_rows, height_cols, 1);
     let mut convs = Vec::new();
     for _ in 0..rng.random_range(0..=3) {
-        let padding_max = 2;
         let mut kernel = rng.random_range(1..=4);
-        let padding = rng.random_range(0..kernel.min(padding_max + 1));
+        let padding = rng.random_range(0..kernel.min(3));
         while h + 2 * padding < kernel || w + 2 * padding < kernel {
             kernel -= 1;
         }
-        let padding = padding.min(kernel - 1);
-        let spec = ConvSpec {
+        let spec = ConvShape {
             in_channels: c,
             out_channels: rng.random_range(1..=12),
             kernel,
             stride: rng.random_range(1..=3),
-            padding,
+            padding: padding.min(kernel - 1),
         };
         h = spec.output_side(h);
         w = spec.output_side(w);
@@ -54,73 +449,6 @@ pub fn random_architecture(rng: &mut ChaCha8Rng) -> Architecture {
             .collect(),
         value_head: rng.random_bool(0.5),
     }
-}
-
-/// A height map of a few boxes on flat ground (metres) and a state (clearance, track, target x,
-/// target y, then extra features if the architecture has more).
-pub fn random_observation(rng: &mut ChaCha8Rng, arch: &Architecture) -> (Vec<f32>, Vec<f32>) {
-    let (rows, cols) = (arch.height_rows, arch.height_cols);
-    let mut height = vec![0.0f32; rows * cols];
-    for _ in 0..rng.random_range(0..6) {
-        let (r0, c0) = (rng.random_range(0..rows), rng.random_range(0..cols));
-        let (r1, c1) = (
-            (r0 + rng.random_range(1..=rows / 2 + 1)).min(rows),
-            (c0 + rng.random_range(1..=cols / 2 + 1)).min(cols),
-        );
-        let top = rng.random_range(0.02..0.45);
-        for r in r0..r1 {
-            for c in c0..c1 {
-                height[r * cols + c] = top;
-            }
-        }
-    }
-    let state = (0..arch.state_len)
-        .map(|i| match i {
-            0 => rng.random_range(0.1..0.35),
-            1 => rng.random_range(0.3..0.5),
-            _ => rng.random_range(-5.0..5.0),
-        })
-        .collect();
-    (height, state)
-}
-
-/// A random network of `arch`, calibrated on random observations and quantized for the current
-/// format version.
-pub fn random_quantized(
-    rng: &mut ChaCha8Rng,
-    arch: &Architecture,
-    method: RangeMethod,
-) -> (NetworkF32, QuantizedNetwork) {
-    random_quantized_version(rng, arch, method, FORMAT_VERSION)
-}
-
-/// [`random_quantized`] for a given weights format version (1: int8 logits, 2: int16).
-pub fn random_quantized_version(
-    rng: &mut ChaCha8Rng,
-    arch: &Architecture,
-    method: RangeMethod,
-    version: u16,
-) -> (NetworkF32, QuantizedNetwork) {
-    let network = NetworkF32::random(arch, rng);
-    let observations: Vec<_> = (0..24).map(|_| random_observation(rng, arch)).collect();
-    let calibration = Calibration::from_observations(
-        &network,
-        observations
-            .iter()
-            .map(|(h, s)| (h.as_slice(), s.as_slice())),
-    );
-    let quantized = quantize_for_version(&network, &calibration, method, version).unwrap();
-    (network, quantized)
-}
-
-/// The default network, randomly initialised from `seed`, quantized.
-pub fn default_quantized(seed: u64) -> (NetworkF32, QuantizedNetwork) {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    random_quantized(
-        &mut rng,
-        &Architecture::default_policy(),
-        RangeMethod::MinMax,
-    )
 }
 
 /// Raw integer inputs: usually plausible, sometimes far out of range, to exercise clamping.
@@ -145,156 +473,4 @@ pub fn random_inputs_mm(rng: &mut ChaCha8Rng, arch: &Architecture) -> (Vec<i16>,
         })
         .collect();
     (height, state)
-}
-
-// ---------------------------------------------------------------------------------------------
-// The reference: the same integer arithmetic written as plainly as possible, independently of
-// the runtime (CHW layout, i128 products, floor division instead of shifts, direct indexing).
-
-/// round(value * multiplier / 2^(31 - shift)), halves up.
-fn reference_rescale(value: i64, multiplier: i32, shift: i8) -> i64 {
-    let numerator = i128::from(value) * i128::from(multiplier);
-    let denominator = 1i128 << (31 - i32::from(shift));
-    (numerator + denominator / 2).div_euclid(denominator) as i64
-}
-
-fn reference_int8(value: i64, zero_point: i8, relu: bool) -> i8 {
-    let low = if relu { i64::from(zero_point) } else { -128 };
-    let v = value + i64::from(zero_point);
-    v.max(low).min(127) as i8
-}
-
-/// Each output's accumulator (bias plus products), rescaled: before zero point and clamping.
-/// `state16` (version 2, only for the layer reading the flattened vector) are int16 state
-/// features after the int8 `input`: their columns' sum of `w * (u - 256 zp)` joins the
-/// accumulator divided by 256, rounded half up.
-fn reference_rescaled(layer: &QuantizedLayer, input: &[i8], state16: &[i16]) -> Vec<i64> {
-    let in_len = input.len();
-    let row_len = in_len + state16.len();
-    let zero_point = i64::from(layer.input.zero_point);
-    (0..layer.bias.len())
-        .map(|o| {
-            let mut acc = i64::from(layer.bias[o]);
-            for i in 0..in_len {
-                acc +=
-                    (i64::from(input[i]) - zero_point) * i64::from(layer.weights[o * row_len + i]);
-            }
-            let mut state_sum = 0i64;
-            for j in 0..state16.len() {
-                state_sum += (i64::from(state16[j]) - 256 * zero_point)
-                    * i64::from(layer.weights[o * row_len + in_len + j]);
-            }
-            acc += (state_sum + 128).div_euclid(256);
-            reference_rescale(acc, layer.multipliers[o], layer.shifts[o])
-        })
-        .collect()
-}
-
-fn reference_dense(layer: &QuantizedLayer, input: &[i8], state16: &[i16]) -> Vec<i8> {
-    reference_rescaled(layer, input, state16)
-        .into_iter()
-        .map(|v| reference_int8(v, layer.output.zero_point, layer.relu))
-        .collect()
-}
-
-/// The action head's logits as the runtime reports them (zero point 0): in format version 2
-/// the rescaled value clamped to int16; in version 1 the int8 output minus its zero point.
-fn reference_logits(
-    layer: &QuantizedLayer,
-    input: &[i8],
-    state16: &[i16],
-    version: u16,
-) -> Vec<i16> {
-    if version >= 2 {
-        assert_eq!(layer.output.zero_point, 0, "version 2 logits are symmetric");
-        reference_rescaled(layer, input, state16)
-            .into_iter()
-            .map(|v| v.clamp(-32768, 32767) as i16)
-            .collect()
-    } else {
-        reference_dense(layer, input, state16)
-            .into_iter()
-            .map(|q| i16::from(q) - i16::from(layer.output.zero_point))
-            .collect()
-    }
-}
-
-/// Action logits and value of the integer network, computed the plain way.
-pub fn reference_forward(
-    q: &QuantizedNetwork,
-    height_mm: &[i16],
-    state_mm: &[i32],
-) -> (Vec<i16>, Option<i8>) {
-    let (mut h, mut w, mut c) = (q.arch.height_rows, q.arch.height_cols, 1usize);
-    // CHW activations.
-    let mut x: Vec<i8> = height_mm
-        .iter()
-        .map(|&mm| {
-            reference_int8(
-                reference_rescale(i64::from(mm), q.height.multiplier, q.height.shift),
-                q.height.act.zero_point,
-                false,
-            )
-        })
-        .collect();
-    for conv in &q.convs {
-        let s = conv.spec;
-        let (oh, ow) = (s.output_side(h), s.output_side(w));
-        let l = &conv.layer;
-        let mut out = vec![0i8; s.out_channels * oh * ow];
-        for oc in 0..s.out_channels {
-            for oy in 0..oh {
-                for ox in 0..ow {
-                    let mut acc = i64::from(l.bias[oc]);
-                    for ky in 0..s.kernel {
-                        for kx in 0..s.kernel {
-                            let iy = (oy * s.stride + ky) as i64 - s.padding as i64;
-                            let ix = (ox * s.stride + kx) as i64 - s.padding as i64;
-                            for ic in 0..c {
-                                let value = if iy < 0 || ix < 0 || iy >= h as i64 || ix >= w as i64
-                                {
-                                    l.input.zero_point
-                                } else {
-                                    x[(ic * h + iy as usize) * w + ix as usize]
-                                };
-                                let weight =
-                                    l.weights[((oc * s.kernel + ky) * s.kernel + kx) * c + ic];
-                                acc += (i64::from(value) - i64::from(l.input.zero_point))
-                                    * i64::from(weight);
-                            }
-                        }
-                    }
-                    out[(oc * oh + oy) * ow + ox] = reference_int8(
-                        reference_rescale(acc, l.multipliers[oc], l.shifts[oc]),
-                        l.output.zero_point,
-                        l.relu,
-                    );
-                }
-            }
-        }
-        (h, w, c) = (oh, ow, s.out_channels);
-        x = out;
-    }
-    // Version 1: int8 state appended to the features. Version 2: int16 state, kept apart for
-    // the layer that reads the flattened vector.
-    let mut state16: Vec<i16> = Vec::new();
-    for (quant, &mm) in q.state.iter().zip(state_mm) {
-        let rescaled = reference_rescale(i64::from(mm), quant.multiplier, quant.shift);
-        if q.version >= 2 {
-            let u = rescaled + 256 * i64::from(quant.act.zero_point);
-            state16.push(u.clamp(-32768, 32767) as i16);
-        } else {
-            x.push(reference_int8(rescaled, quant.act.zero_point, false));
-        }
-    }
-    for dense in &q.hidden {
-        x = reference_dense(&dense.layer, &x, &state16);
-        state16.clear();
-    }
-    let logits = reference_logits(&q.action_head.layer, &x, &state16, q.version);
-    let value = q
-        .value_head
-        .as_ref()
-        .map(|head| reference_dense(&head.layer, &x, &state16)[0]);
-    (logits, value)
 }

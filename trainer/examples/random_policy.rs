@@ -1,8 +1,8 @@
 //! Writes the default network with seeded random weights as a `.wlw` file and prints the
-//! action index the runtime takes on the fixed observation of `nostd-check`, then the one it
+//! action index the runtime takes on the fixed observation of `runtime/nostd-check`, then the one it
 //! takes if that action is refused (`decision::Decider`), so that the no_std binary's decisions
 //! can be checked against the host's:
-//! `cargo run --release -p wheelleg-runtime --example random_policy -- OUT.wlw`
+//! `cargo run --release -p wheelleg-trainer --example random_policy -- OUT.wlw`
 // A host tool: failing loudly on bad arguments or I/O is its whole error handling.
 #![allow(
     clippy::unwrap_used,
@@ -24,7 +24,7 @@ use wheelleg_sim::atomic_write;
 use wheelleg_trainer::network_f32::{Architecture, NetworkF32};
 use wheelleg_trainer::quantize::{observation_mm, quantize, Calibration, RangeMethod};
 
-/// The observation of nostd-check/src/main.rs, in metres: flat ground with a 0.2 m box 0.5 m
+/// The observation of runtime/nostd-check/src/main.rs, in metres: flat ground with a 0.2 m box 0.5 m
 /// ahead, clearance 0.25 m, track 0.4 m, target 2 m ahead and 0.5 m to the left.
 fn observation() -> (Vec<f32>, Vec<f32>) {
     let mut height = vec![0.0f32; 32 * 32];
