@@ -213,6 +213,47 @@ fn generate_plan_and_render_a_scenario_file() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// `plan --jobs` plans scenarios side by side and still prints them in file order, the same
+/// output for any number of threads.
+#[test]
+fn plan_gives_the_same_output_for_any_number_of_jobs() {
+    let dir = scratch("plan-jobs");
+    let file = dir.join("mixed.json");
+    let file_arg = file.to_str().unwrap();
+    let out = wheelleg(&[
+        "generate", "--kind", "complex", "--count", "5", "--seed", "3", "--out", file_arg,
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let plan = |jobs: &str| {
+        let out = wheelleg(&[
+            "plan",
+            "--scenarios",
+            file_arg,
+            "--json",
+            "--max-expansions",
+            "300",
+            "--jobs",
+            jobs,
+        ]);
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        text(&out.stdout)
+    };
+    let one = plan("1");
+    let json: serde_json::Value = serde_json::from_str(&one).unwrap();
+    let names: Vec<&str> = json["results"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["name"].as_str().unwrap())
+        .collect();
+    assert_eq!(names.len(), 5);
+    assert_eq!(one, plan("2"));
+    assert_eq!(one, plan("3"));
+    let out = wheelleg(&["plan", "--scenarios", file_arg, "--jobs", "0"]);
+    assert!(!out.status.success());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn bad_scenario_files_fail_every_command_with_the_reason() {
     let dir = scratch("bad");
