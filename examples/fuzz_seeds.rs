@@ -299,7 +299,7 @@ fn can_seeds(out: &Path) {
             frame_record((next - entry.time_us) / 1_000, frame)
         })
         .collect();
-    // Seeds spread over the whole session (start-up, motion, silence, Estop, recovery), not
+    // Seeds spread over the whole exchange (start-up, motion, silence, Estop, recovery), not
     // every chunk: the traffic repeats itself from tick to tick.
     let chunks: Vec<&[[u8; 14]]> = records.chunks(FRAMES_PER_SEED).collect();
     let picks = 6.min(chunks.len());

@@ -744,7 +744,7 @@ fn motors_behind_slcan(
                 std::thread::sleep(wait);
             }
         }
-        (firmware.stats(), endpoint.session().stats())
+        (firmware.stats(), endpoint.adapter().stats())
     });
     (place, motors)
 }

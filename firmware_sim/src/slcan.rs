@@ -13,7 +13,7 @@
 //! [`SlcanClient`] is the other end, a host's [`Transport`] to an adapter on TCP: the closed-loop
 //! demo drives the motors through it (`wheelleg demo --can slcan:tcp:HOST:PORT`).
 //!
-//! [`SlcanSession`] is the adapter's behaviour, apart from any I/O: commands from the client
+//! [`SlcanAdapter`] is the adapter's behaviour, apart from any I/O: commands from the client
 //! are answered (CR done, BEL refused, `z`/`Z` for a frame put on the bus), frames from it go to
 //! the axes once the channel is open (`O`), and every frame on the bus (heartbeats, encoder
 //! estimates, answers to requests) goes to the client as a `t…` line while it is open. As on a
@@ -139,7 +139,7 @@ pub struct SlcanStats {
 
 /// An SLCAN adapter's state and replies for one client, without I/O.
 #[derive(Clone, Debug)]
-pub struct SlcanSession {
+pub struct SlcanAdapter {
     decoder: Decoder,
     channel: ChannelState,
     bit_rate: Option<BitRate>,
@@ -150,16 +150,16 @@ pub struct SlcanSession {
     stats: SlcanStats,
 }
 
-impl Default for SlcanSession {
+impl Default for SlcanAdapter {
     fn default() -> Self {
-        SlcanSession::new()
+        SlcanAdapter::new()
     }
 }
 
-impl SlcanSession {
-    /// A session with the channel closed, no timestamps, bit rate unset (the bus's own).
-    pub fn new() -> SlcanSession {
-        SlcanSession {
+impl SlcanAdapter {
+    /// A adapter with the channel closed, no timestamps, bit rate unset (the bus's own).
+    pub fn new() -> SlcanAdapter {
+        SlcanAdapter {
             decoder: Decoder::new(),
             channel: ChannelState::Closed,
             bit_rate: None,
@@ -174,7 +174,7 @@ impl SlcanSession {
     /// Starts over for a new client; the counters carry on.
     pub fn reset(&mut self) {
         let stats = self.stats;
-        *self = SlcanSession::new();
+        *self = SlcanAdapter::new();
         self.stats = stats;
     }
 
@@ -323,7 +323,7 @@ enum Link {
 /// speaking SLCAN.
 pub struct SlcanEndpoint {
     link: Link,
-    session: SlcanSession,
+    adapter: SlcanAdapter,
 }
 
 impl SlcanEndpoint {
@@ -350,7 +350,7 @@ impl SlcanEndpoint {
         };
         Ok(SlcanEndpoint {
             link,
-            session: SlcanSession::new(),
+            adapter: SlcanAdapter::new(),
         })
     }
 
@@ -367,8 +367,8 @@ impl SlcanEndpoint {
     }
 
     /// The adapter state and counters.
-    pub fn session(&self) -> &SlcanSession {
-        &self.session
+    pub fn adapter(&self) -> &SlcanAdapter {
+        &self.adapter
     }
 
     /// Accepts a waiting client, reads what it sent, writes what is pending.
@@ -384,8 +384,8 @@ impl SlcanEndpoint {
                             stream.set_nodelay(true)?;
                             eprintln!("firmware_sim: SLCAN client {peer} connected");
                             *client = Some(stream);
-                            self.session.reset();
-                            self.session.stats.clients += 1;
+                            self.adapter.reset();
+                            self.adapter.stats.clients += 1;
                         }
                         Ok((stream, peer)) => {
                             eprintln!(
@@ -407,7 +407,7 @@ impl SlcanEndpoint {
                             gone = true;
                             break;
                         }
-                        Ok(n) => self.session.receive_bytes(buf.get(..n).unwrap_or(&[])),
+                        Ok(n) => self.adapter.receive_bytes(buf.get(..n).unwrap_or(&[])),
                         Err(e) if e.kind() == ErrorKind::WouldBlock => break,
                         Err(e) if e.kind() == ErrorKind::Interrupted => {}
                         Err(_) => {
@@ -416,13 +416,13 @@ impl SlcanEndpoint {
                         }
                     }
                 }
-                if !gone && write_pending(stream, &mut self.session).is_err() {
+                if !gone && write_pending(stream, &mut self.adapter).is_err() {
                     gone = true;
                 }
                 if gone {
                     eprintln!("firmware_sim: SLCAN client disconnected");
                     *client = None;
-                    self.session.reset();
+                    self.adapter.reset();
                 }
                 Ok(())
             }
@@ -431,24 +431,24 @@ impl SlcanEndpoint {
                 loop {
                     match master.read(&mut buf) {
                         Ok(0) => break,
-                        Ok(n) => self.session.receive_bytes(buf.get(..n).unwrap_or(&[])),
+                        Ok(n) => self.adapter.receive_bytes(buf.get(..n).unwrap_or(&[])),
                         Err(e) if e.kind() == ErrorKind::WouldBlock => break,
                         Err(e) if e.kind() == ErrorKind::Interrupted => {}
                         Err(e) => return Err(BusError::Io(e)),
                     }
                 }
-                write_pending(master, &mut self.session).map_err(BusError::Io)
+                write_pending(master, &mut self.adapter).map_err(BusError::Io)
             }
         }
     }
 }
 
 /// Writes as much pending output as the stream takes now.
-fn write_pending<W: Write>(stream: &mut W, session: &mut SlcanSession) -> std::io::Result<()> {
-    while !session.pending_output().is_empty() {
-        match stream.write(session.pending_output()) {
+fn write_pending<W: Write>(stream: &mut W, adapter: &mut SlcanAdapter) -> std::io::Result<()> {
+    while !adapter.pending_output().is_empty() {
+        match stream.write(adapter.pending_output()) {
             Ok(0) => return Err(ErrorKind::WriteZero.into()),
-            Ok(n) => session.consume_output(n),
+            Ok(n) => adapter.consume_output(n),
             Err(e) if e.kind() == ErrorKind::WouldBlock => break,
             Err(e) if e.kind() == ErrorKind::Interrupted => {}
             Err(e) => return Err(e),
@@ -479,16 +479,16 @@ fn open_pty() -> Result<Link, BusError> {
 
 impl Transport for SlcanEndpoint {
     fn send(&mut self, frame: &CanFrame, now_us: u64) -> Result<(), BusError> {
-        self.session.frame_to_client(frame, now_us);
+        self.adapter.frame_to_client(frame, now_us);
         Ok(())
     }
 
     fn recv(&mut self, _now_us: u64) -> Result<Option<CanFrame>, BusError> {
-        if let Some(frame) = self.session.next_frame() {
+        if let Some(frame) = self.adapter.next_frame() {
             return Ok(Some(frame));
         }
         self.poll()?;
-        Ok(self.session.next_frame())
+        Ok(self.adapter.next_frame())
     }
 }
 
@@ -684,8 +684,8 @@ impl Transport for SlcanClient {
 mod tests {
     use super::*;
 
-    fn session_after(bytes: &[u8]) -> SlcanSession {
-        let mut s = SlcanSession::new();
+    fn adapter_after(bytes: &[u8]) -> SlcanAdapter {
+        let mut s = SlcanAdapter::new();
         s.receive_bytes(bytes);
         s
     }
@@ -711,7 +711,7 @@ mod tests {
     #[test]
     fn python_can_open_sequence_opens_the_channel() {
         // python-can with bitrate=1000000: close, bit rate, an empty line, open, open again.
-        let s = session_after(b"C\rS8\r\rO\rO\r");
+        let s = adapter_after(b"C\rS8\r\rO\rO\r");
         assert_eq!(s.channel(), ChannelState::Open);
         assert_eq!(s.bit_rate(), Some(BitRate::Mbps1));
         assert_eq!(s.pending_output(), b"\r\r\r\r");
@@ -720,7 +720,7 @@ mod tests {
 
     #[test]
     fn frames_pass_only_while_the_channel_is_open() {
-        let mut s = session_after(b"t1A20\r");
+        let mut s = adapter_after(b"t1A20\r");
         assert_eq!(s.next_frame(), None);
         assert_eq!(s.pending_output(), [0x07]);
         assert_eq!(s.stats().refused, 1);
@@ -740,7 +740,7 @@ mod tests {
 
     #[test]
     fn listen_only_receives_but_refuses_to_transmit() {
-        let mut s = session_after(b"L\rt1A20\r");
+        let mut s = adapter_after(b"L\rt1A20\r");
         assert_eq!(s.channel(), ChannelState::ListenOnly);
         assert_eq!(s.pending_output(), b"\r\x07");
         assert_eq!(s.next_frame(), None);
@@ -752,7 +752,7 @@ mod tests {
     fn state_rules_match_a_lawicel_adapter() {
         // C when closed is fine; O twice too; L on an open channel, S and s while open are
         // refused; after C they are accepted; O on a listen-only channel is refused.
-        let s = session_after(b"C\rO\rO\rL\rS6\rs031C\rC\rS6\rs031C\rL\rL\rO\r");
+        let s = adapter_after(b"C\rO\rO\rL\rS6\rs031C\rC\rS6\rs031C\rL\rL\rO\r");
         assert_eq!(s.pending_output(), b"\r\r\r\x07\x07\x07\r\r\r\r\r\x07");
         assert_eq!(s.bit_rate(), Some(BitRate::Kbps500));
         assert_eq!(s.stats().refused, 4);
@@ -761,7 +761,7 @@ mod tests {
 
     #[test]
     fn version_serial_number_and_status_flags_answer() {
-        let mut s = session_after(b"V\rN\rF\r");
+        let mut s = adapter_after(b"V\rN\rF\r");
         assert_eq!(s.pending_output(), b"V0100\rNWLSM\rF00\r");
         s.consume_output(usize::MAX);
         s.receive_bytes(b"O\r");
@@ -781,7 +781,7 @@ mod tests {
 
     #[test]
     fn malformed_lines_get_bel_and_are_counted() {
-        let s = session_after(b"garbage\rt1239\rt8000\rt1232AA\rT1230\rS9\r\x00\xff\r");
+        let s = adapter_after(b"garbage\rt1239\rt8000\rt1232AA\rT1230\rS9\r\x00\xff\r");
         assert_eq!(s.pending_output(), [0x07; 7]);
         assert_eq!(s.stats().malformed, 7);
         assert_eq!(s.stats().commands, 0);
@@ -807,7 +807,7 @@ mod tests {
                 }
                 std::thread::sleep(Duration::from_millis(1));
             }
-            (got, endpoint.session().stats())
+            (got, endpoint.adapter().stats())
         });
         let mut client =
             SlcanClient::connect(&EndpointSpec::Tcp(address), Duration::from_secs(5)).unwrap();
@@ -835,7 +835,7 @@ mod tests {
 
     #[test]
     fn timestamps_are_milliseconds_modulo_a_minute() {
-        let mut s = session_after(b"Z1\rO\r");
+        let mut s = adapter_after(b"Z1\rO\r");
         s.consume_output(usize::MAX);
         let f = CanFrame::standard(0x001, &[]).unwrap();
         s.frame_to_client(&f, 61_234_999);

@@ -177,7 +177,7 @@ pub fn check_can_frames(data: &[u8]) {
 }
 
 /// Bytes from an SLCAN client (a USB-CAN adapter's serial line), in two places: the runtime's
-/// line decoder, and the simulated adapter (`firmware_sim::slcan::SlcanSession`) in front of the
+/// line decoder, and the simulated adapter (`firmware_sim::slcan::SlcanAdapter`) in front of the
 /// 16 simulated axes, with a millisecond of physics after every line.
 ///
 /// Checks: every error and command is counted once; whatever decodes re-encodes to a line that
@@ -185,7 +185,7 @@ pub fn check_can_frames(data: &[u8]) {
 /// exactly one BEL; what it sends back is printable ASCII, CR and BEL only, within its output
 /// bound; no frame from the client drives a motor to a non-finite state.
 pub fn check_slcan_lines(data: &[u8]) {
-    use wheelleg_firmware_sim::slcan::{SlcanSession, MAX_PENDING_BYTES};
+    use wheelleg_firmware_sim::slcan::{SlcanAdapter, MAX_PENDING_BYTES};
     use wheelleg_runtime::can::slcan::{encode_command, Decoder, BEL, CR, LINE_CAPACITY};
 
     let mut decoder = Decoder::new();
@@ -223,13 +223,13 @@ pub fn check_slcan_lines(data: &[u8]) {
         Ok(firmware) => firmware,
         Err(e) => panic!("the default legs have no IK solution: {e:?}"),
     };
-    let mut session = SlcanSession::new();
+    let mut adapter = SlcanAdapter::new();
     let mut loopback = Loopback::default();
     let mut sent = Vec::new();
     let mut now_us = 0u64;
     for line in data.split_inclusive(|&b| b == CR) {
-        session.receive_bytes(line);
-        while let Some(frame) = session.next_frame() {
+        adapter.receive_bytes(line);
+        while let Some(frame) = adapter.next_frame() {
             firmware.receive(&frame, now_us);
         }
         now_us += 1_000;
@@ -237,23 +237,23 @@ pub fn check_slcan_lines(data: &[u8]) {
             panic!("the loopback transport cannot fail: {e}");
         }
         for frame in loopback.0.drain(..) {
-            session.frame_to_client(&frame, now_us);
+            adapter.frame_to_client(&frame, now_us);
         }
-        let pending = session.pending_output();
+        let pending = adapter.pending_output();
         assert!(
             pending.len() <= MAX_PENDING_BYTES + data.len(),
             "output unbounded"
         );
         sent.extend_from_slice(pending);
         let n = pending.len();
-        session.consume_output(n);
+        adapter.consume_output(n);
     }
     assert!(
         sent.iter()
             .all(|&b| b == CR || b == BEL || b.is_ascii_graphic()),
         "the adapter sent a byte outside printable ASCII, CR and BEL"
     );
-    let s = session.stats();
+    let s = adapter.stats();
     let bels = sent.iter().filter(|&&b| b == BEL).count() as u64;
     assert_eq!(
         bels,
@@ -263,7 +263,7 @@ pub fn check_slcan_lines(data: &[u8]) {
     assert_eq!(
         s.malformed,
         u64::from(errors),
-        "session and decoder disagree"
+        "adapter and decoder disagree"
     );
     for axis in firmware.axes() {
         assert!(

@@ -18,7 +18,7 @@ use wheelleg_firmware_sim::bus::{InProcessBus, Port, Transport};
 use wheelleg_firmware_sim::candump::CandumpWriter;
 use wheelleg_firmware_sim::firmware::Firmware;
 use wheelleg_firmware_sim::rig::{MeasuredBusLoad, TrafficCounts};
-use wheelleg_firmware_sim::slcan::SlcanSession;
+use wheelleg_firmware_sim::slcan::SlcanAdapter;
 use wheelleg_runtime::base::{MecanumBase, Odometry, WheelSpeeds};
 use wheelleg_runtime::can::bus_load::frame_bits;
 use wheelleg_runtime::can::node_map::{Axis, NodeMap};
@@ -60,7 +60,7 @@ pub struct Plant {
     axes: Firmware,
     adapter: Port,
     axes_port: Port,
-    session: SlcanSession,
+    slcan: SlcanAdapter,
     line: Vec<u8>,
     /// Periods polled so far (the firmware's control periods since its first).
     polls: u64,
@@ -88,7 +88,7 @@ impl Plant {
             axes: Firmware::for_robot(geometry, &map, start)?,
             adapter: bus.port(),
             axes_port: bus.port(),
-            session: SlcanSession::new(),
+            slcan: SlcanAdapter::new(),
             line: Vec::new(),
             polls: 0,
             now_us: 0,
@@ -191,16 +191,16 @@ impl Plant {
             if self.dead {
                 continue;
             }
-            self.session.receive_bytes(&line);
-            while let Some(frame) = self.session.next_frame() {
+            self.slcan.receive_bytes(&line);
+            while let Some(frame) = self.slcan.next_frame() {
                 self.count(&frame)?;
                 self.adapter
                     .send(&frame, self.now_us)
                     .map_err(std::io::Error::other)?;
             }
         }
-        let out = self.session.pending_output().to_vec();
-        self.session.consume_output(out.len());
+        let out = self.slcan.pending_output().to_vec();
+        self.slcan.consume_output(out.len());
         Ok(out)
     }
 
@@ -268,7 +268,7 @@ impl Plant {
             if self.drop_probability > 0.0 && self.next_uniform() < self.drop_probability {
                 continue;
             }
-            if self.session.frame_to_client(&frame, self.now_us) {
+            if self.slcan.frame_to_client(&frame, self.now_us) {
                 self.delivered += 1;
             }
         }

@@ -49,7 +49,7 @@ impl Default for ExportOptions {
             range: RangeMethod::MinMax,
             // The robot acts on the argmax. With int8 logits this raised greedy agreement on
             // the baseline policy; with int16 logits (format version 2) it makes no measurable
-            // difference (docs/results.md, issue 5) and stays the default of `wheelleg export`.
+            // difference (docs/results.md, "Quantization") and stays the default of `wheelleg export`.
             action_range: ActionRange::Contenders,
             qat: QatOptions::default(),
         }

@@ -97,7 +97,7 @@ fn run(args: &Args) -> Result<(), Box<dyn std::error::Error>> {
             println!("firmware_sim: SLCAN on {place}");
             std::io::stdout().flush()?;
             simulate(&mut firmware, &mut endpoint, "slcan0", &place, args)?;
-            let s = endpoint.session().stats();
+            let s = endpoint.adapter().stats();
             eprintln!(
                 "firmware_sim: SLCAN: {} TCP clients, {} commands, {} malformed and {} refused lines \
                  (answered BEL), {} frames from clients, {} to them, {} dropped (client too slow)",

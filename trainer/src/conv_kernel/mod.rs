@@ -1,4 +1,4 @@
-//! A specialised CPU kernel for the conv stack (issue 3): forward and backward of the
+//! A specialised CPU kernel for the conv stack: forward and backward of the
 //! convolutions (+ bias + ReLU; any `ConvSpec`, the policy's are stride-2 3x3) as im2col + GEMM.
 //!
 //! Why: the three convs are ~480k of the network's ~547k multiply-adds per sample, and burn's
