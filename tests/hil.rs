@@ -7,7 +7,8 @@
 //! - the first `WHEELLEG_HIL_SCENES` held-out complex scenes (default 2) reach exactly the
 //!   outcomes (success, decisions, collisions) of the in-process closed loop driven by the same
 //!   on-board stack, and the bus log decodes with ODrive's DBC (`tools/check_dbc.py`); the
-//!   firmware's RAM in use (statics and its painted stack) fits 32 KiB;
+//!   firmware's RAM in use (statics and its painted stack) fits 32 KiB, and its busiest control
+//!   period (SysTick-timed work, read from its RAM) fits 10 ms at 170 MHz;
 //! - each fault brings the robot to the safe state (wheels stopped, legs held) within the
 //!   firmware's timeout, and the firmware says why.
 
@@ -17,7 +18,9 @@ use wheelleg::closed_loop::{ClosedLoop, Driver, LoopConfig};
 use wheelleg::hil::onboard::OnboardDriver;
 use wheelleg::hil::plant::PlantFault;
 use wheelleg::hil::wire::stop_reason;
-use wheelleg::hil::{find_or_build_image, qemu_available, Faults, Hil, HilEpisode, LinkFault};
+use wheelleg::hil::{
+    find_or_build_image, qemu_available, Faults, Hil, HilEpisode, LinkFault, PERIOD_BUDGET_CYCLES,
+};
 use wheelleg_firmware_sim::candump::{CandumpWriter, DEFAULT_EPOCH_US};
 use wheelleg_runtime::can::node_map::{Axis, Joint};
 use wheelleg_runtime::robot::{LegId, WHEELLEG};
@@ -84,6 +87,7 @@ fn firmware_in_the_loop_reaches_the_in_process_outcomes() {
     let out = root().join("target/hil");
     std::fs::create_dir_all(&out).expect("out dir");
     let mut differs = Vec::new();
+    let mut worst_period = 0;
     for scene in scenes().iter().take(count) {
         let mut driver = OnboardDriver::new(&weights).expect("stack");
         let mut host = ClosedLoop::in_process(scene, LoopConfig::default()).expect("loop");
@@ -96,7 +100,18 @@ fn firmware_in_the_loop_reaches_the_in_process_outcomes() {
         let log = out.join(format!("{}.log", scene.name));
         let (mut hil, got) = run(&image, scene, &Faults::default(), Some(&log));
         let ram = hil.ram_use().unwrap_or_else(|e| panic!("{e}"));
+        let busiest = hil
+            .busiest_period_instructions()
+            .unwrap_or_else(|e| panic!("{e}"));
         hil.shutdown().expect("shutdown");
+        // The control periods ran (SysTick measured their work) and the busiest fits its
+        // 10 ms at 170 MHz, one cycle per instruction.
+        assert!(
+            busiest > 10_000 && busiest <= PERIOD_BUDGET_CYCLES,
+            "{}: busiest control period {busiest} instructions",
+            scene.name
+        );
+        worst_period = worst_period.max(busiest);
         // The stack was painted and reached into the paint; with the statics it fits the
         // budget's 32 KiB of an STM32G431-class part.
         assert!(
@@ -107,7 +122,7 @@ fn firmware_in_the_loop_reaches_the_in_process_outcomes() {
         let got = got.report;
         let line = format!(
             "{}: host {:?} {} decisions {} collisions; firmware {:?} {} decisions {} collisions, \
-             RAM {} bytes (stack {})",
+             RAM {} bytes (stack {}), busiest period {busiest} instructions",
             scene.name,
             expected.status,
             expected.steps,
@@ -139,6 +154,11 @@ fn firmware_in_the_loop_reaches_the_in_process_outcomes() {
             ));
         }
     }
+    println!(
+        "busiest control period over {count} scenes: {worst_period} instructions ({:.1} % of \
+         {PERIOD_BUDGET_CYCLES} cycles)",
+        100.0 * worst_period as f64 / PERIOD_BUDGET_CYCLES as f64
+    );
     assert!(
         differs.is_empty(),
         "{} of {count} scenes differ from the host's closed loop:\n{}",

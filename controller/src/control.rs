@@ -44,6 +44,9 @@ pub trait Board {
     fn link_lost(&self) -> bool {
         false
     }
+    /// The period's work is done (its frames are sent): a board that measures the period's
+    /// cost reads its clock here.
+    fn tick_done(&mut self) {}
 }
 
 /// Why the control loop holds the robot in safe stop.
@@ -211,6 +214,7 @@ impl<F: Frame> Control<F> {
         while let Some(frame) = self.tx.pop() {
             send(board.can(), &frame)?;
         }
+        board.tick_done();
         self.now_us += (1.0e6 * self.tick_s()) as u64;
         self.ticks = self.ticks.wrapping_add(1);
         Ok(())

@@ -17,7 +17,7 @@ use core::arch::asm;
 use core::mem::MaybeUninit;
 use core::panic::PanicInfo;
 use core::ptr::{read_volatile, write_volatile};
-use core::sync::atomic::{AtomicBool, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use cortex_m_rt::{entry, exception};
 use wheelleg_controller::control::{
@@ -154,6 +154,45 @@ struct SlcanCan {
     /// A period began while waiting: the next one starts at once.
     period_pending: bool,
     lost: bool,
+    /// SysTick counts of this period spent waiting for the adapter's bytes.
+    idle_counts: u32,
+    /// SysTick's value when the current wait began, or [`NOT_WAITING`].
+    idle_since: u32,
+}
+
+/// [`SlcanCan::idle_since`] outside a wait (SysTick's value never exceeds its reload).
+const NOT_WAITING: u32 = u32::MAX;
+
+/// SysTick's current value: it counts down from [`PERIOD_COUNTS`] each period.
+fn systick_now() -> u32 {
+    // SAFETY: SysTick's current-value register; reading it has no effect.
+    unsafe { read_volatile(0xE000_E018 as *const u32) }
+}
+
+/// SysTick counts from `earlier` to `now`, across one reload at most.
+#[inline(never)]
+fn counts_since(earlier: u32, now: u32) -> u32 {
+    if earlier >= now {
+        earlier - now
+    } else {
+        earlier + PERIOD_COUNTS - now
+    }
+}
+
+impl SlcanCan {
+    /// Times the waits for the adapter's bytes: a wait begins at the first empty poll and ends
+    /// with the next byte.
+    #[inline(never)]
+    fn note_wait(&mut self, waiting: bool) {
+        if waiting {
+            if self.idle_since == NOT_WAITING {
+                self.idle_since = systick_now();
+            }
+        } else if self.idle_since != NOT_WAITING {
+            self.idle_counts += counts_since(self.idle_since, systick_now());
+            self.idle_since = NOT_WAITING;
+        }
+    }
 }
 
 /// The adapter refused a frame (only a frame longer than 8 bytes, which `CanFrame` never is).
@@ -178,7 +217,9 @@ impl embedded_can::nb::Can for SlcanCan {
 
     fn receive(&mut self) -> nb::Result<CanFrame, LineError> {
         while self.polled {
-            let Some(byte) = self.uart.try_read() else {
+            let byte = self.uart.try_read();
+            self.note_wait(byte.is_none());
+            let Some(byte) = byte else {
                 if period_began() {
                     self.period_pending = true;
                     self.waited += 1;
@@ -206,7 +247,16 @@ const PERIOD_COUNTS: u32 = 250_000;
 /// The board: the CAN adapter and SysTick's period.
 struct SlcanBoard {
     can: SlcanCan,
+    /// SysTick's value when the current period's work began.
+    period_start: u32,
 }
+
+/// The most SysTick counts of work in one control period since boot, the waits for the
+/// adapter's bytes left out: on QEMU's `-icount shift=0` clock a count is 40 instructions.
+/// Nothing in the firmware reads it; the host reads it from outside, through QEMU's monitor at
+/// this symbol's address (the link has no field for it: flash has no room for one).
+#[no_mangle]
+static BUSIEST_PERIOD_COUNTS: AtomicU32 = AtomicU32::new(0);
 
 impl SlcanBoard {
     fn new(uart: Uart) -> SlcanBoard {
@@ -217,6 +267,8 @@ impl SlcanBoard {
             waited: 0,
             period_pending: false,
             lost: false,
+            idle_counts: 0,
+            idle_since: NOT_WAITING,
         };
         // Close, 1 Mbit/s, open: the adapter's answers are read (and ignored) with the frames.
         can.uart.write(b"C\rS8\rO\r");
@@ -227,7 +279,10 @@ impl SlcanBoard {
             write_volatile(0xE000_E018 as *mut u32, 0);
             write_volatile(0xE000_E010 as *mut u32, 0b111);
         }
-        SlcanBoard { can }
+        SlcanBoard {
+            can,
+            period_start: 0,
+        }
     }
 
     /// Whether a period began (latched until [`Board::wait_for_tick`] starts it).
@@ -252,6 +307,9 @@ impl Board for SlcanBoard {
                 sleep_until_period();
             }
         }
+        self.period_start = systick_now();
+        self.can.idle_counts = 0;
+        self.can.idle_since = NOT_WAITING;
         self.can.uart.write(b"F\r");
         self.can.polled = !self.can.lost;
         self.can.waited = 0;
@@ -259,6 +317,15 @@ impl Board for SlcanBoard {
 
     fn link_lost(&self) -> bool {
         self.can.lost
+    }
+
+    fn tick_done(&mut self) {
+        let busy =
+            counts_since(self.period_start, systick_now()).saturating_sub(self.can.idle_counts);
+        // Only the main loop writes it: a load and a store, not an atomic read-modify-write.
+        if busy > BUSIEST_PERIOD_COUNTS.load(Ordering::Relaxed) {
+            BUSIEST_PERIOD_COUNTS.store(busy, Ordering::Relaxed);
+        }
     }
 }
 

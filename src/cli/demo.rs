@@ -377,7 +377,9 @@ pub fn run(args: Args) -> CliResult {
 
 /// `demo --controller qemu`: the episode through the firmware in QEMU.
 fn run_qemu(args: &Args, scenario: &Scenario, origin: &str) -> CliResult {
-    use wheelleg::hil::{find_or_build_image, plant::PlantFault, Faults, Hil};
+    use wheelleg::hil::{
+        find_or_build_image, plant::PlantFault, Faults, Hil, PERIOD_BUDGET_CYCLES,
+    };
     let refused = [
         (
             args.can.is_some(),
@@ -437,6 +439,7 @@ fn run_qemu(args: &Args, scenario: &Scenario, origin: &str) -> CliResult {
     taken.map_err(|e| format!("cannot write the bus log: {e}"))?;
     log_file.commit()?;
     let ram = hil.ram_use()?;
+    let busiest_period = hil.busiest_period_instructions()?;
     hil.shutdown()?;
     let report = &episode.report;
     let png = args.out.join("path.png");
@@ -456,6 +459,11 @@ fn run_qemu(args: &Args, scenario: &Scenario, origin: &str) -> CliResult {
         ram.total_bytes(),
         ram.statics_bytes,
         ram.peak_stack_bytes
+    );
+    outln!(
+        "period:    at most {busiest_period} instructions of work in one control period ({:.1} % \
+         of its 10 ms at 170 MHz, one cycle per instruction)",
+        100.0 * busiest_period as f64 / PERIOD_BUDGET_CYCLES as f64
     );
     match report.fault {
         Some(fault) => Err(format!("robot stopped: {fault}").into()),

@@ -23,6 +23,9 @@ pub struct RamLayout {
     pub stack_limit: u32,
     /// One past the stack's top (the initial stack pointer).
     pub stack_top: u32,
+    /// The firmware's `BUSIEST_PERIOD_COUNTS`: the most SysTick counts of work in one control
+    /// period since boot.
+    pub busiest_period_counts: u32,
 }
 
 impl RamLayout {
@@ -38,7 +41,7 @@ impl RamLayout {
                 .and_then(|s| u32::try_from(s.address()).ok())
                 .ok_or_else(|| {
                     HilError::Io(format!(
-                        "{} has no symbol {name} (not a cortex-m-rt image?)",
+                        "{} has no symbol {name} (not the controller's production image?)",
                         image.display()
                     ))
                 })
@@ -47,6 +50,7 @@ impl RamLayout {
             statics_start: symbol("__sdata")?,
             stack_limit: symbol("__sheap")?,
             stack_top: symbol("_stack_start")?,
+            busiest_period_counts: symbol("BUSIEST_PERIOD_COUNTS")?,
         };
         if layout.statics_start > layout.stack_limit || layout.stack_limit >= layout.stack_top {
             return Err(HilError::Io(format!(
@@ -88,6 +92,10 @@ impl RamLayout {
     }
 }
 
+/// Instructions per SysTick count under QEMU's `-icount shift=0` (1 ns per instruction) on
+/// the machine's 25 MHz clock.
+pub const INSTRUCTIONS_PER_SYSTICK_COUNT: u64 = 40;
+
 /// The firmware's RAM in use after a run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct RamUse {
@@ -113,6 +121,7 @@ mod tests {
             statics_start: 0x2000_0000,
             stack_limit: 0x2000_0100,
             stack_top: 0x2000_0200,
+            busiest_period_counts: 0x2000_0000,
         }
     }
 

@@ -63,6 +63,10 @@ pub const BUILD_COMMAND: &str =
 /// some seconds).
 pub const ANSWER_TIMEOUT: Duration = Duration::from_secs(60);
 
+/// A control period's budget on the target part: 10 ms at 170 MHz (an STM32G431-class
+/// Cortex-M4F), in cycles.
+pub const PERIOD_BUDGET_CYCLES: u64 = 1_700_000;
+
 /// Why the firmware in the loop could not run.
 #[derive(Debug)]
 pub enum HilError {
@@ -355,14 +359,27 @@ impl Hil {
     /// The firmware's RAM in use so far: its statics, and its stack at the deepest, from the
     /// free RAM painted at the start and saved now by QEMU's monitor.
     pub fn ram_use(&mut self) -> Result<RamUse, HilError> {
+        let bytes = self.save_ram(self.layout.stack_limit, self.layout.free_bytes())?;
+        Ok(RamUse {
+            statics_bytes: self.layout.stack_limit - self.layout.statics_start,
+            peak_stack_bytes: self.layout.peak_stack_bytes(&bytes),
+        })
+    }
+
+    /// The most instructions the firmware spent on one control period's work so far (its waits
+    /// for the CAN adapter's bytes left out), read from its RAM by QEMU's monitor: the firmware
+    /// keeps the figure in SysTick counts, each 40 instructions under `-icount shift=0`.
+    pub fn busiest_period_instructions(&mut self) -> Result<u64, HilError> {
+        let bytes = self.save_ram(self.layout.busiest_period_counts, 4)?;
+        let counts = u32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]);
+        Ok(u64::from(counts) * memory::INSTRUCTIONS_PER_SYSTICK_COUNT)
+    }
+
+    /// `len` bytes of the firmware's RAM from `address`, saved by QEMU's monitor.
+    fn save_ram(&mut self, address: u32, len: u32) -> Result<Vec<u8>, HilError> {
         let dump = self.scratch.join("ram.bin");
         let _ = std::fs::remove_file(&dump);
-        let command = format!(
-            "pmemsave {:#x} {} \"{}\"\n",
-            self.layout.stack_limit,
-            self.layout.free_bytes(),
-            dump.display()
-        );
+        let command = format!("pmemsave {address:#x} {len} \"{}\"\n", dump.display());
         self.monitor
             .write_all(command.as_bytes())
             .map_err(io("writing to QEMU's monitor"))?;
@@ -373,17 +390,13 @@ impl Hil {
                 answer.trim()
             ))
         })?;
-        if bytes.len() != self.layout.free_bytes() as usize {
+        if bytes.len() != len as usize {
             return Err(HilError::Protocol(format!(
-                "QEMU's monitor saved {} bytes of RAM, not {}",
-                bytes.len(),
-                self.layout.free_bytes()
+                "QEMU's monitor saved {} bytes of RAM, not {len}",
+                bytes.len()
             )));
         }
-        Ok(RamUse {
-            statics_bytes: self.layout.stack_limit - self.layout.statics_start,
-            peak_stack_bytes: self.layout.peak_stack_bytes(&bytes),
-        })
+        Ok(bytes)
     }
 
     /// The motors and their adapter.
