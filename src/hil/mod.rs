@@ -263,7 +263,6 @@ impl Hil {
         if !qemu_available() {
             return Err(HilError::NoQemu);
         }
-        let layout = RamLayout::of_image(image)?;
         let plant = Plant::new(&WHEELLEG, start)
             .map_err(|e| HilError::Io(format!("the start legs have no IK solution: {e:?}")))?;
         let (obs_listener, obs_port) = listener()?;
@@ -272,6 +271,13 @@ impl Hil {
         let scratch =
             std::env::temp_dir().join(format!("wheelleg-hil-{}-{obs_port}", std::process::id()));
         std::fs::create_dir_all(&scratch).map_err(io("creating the scratch folder"))?;
+        // QEMU runs a copy, so that the layout read here is the image that runs even when the
+        // image is rebuilt meanwhile (a long run over many scenes starts QEMU once per scene).
+        let copy = scratch.join("image.elf");
+        std::fs::copy(image, &copy)
+            .map_err(|e| HilError::Io(format!("copying {}: {e}", image.display())))?;
+        let image = copy.as_path();
+        let layout = RamLayout::of_image(image)?;
         let paint = layout.write_paint(&scratch)?;
         // UART 0 is the console (unused), UART 1 the observation link, UART 2 the CAN
         // adapter; Nagle's algorithm off on both, since QEMU writes a byte per segment and a
