@@ -5,7 +5,7 @@
 
 use rand::SeedableRng;
 use wheelleg_sim::env::{Env, EnvConfig};
-use wheelleg_sim::generate::{generate_many, Behaviour, SceneKind};
+use wheelleg_sim::generate::{generate_many, SceneKind};
 use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig, FALLBACK_WEIGHT};
 
 /// One line per search: scene, search, outcome, plan length, expansions, FNV-1a hash of the
@@ -43,10 +43,10 @@ fn results() -> Vec<String> {
         ..PlannerConfig::default()
     };
     let mut out = Vec::new();
-    // The kinds of the recording, in its order: astride and composed came later.
+    // The kinds of the recording, in its order: composed came later.
     let recorded = SceneKind::ALL
         .into_iter()
-        .filter(|&k| k != SceneKind::Behaviour(Behaviour::Astride) && k != SceneKind::Composed);
+        .filter(|&k| k != SceneKind::Composed);
     for kind in recorded {
         for scene in generate_many(kind, &mut rng, 3) {
             let env = Env::new(&scene, EnvConfig::default()).unwrap();

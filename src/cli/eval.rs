@@ -29,7 +29,7 @@ pub struct Args {
     /// Evaluate on this many generated scenes (needs --kind).
     #[arg(long, requires = "kind")]
     generated: Option<usize>,
-    /// Kind of generated scenes: straight, around, lift, spread, squeeze, astride, complex.
+    /// Kind of generated scenes: straight, around, lift, spread, squeeze, complex, composed.
     #[arg(long)]
     kind: Option<String>,
     /// Seed of scene generation and stochastic actions (use seeds not used in training).

@@ -36,7 +36,7 @@ pub struct Args {
     /// argmax the robot acts on) or `all-logits`.
     #[arg(long, default_value = "contenders")]
     action_range: String,
-    /// Scenes of the rollouts: straight, around, lift, spread, squeeze, astride, complex.
+    /// Scenes of the rollouts: straight, around, lift, spread, squeeze, complex, composed.
     #[arg(long, default_value = "complex")]
     kind: String,
     /// Quantization-aware fine-tuning steps before quantizing (0: plain post-training

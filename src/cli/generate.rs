@@ -8,7 +8,7 @@ use wheelleg_sim::generate::{generate_many, SceneKind};
 /// Arguments of `generate`.
 #[derive(clap::Args)]
 pub struct Args {
-    /// Scene kind: straight, around, lift, spread, squeeze, astride, complex or composed.
+    /// Scene kind: straight, around, lift, spread, squeeze, complex or composed.
     #[arg(long)]
     kind: String,
     /// Number of scenes.

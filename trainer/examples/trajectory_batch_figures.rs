@@ -19,7 +19,7 @@ use wheelleg_sim::scenario::Scenario;
 use wheelleg_sim::state::YAW_STEPS_PER_TURN;
 use wheelleg_trainer::trajectory::batch_file::TrajectoryBatch;
 use wheelleg_trainer::trajectory::randomize::{prepare, randomize_batch_with, RandomizeConfig};
-use wheelleg_trainer::trajectory::{Origin, Trajectory};
+use wheelleg_trainer::trajectory::Trajectory;
 
 fn arg(i: usize, default: usize) -> usize {
     std::env::args()
@@ -131,7 +131,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             };
             if let PlanOutcome::Solved { actions, .. } = plan(&env, &planner).outcome {
                 let actions = prefix.into_iter().chain(actions).collect();
-                let t = Trajectory::new(scenario, actions, Origin::Secondary(behaviour));
+                let t = Trajectory::new(scenario, actions, behaviour);
                 let p = prepare(&t, &config)?;
                 solved += 1;
                 area += p.area.raster_area_m2();
@@ -159,14 +159,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let started = Instant::now();
     let stats = randomize_batch_with(&sources, &config, &out, |_| {})?;
     let seconds = started.elapsed().as_secs_f64();
-    println!("\norigin     kept/tried  keep_rate");
-    for (origin, (kept, tried)) in Origin::ALL.iter().zip(stats.by_origin) {
+    println!("\nbehaviour  kept/tried  keep_rate");
+    for (behaviour, (kept, tried)) in Behaviour::ALL.iter().zip(stats.by_behaviour) {
         if tried == 0 {
             continue;
         }
         println!(
             "{:<9} {:>6}/{:<6} {:>8.2}%",
-            origin.name(),
+            behaviour.name(),
             kept,
             tried,
             100.0 * kept as f64 / tried.max(1) as f64

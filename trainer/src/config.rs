@@ -242,18 +242,6 @@ pub struct CurriculumConfig {
     pub start_stage_success_rate: f32,
     /// `run.start_stage_window` of those secondaries.
     pub start_stage_window: usize,
-    /// Complex training scenes the planner solves for the trajectory batch, as sources beside
-    /// the secondaries' successes (beyond the paper; 0, the default, plans none). See
-    /// `crate::trajectory::demonstrations`.
-    pub planner_demonstrations: usize,
-    /// Expansion budget per search of each demonstration scene.
-    pub planner_demo_expansions: usize,
-    /// Plan only demonstration scenes whose target lies beside an obstacle.
-    pub planner_demo_target_beside_only: bool,
-    /// Share of the replayed trajectories drawn from the planner's demonstrations (0: drawn
-    /// like any other origin). May change on `--resume`: it only decides which stored
-    /// trajectories are replayed next.
-    pub replay_planner_share: f32,
 }
 
 impl Default for CurriculumConfig {
@@ -279,10 +267,6 @@ impl Default for CurriculumConfig {
             start_stage_step: 0.1,
             start_stage_success_rate: 0.5,
             start_stage_window: 3,
-            planner_demonstrations: 0,
-            planner_demo_expansions: 2_000,
-            planner_demo_target_beside_only: false,
-            replay_planner_share: 0.0,
         }
     }
 }
@@ -304,13 +288,72 @@ pub struct TrainConfig {
 /// How many `extends` a config may chain: more is a cycle or a mistake.
 const MAX_EXTENDS: usize = 8;
 
+/// Keys of experiments that measured no gain and left the code (docs/results.md, "Experiments
+/// that measured no gain"), with the value that kept each off (`None`: a parameter of the
+/// experiment, meaningless without it). Configs and checkpoints written while they existed
+/// still load: a retired key holding its off value is dropped, one that would switch the
+/// experiment on is an error naming it.
+const RETIRED_KEYS: [(&str, &str, Option<RetiredOff>); 4] = [
+    (
+        "curriculum",
+        "planner_demonstrations",
+        Some(RetiredOff::Integer(0)),
+    ),
+    ("curriculum", "planner_demo_expansions", None),
+    ("curriculum", "planner_demo_target_beside_only", None),
+    (
+        "curriculum",
+        "replay_planner_share",
+        Some(RetiredOff::Float(0.0)),
+    ),
+];
+
+/// The value that kept a retired experiment off.
+#[derive(Clone, Copy)]
+enum RetiredOff {
+    Integer(i64),
+    Float(f64),
+}
+
+/// Drops the retired keys from a config's table, or names one that would switch a removed
+/// experiment on.
+fn drop_retired(table: &mut toml::Table) -> Result<(), String> {
+    for (section, key, off) in RETIRED_KEYS {
+        let Some(toml::Value::Table(keys)) = table.get_mut(section) else {
+            continue;
+        };
+        let Some(value) = keys.remove(key) else {
+            continue;
+        };
+        let is_off = match (off, &value) {
+            (None, _) => true,
+            (Some(RetiredOff::Integer(off)), toml::Value::Integer(v)) => *v == off,
+            (Some(RetiredOff::Float(off)), toml::Value::Float(v)) => *v == off,
+            (Some(RetiredOff::Float(off)), toml::Value::Integer(v)) => *v as f64 == off,
+            _ => false,
+        };
+        if !is_off {
+            return Err(format!(
+                "{section}.{key} = {value}: that experiment measured no gain and was removed \
+                 (docs/results.md, \"Experiments that measured no gain\"); drop the key"
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Parses a config's TOML text into its table, retired keys dropped.
+fn parse_table(text: &str) -> Result<toml::Table, String> {
+    let mut table: toml::Table = text.parse().map_err(|e: toml::de::Error| e.to_string())?;
+    drop_retired(&mut table)?;
+    Ok(table)
+}
+
 /// A config file's keys with its `extends` chain merged beneath them.
 fn load_table(path: &Path, depth: usize) -> Result<toml::Table, String> {
     let text = std::fs::read_to_string(path)
         .map_err(|e| format!("cannot read config {}: {e}", path.display()))?;
-    let mut table: toml::Table = text
-        .parse()
-        .map_err(|e| format!("config {}: {e}", path.display()))?;
+    let mut table = parse_table(&text).map_err(|e| format!("config {}: {e}", path.display()))?;
     let base = match table.remove("extends") {
         None => return Ok(table),
         Some(toml::Value::String(base)) => base,
@@ -367,7 +410,9 @@ impl PpoConfig {
 impl TrainConfig {
     /// Parses TOML text and validates it.
     pub fn from_toml(text: &str) -> Result<TrainConfig, String> {
-        let config: TrainConfig = toml::from_str(text).map_err(|e| e.to_string())?;
+        let config: TrainConfig = toml::Value::Table(parse_table(text)?)
+            .try_into()
+            .map_err(|e: toml::de::Error| e.to_string())?;
         config.validate()?;
         Ok(config)
     }
@@ -408,8 +453,13 @@ impl TrainConfig {
         stored: &str,
         curriculum_keys: &[&str],
     ) -> Result<Vec<String>, String> {
-        let then: TrainConfig =
-            toml::from_str(stored).map_err(|e| format!("stored config does not parse: {e}"))?;
+        let then: TrainConfig = parse_table(stored)
+            .and_then(|t| {
+                toml::Value::Table(t)
+                    .try_into()
+                    .map_err(|e: toml::de::Error| e.to_string())
+            })
+            .map_err(|e| format!("stored config does not parse: {e}"))?;
         let as_table = |c: &TrainConfig| {
             toml::Table::try_from(c).map_err(|e| format!("config does not serialize: {e}"))
         };
@@ -454,7 +504,7 @@ impl TrainConfig {
         let check = |ok: bool, what: &str| if ok { Ok(()) } else { Err(what.to_string()) };
         check(
             wheelleg_sim::generate::SceneKind::from_name(&r.scene_kind).is_some(),
-            "run.scene_kind must be one of straight, around, lift, spread, squeeze, astride, complex, composed",
+            "run.scene_kind must be one of straight, around, lift, spread, squeeze, complex, composed",
         )?;
         check(
             (0.0..=1.0).contains(&r.composed_share),
@@ -547,7 +597,7 @@ impl TrainConfig {
                         .is_some_and(|k| k != wheelleg_sim::generate::SceneKind::Complex)
                 }),
             "curriculum.behaviours must start with straight and name behaviours (straight, \
-             around, lift, spread, squeeze, astride)",
+             around, lift, spread, squeeze)",
         )?;
         check(
             c.secondary_steps_per_iteration >= r.num_envs,
@@ -603,15 +653,6 @@ impl TrainConfig {
             c.start_stage_window >= 1,
             "curriculum.start_stage_window must be at least 1",
         )?;
-        check(
-            (0.0..=1.0).contains(&c.replay_planner_share),
-            "curriculum.replay_planner_share must be in [0, 1]",
-        )?;
-        check(
-            c.planner_demonstrations == 0 || c.planner_demo_expansions >= 1,
-            "curriculum.planner_demo_expansions must be at least 1 when planner_demonstrations \
-             is set",
-        )?;
         Ok(())
     }
 
@@ -664,6 +705,62 @@ mod tests {
             crate::network_f32::Architecture::default_policy()
         );
         assert_eq!(TrainConfig::from_toml(&c.to_toml()).unwrap(), c);
+    }
+
+    #[test]
+    fn every_shipped_config_and_every_committed_runs_stored_config_loads() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        let mut loaded = 0;
+        for entry in std::fs::read_dir(root.join("configs")).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_some_and(|e| e == "toml") {
+                TrainConfig::load(&path).unwrap_or_else(|e| panic!("{e}"));
+                loaded += 1;
+            }
+        }
+        assert!(loaded >= 5, "{loaded} configs");
+        // What `--resume` reads back from each committed run (written while retired keys
+        // existed, so they hold them).
+        let mut stored = 0;
+        for run in std::fs::read_dir(root.join("runs")).unwrap() {
+            let run = run.unwrap().path();
+            for path in [run.join("config.toml"), run.join("primary/config.toml")] {
+                if let Ok(text) = std::fs::read_to_string(&path) {
+                    TrainConfig::from_toml(&text)
+                        .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+                    stored += 1;
+                }
+            }
+        }
+        assert!(stored >= 3, "{stored} stored configs");
+    }
+
+    #[test]
+    fn retired_keys_at_their_off_values_load_and_resume_and_switched_on_are_named() {
+        let c = TrainConfig::default();
+        let retired = "planner_demonstrations = 0\nplanner_demo_expansions = 2000\n\
+                       planner_demo_target_beside_only = false\nreplay_planner_share = 0.0\n";
+        let stored = c
+            .to_toml()
+            .replace("[curriculum]\n", &format!("[curriculum]\n{retired}"));
+        assert!(stored.contains("planner_demonstrations"), "{stored}");
+        assert_eq!(TrainConfig::from_toml(&stored).unwrap(), c);
+        assert_eq!(
+            c.changes_from_stored(&stored, &["replay_balance"]).unwrap(),
+            Vec::<String>::new()
+        );
+        for on in ["planner_demonstrations = 800", "replay_planner_share = 0.5"] {
+            let e = TrainConfig::from_toml(&format!("[curriculum]\n{on}\n")).unwrap_err();
+            let key = on.split(' ').next().unwrap();
+            assert!(
+                e.contains(&format!("curriculum.{key}")) && e.contains("removed"),
+                "{e}"
+            );
+            let e = c
+                .changes_from_stored(&format!("[curriculum]\n{on}\n"), &[])
+                .unwrap_err();
+            assert!(e.contains(key), "{e}");
+        }
     }
 
     #[test]
@@ -768,7 +865,7 @@ mod tests {
         let budgets = "[curriculum.secondary_env_steps_by_behaviour]\n";
         let c = TrainConfig::from_toml(&format!("{budgets}lift = 5000\n")).unwrap();
         assert_eq!(c.curriculum.secondary_env_steps_by_behaviour["lift"], 5000);
-        let e = TrainConfig::from_toml(&format!("{budgets}astride = 5000\n")).unwrap_err();
+        let e = TrainConfig::from_toml(&format!("{budgets}hover = 5000\n")).unwrap_err();
         assert!(e.contains("secondary_env_steps_by_behaviour"), "{e}");
         let e = TrainConfig::from_toml("[run]\ninvalid_reward = 0.5\n").unwrap_err();
         assert!(e.contains("run.invalid_reward"), "{e}");

@@ -5,15 +5,12 @@
 //!    its latest successful trajectories.
 //! 2. **Trajectory batch** ([`run_randomize`]): every stored trajectory replayed in new scenes
 //!    whose obstacles were re-placed outside its essential area; only replays that still
-//!    succeed without a collision are kept ([`crate::trajectory::randomize`]). With
-//!    `curriculum.planner_demonstrations` set, the planner's plans of complex training scenes
-//!    join the sources first (beyond the paper: [`crate::trajectory::demonstrations`]).
+//!    succeed without a collision are kept ([`crate::trajectory::randomize`]).
 //! 3. **Primary policy** ([`run_primary`]): PPO on complex scenes, each update on the
 //!    on-policy batch plus replayed samples whose advantages the current critic recomputes.
 //!
 //! Layout of `--out runs/NAME`: `secondary-<behaviour>/` (a run folder each, with
-//! `trajectories.wltb`), `demonstrations/plans.jsonl` (planner demonstrations, when
-//! configured), `batch.wltb` (the trajectory batch), `primary/` (a run folder).
+//! `trajectories.wltb`), `batch.wltb` (the trajectory batch), `primary/` (a run folder).
 //! [`run_all`] runs the stages in order; a stage whose run reached its budget is not redone,
 //! one that was interrupted resumes from its checkpoint.
 
@@ -23,7 +20,6 @@ use crate::network_f32::NetworkF32;
 use crate::replay::ReplayOptions;
 use crate::runner::{train_stage, RunOptions, RunSummary, StageInputs, TRAJECTORIES_FILE};
 use crate::trajectory::batch_file::TrajectoryBatch;
-use crate::trajectory::demonstrations::{plan_demonstrations, DemoConfig};
 use crate::trajectory::randomize::{randomize_batch_with, RandomizeConfig, Stats};
 use crate::trajectory::Trajectory;
 use std::path::{Path, PathBuf};
@@ -34,8 +30,6 @@ use wheelleg_sim::generate::{Behaviour, SceneKind};
 pub const BATCH_FILE: &str = "batch.wltb";
 /// Name of the primary policy's run folder.
 pub const PRIMARY_DIR: &str = "primary";
-/// Name of the planner demonstrations' folder.
-pub const DEMONSTRATIONS_DIR: &str = "demonstrations";
 
 /// How a curriculum command runs.
 #[derive(Clone, Debug)]
@@ -265,10 +259,9 @@ pub fn stored_trajectories(config: &TrainConfig, out: &Path) -> Result<Vec<Traje
 /// The trajectory batch by domain randomization (resumable: see
 /// [`crate::trajectory::batch_file`]).
 pub fn run_randomize(config: &TrainConfig, opts: &CurriculumOptions) -> Result<Stats, String> {
-    let mut sources = stored_trajectories(config, &opts.out)?;
-    sources.extend(planner_demonstrations(config, opts)?);
+    let sources = stored_trajectories(config, &opts.out)?;
     if sources.is_empty() {
-        return Err("no successful trajectory to randomize (secondaries or demonstrations)".into());
+        return Err("no successful trajectory to randomize (train the secondaries first)".into());
     }
     let randomize = RandomizeConfig {
         per_trajectory: config.curriculum.randomizations,
@@ -297,50 +290,6 @@ pub fn run_randomize(config: &TrainConfig, opts: &CurriculumOptions) -> Result<S
         stats.bytes_per_trajectory()
     );
     Ok(stats)
-}
-
-/// The planner's demonstrations (resumable; none unless configured).
-pub fn planner_demonstrations(
-    config: &TrainConfig,
-    opts: &CurriculumOptions,
-) -> Result<Vec<Trajectory>, String> {
-    let c = &config.curriculum;
-    if c.planner_demonstrations == 0 {
-        return Ok(Vec::new());
-    }
-    let demo = DemoConfig {
-        scenes: c.planner_demonstrations,
-        seed: opts.seed,
-        max_expansions: c.planner_demo_expansions,
-        target_beside_only: c.planner_demo_target_beside_only,
-        max_steps: config.run.max_episode_steps,
-    };
-    let bar = if opts.progress {
-        indicatif::ProgressBar::new(demo.scenes as u64)
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
-    let dir = opts.out.join(DEMONSTRATIONS_DIR);
-    let (kept, stats) = plan_demonstrations(
-        &demo,
-        episode_rules(config),
-        &dir,
-        config.run.threads,
-        |done, _| bar.set_position(done as u64),
-    )?;
-    bar.finish_and_clear();
-    println!(
-        "planner demonstrations: {} scenes, {} skipped (nothing beside the target), {} plans \
-         kept ({} proven shortest), {} out of budget, {} unsolvable, {} not replayed",
-        stats.scenes,
-        stats.skipped,
-        stats.kept,
-        stats.shortest,
-        stats.budget,
-        stats.unsolvable,
-        stats.not_replayed
-    );
-    Ok(kept)
 }
 
 /// Algorithm 2: PPO on complex scenes with replayed samples from the trajectory batch.
@@ -375,7 +324,6 @@ pub fn run_primary(config: &TrainConfig, opts: &CurriculumOptions) -> Result<Run
                 steps: config.curriculum.replay_steps_per_iteration,
                 imitation_coef: config.curriculum.replay_imitation_coef,
                 balance: config.curriculum.replay_balance,
-                planner_share: config.curriculum.replay_planner_share,
             },
             // Read from the curriculum section directly, so a resume must keep them.
             resume_keeps: &[

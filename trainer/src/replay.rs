@@ -18,17 +18,15 @@
 //!   is collision-free and part of a success (undone actions are never stored).
 //! - `replay_balance = "behaviour"`: draw a behaviour uniformly, then one of its
 //!   trajectories, so each behaviour gets an equal share however many successes it stored.
-//!   Planner demonstrations ([`crate::trajectory::demonstrations`]) count as one more
-//!   behaviour.
 
 use crate::ppo::Ppo;
 use crate::storage::{Batch, RolloutStorage};
 use crate::trajectory::batch_file::TrajectoryBatch;
-use crate::trajectory::Origin;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 use wheelleg_runtime::action::DIMS;
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
+use wheelleg_sim::generate::Behaviour;
 
 /// How replayed trajectories are drawn from the batch.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -37,8 +35,7 @@ pub enum ReplayBalance {
     /// Uniformly over all stored trajectories (the paper).
     #[default]
     Trajectory,
-    /// A behaviour (the planner's demonstrations are one) uniformly, then one of its
-    /// trajectories uniformly.
+    /// A behaviour uniformly, then one of its trajectories uniformly.
     Behaviour,
 }
 
@@ -51,9 +48,6 @@ pub struct ReplayOptions {
     pub imitation_coef: f32,
     /// How trajectories are drawn.
     pub balance: ReplayBalance,
-    /// Share of the drawn trajectories taken from the planner's demonstrations, when the
-    /// batch holds any (0: they are drawn like every other origin).
-    pub planner_share: f32,
 }
 
 /// Draws whole trajectories from `batch` until `options.steps` samples are gathered (the last
@@ -70,9 +64,12 @@ pub fn replay_samples(
         return Ok(out);
     }
     let env_config = batch.env_config();
-    let draw = TrajectoryDraw::new(scene_ranges_by_origin(batch), batch.len(), options);
+    let groups = scene_ranges_by_behaviour(batch);
     while out.len() < steps {
-        let index = draw.next(rng);
+        let index = match options.balance {
+            ReplayBalance::Trajectory => rng.random_range(0..batch.len()),
+            ReplayBalance::Behaviour => draw_balanced(&groups, rng),
+        };
         let trajectory = batch
             .trajectory(index)
             .ok_or_else(|| format!("trajectory batch has no trajectory {index}"))?;
@@ -130,71 +127,18 @@ fn truncate(batch: &Batch, n: usize) -> Batch {
     }
 }
 
-/// Which stored trajectory to replay next, by [`ReplayOptions::balance`] and
-/// [`ReplayOptions::planner_share`].
-struct TrajectoryDraw {
-    /// The share and scene ranges of the planner's demonstrations, when a share is set and
-    /// the batch holds some.
-    planner: Option<(f32, Vec<(usize, usize)>)>,
-    /// Scene ranges of every other origin (all origins without a planner share).
-    groups: Vec<Vec<(usize, usize)>>,
-    /// `groups` flattened into one.
-    others: Vec<(usize, usize)>,
-    balance: ReplayBalance,
-    len: usize,
-}
-
-impl TrajectoryDraw {
-    fn new(
-        by_origin: Vec<(Origin, Vec<(usize, usize)>)>,
-        len: usize,
-        options: &ReplayOptions,
-    ) -> Self {
-        let share = options.planner_share;
-        let mut planner = None;
-        let mut groups = Vec::new();
-        for (origin, ranges) in by_origin {
-            if share > 0.0 && origin == Origin::Planner {
-                planner = Some((share, ranges));
-            } else {
-                groups.push(ranges);
-            }
-        }
-        TrajectoryDraw {
-            planner,
-            others: groups.concat(),
-            groups,
-            balance: options.balance,
-            len,
-        }
-    }
-
-    fn next(&self, rng: &mut impl Rng) -> usize {
-        if let Some((share, ranges)) = &self.planner {
-            // Drawn only with a share, so runs without one replay exactly as before.
-            if self.others.is_empty() || rng.random::<f32>() < *share {
-                return draw_balanced(std::slice::from_ref(ranges), rng);
-            }
-        }
-        match self.balance {
-            ReplayBalance::Behaviour => draw_balanced(&self.groups, rng),
-            ReplayBalance::Trajectory if self.planner.is_none() => rng.random_range(0..self.len),
-            ReplayBalance::Trajectory => draw_balanced(std::slice::from_ref(&self.others), rng),
-        }
-    }
-}
-
-/// Per origin present in `batch`: its sources' scene ranges (first scene, count).
-fn scene_ranges_by_origin(batch: &TrajectoryBatch) -> Vec<(Origin, Vec<(usize, usize)>)> {
-    let mut groups: Vec<(Origin, Vec<(usize, usize)>)> = Vec::new();
+/// Per behaviour present in `batch`, in order of first appearance: its sources' scene ranges
+/// (first scene, count).
+fn scene_ranges_by_behaviour(batch: &TrajectoryBatch) -> Vec<Vec<(usize, usize)>> {
+    let mut groups: Vec<(Behaviour, Vec<(usize, usize)>)> = Vec::new();
     for source in batch.sources().iter().filter(|s| s.scenes > 0) {
         let range = (source.first_scene as usize, source.scenes as usize);
-        match groups.iter_mut().find(|(o, _)| *o == source.origin) {
+        match groups.iter_mut().find(|(b, _)| *b == source.behaviour) {
             Some((_, ranges)) => ranges.push(range),
-            None => groups.push((source.origin, vec![range])),
+            None => groups.push((source.behaviour, vec![range])),
         }
     }
-    groups
+    groups.into_iter().map(|(_, ranges)| ranges).collect()
 }
 
 /// A behaviour uniformly, then a scene uniformly among that behaviour's scenes.
@@ -217,44 +161,6 @@ mod tests {
     use super::*;
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
-    use wheelleg_sim::generate::Behaviour;
-
-    #[test]
-    fn a_planner_share_draws_that_share_from_the_demonstrations() {
-        // Scenes 0..900 from two behaviours, 900..1000 from the planner.
-        let by_origin = vec![
-            (Origin::Secondary(Behaviour::Straight), vec![(0, 600)]),
-            (Origin::Secondary(Behaviour::LiftOver), vec![(600, 300)]),
-            (Origin::Planner, vec![(900, 100)]),
-        ];
-        let mut rng = ChaCha8Rng::seed_from_u64(4);
-        for (share, balance, expected) in [
-            (0.5, ReplayBalance::Behaviour, 0.5),
-            (0.5, ReplayBalance::Trajectory, 0.5),
-            // Without a share the planner is one more group, or one more trajectory source.
-            (0.0, ReplayBalance::Behaviour, 1.0 / 3.0),
-            (0.0, ReplayBalance::Trajectory, 0.1),
-        ] {
-            let options = ReplayOptions {
-                steps: 1,
-                imitation_coef: 0.0,
-                balance,
-                planner_share: share,
-            };
-            let draw = TrajectoryDraw::new(by_origin.clone(), 1000, &options);
-            let draws = 20_000;
-            let planned = (0..draws).filter(|_| draw.next(&mut rng) >= 900).count();
-            let got = planned as f32 / draws as f32;
-            assert!((got - expected).abs() < 0.02, "{share} {balance:?}: {got}");
-        }
-        // A share with no demonstrations in the batch draws as if none were asked for.
-        let options = ReplayOptions {
-            planner_share: 0.9,
-            ..ReplayOptions::default()
-        };
-        let draw = TrajectoryDraw::new(by_origin[..2].to_vec(), 900, &options);
-        assert!((0..1000).all(|_| draw.next(&mut rng) < 900));
-    }
 
     #[test]
     fn balanced_draws_give_each_behaviour_an_equal_share() {

@@ -15,7 +15,7 @@ use crate::replay::{replay_samples, ReplayOptions};
 use crate::storage::RolloutStorage;
 use crate::trajectory::batch_file::{partial_path, TrajectoryBatch};
 use crate::trajectory::randomize::{randomize_batch_with, RandomizeConfig};
-use crate::trajectory::{Origin, Trajectory};
+use crate::trajectory::Trajectory;
 use crate::vec_env::{EpisodeStats, Scenes, SolvedEpisode, VecEnv};
 use indicatif::{ProgressBar, ProgressStyle};
 use rand::SeedableRng;
@@ -298,11 +298,7 @@ pub fn train_stage(
                     if stage < 1.0 {
                         continue;
                     }
-                    solved.push_back(Trajectory::new(
-                        scenario,
-                        actions,
-                        Origin::Secondary(behaviour),
-                    ));
+                    solved.push_back(Trajectory::new(scenario, actions, behaviour));
                     if solved.len() > inputs.keep_trajectories {
                         solved.pop_front();
                     }

@@ -171,7 +171,7 @@ fn the_trajectory_batch_keeps_a_start_leg_pose() {
     use wheelleg_sim::scenario::Scenario;
     use wheelleg_sim::state::RobotState;
     use wheelleg_trainer::trajectory::randomize::{randomize_batch_with, RandomizeConfig};
-    use wheelleg_trainer::trajectory::{Origin, Trajectory};
+    use wheelleg_trainer::trajectory::Trajectory;
 
     // Spread wide and low, two steps from the target.
     let scenario = Scenario {
@@ -188,11 +188,7 @@ fn the_trajectory_batch_keeps_a_start_leg_pose() {
         move_x: Step::Plus,
         ..Action::default()
     };
-    let trajectory = Trajectory::new(
-        scenario,
-        vec![forward; 2],
-        Origin::Secondary(Behaviour::SpreadOver),
-    );
+    let trajectory = Trajectory::new(scenario, vec![forward; 2], Behaviour::SpreadOver);
     let dir = temp_dir("stage-batch");
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join("one.wltb");

@@ -23,7 +23,7 @@ use wheelleg_trainer::trajectory::randomize::{
 };
 use wheelleg_trainer::trajectory::relevance::{relevance, render, trajectory_distance_m};
 use wheelleg_trainer::trajectory::sweep::{EssentialArea, GroundRect, DEFAULT_MARGIN_M};
-use wheelleg_trainer::trajectory::{Origin, Trajectory};
+use wheelleg_trainer::trajectory::{behaviour_code, behaviour_of_code, Trajectory};
 
 fn scratch(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("wheelleg-traj-{name}-{}", std::process::id()));
@@ -44,9 +44,7 @@ fn planned(behaviour: Behaviour, seed: u64) -> Trajectory {
         ..PlannerConfig::default()
     };
     match plan(&env, &config).outcome {
-        PlanOutcome::Solved { actions, .. } => {
-            Trajectory::new(scenario, actions, Origin::Secondary(behaviour))
-        }
+        PlanOutcome::Solved { actions, .. } => Trajectory::new(scenario, actions, behaviour),
         other => panic!(
             "{} seed {seed}: planner found no plan: {other:?}",
             behaviour.name()
@@ -218,7 +216,7 @@ fn randomized_scenes_never_put_an_obstacle_in_the_essential_area() {
             kept, expected,
             "kept obstacles are those in the area, as they were"
         );
-        if t.origin == Origin::Secondary(Behaviour::LiftOver) {
+        if t.behaviour == Behaviour::LiftOver {
             assert!(!kept.is_empty(), "the straddled bar is essential");
             assert!(
                 kept.len() < t.scenario.obstacles.len(),
@@ -298,7 +296,7 @@ fn every_stored_trajectory_replays_to_success_without_collision() {
         );
     }
     assert!(batch.trajectory(batch.len()).is_none());
-    let counts = batch.counts_by_origin();
+    let counts = batch.counts_by_behaviour();
     assert_eq!(counts.iter().sum::<usize>(), batch.len());
     assert!(counts[2] > 0, "lift trajectories stored");
 
@@ -605,47 +603,14 @@ fn relevance_finds_the_obstacle_in_the_way() {
 }
 
 #[test]
-fn planner_demonstrations_are_stored_as_their_own_origin_and_replay_clean() {
-    use wheelleg_trainer::trajectory::demonstrations::{plan_demonstrations, DemoConfig};
-    let dir = scratch("demos");
-    let demo = DemoConfig {
-        scenes: 4,
-        seed: 11,
-        max_expansions: 400,
-        target_beside_only: false,
-        max_steps: 100,
-    };
-    let (demos, stats) = plan_demonstrations(
-        &demo,
-        EnvConfig::default(),
-        &dir.join("demos"),
-        2,
-        |_, _| {},
-    )
-    .unwrap();
-    assert!(!demos.is_empty(), "{stats:?}");
-    let mut all = sources();
-    all.extend(demos.iter().cloned());
-    let out = dir.join("batch.wltb");
-    randomize_batch(&all, 10, 4, &out, |_| {}).unwrap();
-    let batch = TrajectoryBatch::load(&out).unwrap();
-    let counts = batch.counts_by_origin();
-    assert!(counts[Origin::Planner.code() as usize] > 0, "{counts:?}");
-    for i in 0..batch.len() {
-        let t = batch.trajectory(i).unwrap();
-        if t.origin == Origin::Planner {
-            let r = t.replay(batch.env_config()).unwrap();
-            assert!(r.success() && r.collision_free(), "{i}: {r:?}");
-        }
+fn behaviours_keep_their_file_codes() {
+    // A behaviour's index in Behaviour::ALL, as in every batch file written so far; 5 and 6
+    // (retired experiments) read as no behaviour, and a batch holding them is refused.
+    for (code, b) in Behaviour::ALL.iter().enumerate() {
+        assert_eq!(behaviour_code(*b) as usize, code);
+        assert_eq!(behaviour_of_code(code as u8), Some(*b));
     }
-    // The secondaries' trajectories keep the codes of files written before planner
-    // demonstrations existed: a behaviour's index in Behaviour::ALL.
-    for (code, b) in Behaviour::ALL.iter().take(5).enumerate() {
-        assert_eq!(Origin::Secondary(*b).code() as usize, code);
-        assert_eq!(Origin::from_code(code as u8), Some(Origin::Secondary(*b)));
+    for retired in [5, 6, 7] {
+        assert_eq!(behaviour_of_code(retired), None);
     }
-    // Behaviours added later come after the planner's code.
-    assert_eq!(Origin::Planner.code(), 5);
-    assert_eq!(Origin::Secondary(Behaviour::Astride).code(), 6);
-    assert_eq!(Origin::from_code(7), None);
 }

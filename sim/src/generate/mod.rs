@@ -16,11 +16,7 @@
 //!   default pose (0.40 m wide) does not fit through (a single 0.20 m row can be threaded
 //!   diagonally, one wheel at a time);
 //! - around: one block, or two side by side, on the straight line to the target;
-//! - straight: no obstacles;
-//! - astride (beyond the paper's five): one slab on or beside the target, nothing else, so the
-//!   way ends with the robot stopped astride or right next to a slab. The primary policy's
-//!   misses on complex scenes are nearly all such endings (docs/results.md, "Nearly every failure
-//!   is a target beside an obstacle"), and no fence scene ever ends on an obstacle.
+//! - straight: no obstacles.
 //!
 //! Composed scenes (`composed.rs`) put those fences amid clutter: one or two fences, mixed kinds,
 //! clutter off the passage's lane, targets in and beyond the passages.
@@ -36,7 +32,7 @@ use rand::Rng;
 use wheelleg_runtime::action::MOVE_STEP_M;
 use wheelleg_runtime::robot::WHEELLEG;
 
-/// The five behaviours of the paper's secondary policies, and a sixth of ours (`Astride`).
+/// The five behaviours of the paper's secondary policies.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Behaviour {
     /// Drive straight to the target; nothing in the way.
@@ -49,20 +45,16 @@ pub enum Behaviour {
     SpreadOver,
     /// Narrow the legs and squeeze through a gap between blocks.
     Squeeze,
-    /// Stop with the target on or right beside a slab: spread over it and stand still there,
-    /// or line up beside it (not one of the paper's five).
-    Astride,
 }
 
 impl Behaviour {
     /// All behaviours, in training order (straight first: the others start from it).
-    pub const ALL: [Behaviour; 6] = [
+    pub const ALL: [Behaviour; 5] = [
         Behaviour::Straight,
         Behaviour::Around,
         Behaviour::LiftOver,
         Behaviour::SpreadOver,
         Behaviour::Squeeze,
-        Behaviour::Astride,
     ];
 
     /// Name used on the command line and in scenario names.
@@ -73,7 +65,6 @@ impl Behaviour {
             Behaviour::LiftOver => "lift",
             Behaviour::SpreadOver => "spread",
             Behaviour::Squeeze => "squeeze",
-            Behaviour::Astride => "astride",
         }
     }
 }
@@ -92,13 +83,12 @@ pub enum SceneKind {
 
 impl SceneKind {
     /// All kinds, behaviours first.
-    pub const ALL: [SceneKind; 8] = [
+    pub const ALL: [SceneKind; 7] = [
         SceneKind::Behaviour(Behaviour::Straight),
         SceneKind::Behaviour(Behaviour::Around),
         SceneKind::Behaviour(Behaviour::LiftOver),
         SceneKind::Behaviour(Behaviour::SpreadOver),
         SceneKind::Behaviour(Behaviour::Squeeze),
-        SceneKind::Behaviour(Behaviour::Astride),
         SceneKind::Complex,
         SceneKind::Composed,
     ];
@@ -244,9 +234,6 @@ pub fn generate_with_start(
 ///   drawn y, and the yaw turns from lined up to the drawn yaw (so the yaw freedom grows back
 ///   to `start_yaw`'s), each by the same fraction, rounded to the lattices.
 ///
-/// Astride has no passage: its stage 0 starts 0.25 m short of the target along x, lined up and
-/// spread, and the stages move that start back the same way.
-///
 /// A start that would collide (or stand within 0.2 m of the target) is moved back along x a
 /// step at a time; if that does not help within 20 steps the drawn start is kept. Every scene
 /// validates. Straight and complex scenes have no passage and are returned as drawn.
@@ -274,10 +261,10 @@ pub fn generate_staged(
 /// with the fence and centred on its opening, drives straight through the passage without a
 /// collision (`sim/tests/start_stage.rs` checks every stage-0 start does): spread 0.56 m wide
 /// at 0.08 m clearance, squeeze 0.20 m narrow, lift 0.18 m clearance; around keeps the
-/// default pose. Astride ends over a slab, so it passes as spread does.
+/// default pose.
 pub const fn passing_legs(behaviour: Behaviour) -> (i32, i32) {
     match behaviour {
-        Behaviour::SpreadOver | Behaviour::Astride => (-2, 10),
+        Behaviour::SpreadOver => (-2, 10),
         Behaviour::Squeeze => (0, -8),
         Behaviour::LiftOver => (3, 0),
         Behaviour::Straight | Behaviour::Around => (0, 0),
@@ -393,7 +380,7 @@ fn fence_cells(behaviour: Behaviour) -> Vec<(i32, ObstacleKind)> {
             .filter(|&m| m != 0)
             .map(|m| (m, ObstacleKind::Block))
             .collect(),
-        Behaviour::Straight | Behaviour::Around | Behaviour::Astride => Vec::new(),
+        Behaviour::Straight | Behaviour::Around => Vec::new(),
     }
 }
 
@@ -413,9 +400,6 @@ fn behaviour_scene(
     name: String,
     start_yaw: StartYaw,
 ) -> (Scenario, Passage) {
-    if behaviour == Behaviour::Astride {
-        return astride_scene(rng, name, start_yaw);
-    }
     // The fence (or block) stands in the first cell at least 0.45 m ahead of the start, so the
     // robot starts clear of it at any yaw; the target is at least `beyond` past its centre.
     let beyond_m = match behaviour {
@@ -436,7 +420,7 @@ fn behaviour_scene(
     let path_cell = cell_index(lay.start.position.y);
     let mut line_y_m = lay.start.position.y;
     let obstacles = match behaviour {
-        Behaviour::Straight | Behaviour::Astride => Vec::new(),
+        Behaviour::Straight => Vec::new(),
         Behaviour::Around => {
             // Beside the block, on the side away from the second block (or, for one block, on
             // the start's side): 0.40 m from the block's centre leaves the default pose (0.40 m
@@ -490,54 +474,6 @@ fn behaviour_scene(
             entry_x_m: fence_x,
             line_y_m,
         },
-    )
-}
-
-/// How near the target an astride scene's slab lies at most: the distance at which the held-out
-/// evaluation counts a target as beside an obstacle (`trainer::evaluate::target_beside`).
-const ASTRIDE_NEAR_M: f32 = 0.25;
-
-/// One slab, either yaw, on the target's cell half the time and otherwise in a neighbouring cell
-/// within [`ASTRIDE_NEAR_M`] of the target. Scenes whose target no pose can stand on are redrawn
-/// by the caller, as for every kind.
-fn astride_scene(rng: &mut impl Rng, name: String, start_yaw: StartYaw) -> (Scenario, Passage) {
-    // The target at least 0.7 m ahead, so the slab (at most 0.25 m + half its 0.45 m from the
-    // target) leaves the start clear at most yaws.
-    let lay = layout(rng, 0.7, start_yaw);
-    let (target_i, target_j) = (cell_index(lay.target.x), cell_index(lay.target.y));
-    let slab = loop {
-        let (di, dj) = if rng.random_bool(0.5) {
-            (0, 0)
-        } else {
-            (rng.random_range(-1..=1), rng.random_range(-1..=1))
-        };
-        let yaw = if rng.random_bool(0.5) {
-            ObstacleYaw::Deg0
-        } else {
-            ObstacleYaw::Deg90
-        };
-        let slab = Obstacle::new(
-            ObstacleKind::Slab,
-            cell_centre_m(target_i + di),
-            cell_centre_m(target_j + dj),
-            yaw,
-        );
-        if slab.ground_box().ground_distance_m(lay.target) <= ASTRIDE_NEAR_M {
-            break slab;
-        }
-    };
-    let passage = Passage {
-        entry_x_m: on_robot_lattice(robot_lattice_index(lay.target.x - 0.25)),
-        line_y_m: lay.target.y,
-    };
-    (
-        Scenario {
-            name,
-            start: lay.start,
-            target: lay.target,
-            obstacles: vec![slab],
-        },
-        passage,
     )
 }
 

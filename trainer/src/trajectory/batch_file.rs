@@ -24,7 +24,7 @@
 //! file back to its last valid chunk and goes on from there: generation is deterministic per
 //! source, so nothing is lost.
 
-use super::{Origin, Trajectory};
+use super::{behaviour_code, behaviour_of_code, Trajectory};
 use core::fmt;
 use nalgebra::Point2;
 use serde::{Deserialize, Serialize};
@@ -33,6 +33,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use wheelleg_runtime::action::{Action, COUNT};
 use wheelleg_sim::env::EnvConfig;
+use wheelleg_sim::generate::Behaviour;
 use wheelleg_sim::obstacle::{cell_centre_m, Obstacle, ObstacleKind, ObstacleYaw, GRID_CELL_M};
 use wheelleg_sim::scenario::Scenario;
 use wheelleg_sim::state::{RobotState, YAW_STEPS_PER_TURN};
@@ -192,7 +193,7 @@ impl PackedObstacle {
 pub struct SourceRecord {
     /// The source scenario's name.
     pub name: String,
-    /// Origin code ([`Origin::code`]; a behaviour's code in files of older versions).
+    /// The behaviour's code ([`behaviour_code`]).
     pub behaviour: u8,
     /// Start position x, m.
     pub start_x_m: f32,
@@ -246,7 +247,7 @@ impl SourceRecord {
         };
         Ok(SourceRecord {
             name: s.name.clone(),
-            behaviour: trajectory.origin.code(),
+            behaviour: behaviour_code(trajectory.behaviour),
             start_x_m: s.start.position.x,
             start_y_m: s.start.position.y,
             start_yaw_steps: s.start.yaw_steps.rem_euclid(YAW_STEPS_PER_TURN) as u8,
@@ -539,8 +540,8 @@ fn check_chunk(chunk: &Chunk, header: &BatchHeader, next_source: u64) -> Result<
     let max_scenes = header.per_trajectory as usize + usize::from(header.include_original);
     for (i, s) in chunk.sources.iter().enumerate() {
         let at = |what: String| format!("source {}: {what}", next_source + i as u64);
-        if Origin::from_code(s.behaviour).is_none() {
-            return Err(at(format!("unknown origin code {}", s.behaviour)));
+        if behaviour_of_code(s.behaviour).is_none() {
+            return Err(at(format!("unknown behaviour code {}", s.behaviour)));
         }
         if s.start_yaw_steps as i32 >= YAW_STEPS_PER_TURN {
             return Err(at(format!(
@@ -799,8 +800,8 @@ impl BatchWriter {
 pub struct StoredSource {
     /// The source scenario's name.
     pub name: String,
-    /// What produced it.
-    pub origin: Origin,
+    /// The behaviour whose secondary policy produced it.
+    pub behaviour: Behaviour,
     /// Start.
     pub start: RobotState,
     /// Target.
@@ -895,7 +896,7 @@ impl TrajectoryBatch {
         // Chunks were checked: every code and action index decodes.
         self.sources.push(StoredSource {
             name: record.name.clone(),
-            origin: Origin::from_code(record.behaviour).unwrap_or(Origin::Planner),
+            behaviour: behaviour_of_code(record.behaviour).unwrap_or(Behaviour::Straight),
             start: record.start_state(),
             target: Point2::new(record.target_x_m, record.target_y_m),
             actions: record
@@ -972,15 +973,15 @@ impl TrajectoryBatch {
                 obstacles,
             },
             actions: source.actions.clone(),
-            origin: source.origin,
+            behaviour: source.behaviour,
         })
     }
 
-    /// Stored trajectories per origin, in [`Origin::ALL`] order.
-    pub fn counts_by_origin(&self) -> [usize; Origin::ALL.len()] {
-        let mut counts = [0; Origin::ALL.len()];
+    /// Stored trajectories per behaviour, in [`Behaviour::ALL`] order.
+    pub fn counts_by_behaviour(&self) -> [usize; Behaviour::ALL.len()] {
+        let mut counts = [0; Behaviour::ALL.len()];
         for s in &self.sources {
-            counts[s.origin.code() as usize] += s.scenes as usize;
+            counts[behaviour_code(s.behaviour) as usize] += s.scenes as usize;
         }
         counts
     }

@@ -13,15 +13,12 @@
 //!   actions still succeed without a collision; [`randomize::randomize_batch`] writes the batch.
 //! - [`batch_file`]: the batch file (magic, version, CRC-32 per chunk, resumable) and the
 //!   in-memory [`batch_file::TrajectoryBatch`] the trainer samples from.
-//! - [`demonstrations`]: the planner's plans of complex training scenes, stored as sources
-//!   beside the secondaries' (beyond the paper; off unless configured).
 //! - [`relevance`]: the paper's relevance test: remove each obstacle, roll the greedy policy,
 //!   measure how far its trajectory moves, and draw it.
 //!
 //! The design and the measured figures are in docs/curriculum.md.
 
 pub mod batch_file;
-pub mod demonstrations;
 pub mod randomize;
 pub mod relevance;
 pub mod sweep;
@@ -40,54 +37,23 @@ pub struct Trajectory {
     pub scenario: Scenario,
     /// The actions, in order.
     pub actions: Vec<Action>,
-    /// What produced it; randomized copies keep their source's.
-    pub origin: Origin,
+    /// The behaviour whose secondary policy produced it; randomized copies keep their
+    /// source's.
+    pub behaviour: Behaviour,
 }
 
-/// What produced a stored trajectory.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum Origin {
-    /// A secondary policy's success in its behaviour's simple scene (the paper).
-    Secondary(Behaviour),
-    /// The planner's plan of a complex training scene (beyond the paper: [`demonstrations`]).
-    Planner,
+/// A behaviour's code in trajectory files: its index in [`Behaviour::ALL`].
+pub fn behaviour_code(behaviour: Behaviour) -> u8 {
+    Behaviour::ALL
+        .iter()
+        .position(|&b| b == behaviour)
+        .unwrap_or_default() as u8
 }
 
-impl Origin {
-    /// Every origin, in file-code order: the paper's five behaviours, the planner, then the
-    /// behaviours added after it (so that the codes of older files keep their meaning).
-    pub const ALL: [Origin; 7] = [
-        Origin::Secondary(Behaviour::Straight),
-        Origin::Secondary(Behaviour::Around),
-        Origin::Secondary(Behaviour::LiftOver),
-        Origin::Secondary(Behaviour::SpreadOver),
-        Origin::Secondary(Behaviour::Squeeze),
-        Origin::Planner,
-        Origin::Secondary(Behaviour::Astride),
-    ];
-
-    /// The origin's code in files: its index in [`Origin::ALL`] (for the paper's five
-    /// behaviours their index in [`Behaviour::ALL`], as in files written before planner
-    /// demonstrations).
-    pub fn code(self) -> u8 {
-        Origin::ALL
-            .iter()
-            .position(|&o| o == self)
-            .unwrap_or_default() as u8
-    }
-
-    /// The origin with file code `code`, `None` for an unknown code.
-    pub fn from_code(code: u8) -> Option<Origin> {
-        Origin::ALL.get(code as usize).copied()
-    }
-
-    /// Name in logs and reports: the behaviour's name, or "planner".
-    pub fn name(self) -> &'static str {
-        match self {
-            Origin::Secondary(b) => b.name(),
-            Origin::Planner => "planner",
-        }
-    }
+/// The behaviour of file code `code`; `None` for an unknown code (5 and 6 were the planner
+/// demonstrations and the astride behaviour, experiments that measured no gain).
+pub fn behaviour_of_code(code: u8) -> Option<Behaviour> {
+    Behaviour::ALL.get(code as usize).copied()
 }
 
 /// Why a trajectory could not be replayed at all (as opposed to replaying and failing, which
@@ -191,11 +157,11 @@ pub struct ReplayStep {
 
 impl Trajectory {
     /// A trajectory of `actions` in `scenario`.
-    pub fn new(scenario: Scenario, actions: Vec<Action>, origin: Origin) -> Self {
+    pub fn new(scenario: Scenario, actions: Vec<Action>, behaviour: Behaviour) -> Self {
         Trajectory {
             scenario,
             actions,
-            origin,
+            behaviour,
         }
     }
 
@@ -275,7 +241,7 @@ impl Trajectory {
         Ok(Trajectory {
             scenario: self.scenario.clone(),
             actions: kept,
-            origin: self.origin,
+            behaviour: self.behaviour,
         })
     }
 }

@@ -30,6 +30,7 @@ use rand_chacha::ChaCha8Rng;
 use std::collections::HashSet;
 use std::path::Path;
 use wheelleg_sim::env::{EnvConfig, Status};
+use wheelleg_sim::generate::Behaviour;
 use wheelleg_sim::obstacle::{cell_centre_m, Obstacle, ObstacleKind, ObstacleYaw, GRID_CELL_M};
 use wheelleg_sim::scenario::Scenario;
 
@@ -118,7 +119,7 @@ fn fingerprint(sources: &[Trajectory]) -> u64 {
     for t in sources {
         let s = &t.scenario;
         h = fnv1a(s.name.as_bytes(), h);
-        h = fnv1a(&[t.origin.code()], h);
+        h = fnv1a(&[super::behaviour_code(t.behaviour)], h);
         for v in [
             s.start.position.x,
             s.start.position.y,
@@ -275,7 +276,7 @@ fn replays_clean(source: &Trajectory, obstacles: Vec<Obstacle>, env: EnvConfig) 
             obstacles,
         },
         actions: source.actions.clone(),
-        origin: source.origin,
+        behaviour: source.behaviour,
     };
     candidate
         .replay(env)
@@ -362,8 +363,8 @@ pub struct Stats {
     pub kept: u64,
     /// Original scenes stored (with `include_original`).
     pub originals: u64,
-    /// Kept / tried per origin, in [`super::Origin::ALL`] order.
-    pub by_origin: [(u64, u64); super::Origin::ALL.len()],
+    /// Kept / tried per behaviour, in [`Behaviour::ALL`] order.
+    pub by_behaviour: [(u64, u64); Behaviour::ALL.len()],
     /// Source index the generation resumed at (0 for a fresh one).
     pub resumed_at_source: u64,
     /// Bytes of a half-written chunk cut off the partial file on resume.
@@ -395,8 +396,8 @@ impl Stats {
         self.tried += record.tried as u64;
         self.kept += randomized;
         self.originals += u64::from(record.original_included);
-        let last = super::Origin::ALL.len() - 1;
-        let b = &mut self.by_origin[(record.behaviour as usize).min(last)];
+        let last = Behaviour::ALL.len() - 1;
+        let b = &mut self.by_behaviour[(record.behaviour as usize).min(last)];
         b.0 += randomized;
         b.1 += record.tried as u64;
     }
