@@ -338,7 +338,7 @@ pub fn check_checkpoint_payload(payload: &[u8]) {
 }
 
 /// Recomputes every CRC of a trajectory batch file in place, as far as its lengths can be
-/// followed (layout: trainer/src/trajectory/batch_file.rs), so that mutations reach the postcard
+/// followed (layout: trainer/src/trajectory/batch_file/mod.rs), so that mutations reach the postcard
 /// header and chunks instead of failing the first checksum.
 pub fn fix_batch_crcs(bytes: &mut [u8]) {
     use wheelleg_trainer::trajectory::batch_file::crc32;
