@@ -234,6 +234,7 @@ fn empty_episode() -> HilEpisode {
             fault: None,
             tracking: Default::default(),
             path: Vec::new(),
+            collided_at: Vec::new(),
             odometry_drift_m: 0.0,
             odometry_drift_rad: 0.0,
             elapsed_s: 0.0,

@@ -43,7 +43,7 @@ impl MapGrid {
         self.side * self.side
     }
 
-    fn half_cells(self) -> f32 {
+    pub(crate) fn half_cells(self) -> f32 {
         0.5 * (self.side as f32 - 1.0)
     }
 }

@@ -12,7 +12,7 @@
 //!   memory of failed scenes ([`failure_memory`]).
 //! - [`planner`]: exact shortest-path search over the action set.
 //! - [`local_plan`]: that search on the robot's own map, for the last metres.
-//! - [`render`]: PNG pictures of scenes and height maps.
+//! - [`render`]: PNG pictures of scenes and height maps (plotters).
 //!
 //! The robot's geometry and kinematics come from `wheelleg-runtime`, the crate that runs on the
 //! robot: what is simulated is what is controlled.

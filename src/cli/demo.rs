@@ -355,7 +355,7 @@ pub fn run(args: Args) -> CliResult {
     closed_loop.take_log()?;
     log_file.commit()?;
     let png = args.out.join("path.png");
-    top_view(&scenario, &WHEELLEG, &report.path)
+    top_view(&scenario, &WHEELLEG, &report.path, &report.collided_at)?
         .save_png(&png)
         .map_err(|e| format!("cannot write {}: {e}", png.display()))?;
 
@@ -443,7 +443,7 @@ fn run_qemu(args: &Args, scenario: &Scenario, origin: &str) -> CliResult {
     hil.shutdown()?;
     let report = &episode.report;
     let png = args.out.join("path.png");
-    top_view(scenario, &WHEELLEG, &report.path)
+    top_view(scenario, &WHEELLEG, &report.path, &report.collided_at)?
         .save_png(&png)
         .map_err(|e| format!("cannot write {}: {e}", png.display()))?;
     print_report(report, wall_clock.elapsed().as_secs_f64());

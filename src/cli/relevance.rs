@@ -49,7 +49,7 @@ pub fn run(args: Args) -> CliResult {
     let config = EnvConfig::default();
     let mut policy = DecidingPolicy::new(&network);
     let report = relevance(scenario, config, &mut |obs| policy.act(obs))?;
-    render(scenario, &report, &WHEELLEG, &config)
+    render(scenario, &report, &WHEELLEG, &config)?
         .save_png(&args.out)
         .map_err(|e| format!("cannot write {}: {e}", args.out.display()))?;
     let status = |s: wheelleg_sim::env::Status| format!("{s:?}");

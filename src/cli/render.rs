@@ -48,11 +48,11 @@ pub fn run(args: Args) -> CliResult {
         }
         let file_stem = sanitize(&scenario.name);
         let top = args.out.join(format!("{file_stem}.png"));
-        top_view(scenario, &WHEELLEG, &path).save_png(&top)?;
+        top_view(scenario, &WHEELLEG, &path, &[])?.save_png(&top)?;
         let mut observation = Observation::default();
         env.observe(&mut observation);
         let map = args.out.join(format!("{file_stem}-heightmap.png"));
-        height_map_image(&observation.height_map).save_png(&map)?;
+        height_map_image(&observation.height_map)?.save_png(&map)?;
         outln!("{}: {} and {}", scenario.name, top.display(), map.display());
     }
     Ok(())

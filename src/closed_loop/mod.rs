@@ -56,7 +56,7 @@ use wheelleg_runtime::can::host::{AxisSet, BusStats};
 use wheelleg_runtime::can::node_map::Axis;
 use wheelleg_runtime::motion::{BaseDisplacement, MotionError, StepMotion};
 use wheelleg_runtime::robot::RobotGeometry;
-use wheelleg_sim::env::{Env, EnvConfig, EpisodeOver, Status, StepOutcome};
+use wheelleg_sim::env::{Env, EnvConfig, EpisodeOver, InvalidAction, Status, StepOutcome};
 use wheelleg_sim::scenario::{Scenario, ScenarioError};
 use wheelleg_sim::state::RobotState;
 
@@ -355,6 +355,8 @@ pub struct EpisodeReport {
     pub tracking: Tracking,
     /// The world's lattice states, from the start, one per accepted step.
     pub path: Vec<RobotState>,
+    /// The states the robot stood in when the world undid a step of it for a collision.
+    pub collided_at: Vec<RobotState>,
     /// Odometry against the world at the end: position difference (the drift a localiser
     /// would correct; the world itself snaps every step).
     pub odometry_drift_m: f32,
@@ -377,6 +379,7 @@ pub struct ClosedLoop {
     config: LoopConfig,
     start_pose: Isometry2<f32>,
     path: Vec<RobotState>,
+    collided_at: Vec<RobotState>,
     tracking: Tracking,
     fault: Option<Fault>,
 }
@@ -416,6 +419,7 @@ impl ClosedLoop {
         ClosedLoop {
             start_pose: lattice_pose(env.state()),
             path: vec![*env.state()],
+            collided_at: Vec::new(),
             env,
             rig,
             config,
@@ -540,6 +544,9 @@ impl ClosedLoop {
             });
         }
         // The world undid the step (collision, arena, legs): back out along the inverse motion.
+        if outcome.invalid == Some(InvalidAction::Collision) {
+            self.collided_at.push(from);
+        }
         let back = report.ideal_pose.inverse();
         let displacement = BaseDisplacement {
             dx_m: back.translation.x,
@@ -600,6 +607,7 @@ impl ClosedLoop {
             fault: self.fault,
             tracking: self.tracking,
             path: self.path.clone(),
+            collided_at: self.collided_at.clone(),
             odometry_drift_m: drift.translation.vector.norm(),
             odometry_drift_rad: drift.rotation.angle().abs(),
             elapsed_s: self.rig.now_us() as f64 * 1e-6,

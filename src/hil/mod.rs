@@ -39,7 +39,7 @@ use wheelleg_runtime::guard::{CollisionGuard, WindowBounds, DEFAULT_MARGIN_M};
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::motion::{target_config, BaseDisplacement};
 use wheelleg_runtime::robot::WHEELLEG;
-use wheelleg_sim::env::{Env, Observation as SimObservation};
+use wheelleg_sim::env::{Env, InvalidAction, Observation as SimObservation};
 use wheelleg_sim::height_map::MapGrid;
 
 use crate::closed_loop::driver::observation_mm;
@@ -494,6 +494,7 @@ impl Hil {
         let tolerance = Tolerance::default();
         let mut tracking = Tracking::default();
         let mut path = vec![*env.state()];
+        let mut collided_at = Vec::new();
         let start_pose = crate::closed_loop::lattice_pose(env.state());
         let mut odometry = Isometry2::identity();
         let mut fault = None;
@@ -643,6 +644,9 @@ impl Hil {
                         continue;
                     }
                     // The world undid the step: the firmware backs out of it.
+                    if outcome.invalid == Some(InvalidAction::Collision) {
+                        collided_at.push(from);
+                    }
                     self.send(ToController::Collided, false)?;
                     match self.answer(&mut rejected)? {
                         FromController::StepDone {
@@ -688,6 +692,7 @@ impl Hil {
             fault,
             tracking,
             path,
+            collided_at,
             odometry_drift_m: drift.translation.vector.norm(),
             odometry_drift_rad: drift.rotation.angle().abs(),
             elapsed_s: plant.now_us() as f64 * 1e-6,

@@ -6,42 +6,30 @@
 //! smoothed by a trailing moving average first, because one iteration's rates come from a few
 //! dozen episodes.
 //!
-//! Text is drawn with plotters' pure-Rust `ab_glyph` renderer from a TTF file: `font` if given,
-//! else the first of a few common system fonts. Without any font the curves are still drawn,
-//! only the labels are left out (plotters has no built-in font).
+//! Text is drawn with plotters' pure-Rust `ab_glyph` renderer in the simulator's vendored
+//! DejaVu Sans (`wheelleg_sim::render::FONT`), or from the TTF file `font` when one is given.
 
 use crate::runner::{read_metrics, IterationMetrics};
 use plotters::prelude::*;
 use std::path::{Path, PathBuf};
 
-const FONT_CANDIDATES: &[&str] = &[
-    "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
-    "/usr/share/fonts/TTF/DejaVuSans.ttf",
-    "/usr/share/fonts/dejavu/DejaVuSans.ttf",
-    "/Library/Fonts/Arial.ttf",
-    "C:\\Windows\\Fonts\\arial.ttf",
-];
+/// The family name a font given by the user is registered under.
+const USER_FONT: &str = "wheelleg-plot-user";
 
-const FONT_NAME: &str = "wheelleg-plot";
-
-fn register_font(font: Option<&Path>) -> Result<bool, String> {
-    let path = match font {
-        Some(p) => Some(p.to_path_buf()),
-        None => FONT_CANDIDATES
-            .iter()
-            .map(PathBuf::from)
-            .find(|p| p.exists()),
-    };
-    let Some(path) = path else {
-        return Ok(false);
+/// The font family the text is drawn in: the TTF file `font`, registered now, or the vendored
+/// one.
+fn font_family(font: Option<&Path>) -> Result<&'static str, String> {
+    let Some(path) = font else {
+        wheelleg_sim::render::register_font().map_err(|e| e.to_string())?;
+        return Ok(wheelleg_sim::render::FONT);
     };
     let bytes =
-        std::fs::read(&path).map_err(|e| format!("cannot read font {}: {e}", path.display()))?;
+        std::fs::read(path).map_err(|e| format!("cannot read font {}: {e}", path.display()))?;
     // plotters keeps fonts for the process lifetime; one leaked copy per plot call is fine.
     let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
-    plotters::style::register_font(FONT_NAME, FontStyle::Normal, bytes)
+    plotters::style::register_font(USER_FONT, FontStyle::Normal, bytes)
         .map_err(|_| format!("{} is not a usable TTF font", path.display()))?;
-    Ok(true)
+    Ok(USER_FONT)
 }
 
 type Series = fn(&IterationMetrics) -> Option<f32>;
@@ -151,7 +139,7 @@ pub fn plot_runs(
             Ok((g.label.clone(), runs))
         })
         .collect::<Result<_, String>>()?;
-    let text = register_font(font)?;
+    let font = font_family(font)?;
     let panels: [(&str, Series); 4] = [
         ("success rate", |m| Some(m.success_rate)),
         ("mean return", |m| Some(m.mean_return)),
@@ -187,29 +175,20 @@ pub fn plot_runs(
                 hi = lo + 1.0;
             }
             let pad = 0.05 * (hi - lo);
-            let mut builder = ChartBuilder::on(area);
-            builder.margin(12);
-            if text {
-                builder
-                    .caption(title, (FONT_NAME, 18))
-                    .x_label_area_size(30)
-                    .y_label_area_size(50);
-            }
-            let mut chart = builder
+            let mut chart = ChartBuilder::on(area)
+                .margin(12)
+                .caption(title, (font, 18))
+                .x_label_area_size(30)
+                .y_label_area_size(50)
                 .build_cartesian_2d(0f32..max_steps, (lo - pad)..(hi + pad))
                 .map_err(|e| e.to_string())?;
-            let mut mesh = chart.configure_mesh();
-            if text {
-                mesh.label_style((FONT_NAME, 12))
-                    .x_desc("env steps")
-                    .x_label_formatter(&|x| format!("{:.2}M", x / 1e6));
-            } else {
-                mesh.disable_x_mesh()
-                    .disable_y_mesh()
-                    .x_labels(0)
-                    .y_labels(0);
-            }
-            mesh.draw().map_err(|e| e.to_string())?;
+            chart
+                .configure_mesh()
+                .label_style((font, 12))
+                .x_desc("env steps")
+                .x_label_formatter(&|x| format!("{:.2}M", x / 1e6))
+                .draw()
+                .map_err(|e| e.to_string())?;
             for (k, (name, points)) in bands.iter().enumerate() {
                 let colour = Palette99::pick(k).to_rgba();
                 let spread = points.iter().any(|p| p.3 > p.2);
@@ -231,22 +210,18 @@ pub fn plot_runs(
                 let drawn = chart
                     .draw_series(LineSeries::new(mean, colour.stroke_width(2)))
                     .map_err(|e| e.to_string())?;
-                if text {
-                    drawn
-                        .label(name.to_string())
-                        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour));
-                }
+                drawn
+                    .label(name.to_string())
+                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour));
             }
-            if text {
-                chart
-                    .configure_series_labels()
-                    .label_font((FONT_NAME, 12))
-                    .background_style(WHITE.mix(0.8))
-                    .border_style(BLACK)
-                    .position(SeriesLabelPosition::LowerRight)
-                    .draw()
-                    .map_err(|e| e.to_string())?;
-            }
+            chart
+                .configure_series_labels()
+                .label_font((font, 12))
+                .background_style(WHITE.mix(0.8))
+                .border_style(BLACK)
+                .position(SeriesLabelPosition::LowerRight)
+                .draw()
+                .map_err(|e| e.to_string())?;
         }
         root.present()
             .map_err(|e| format!("cannot write {}: {e}", tmp.display()))?;

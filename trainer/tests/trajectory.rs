@@ -591,7 +591,8 @@ fn relevance_finds_the_obstacle_in_the_way() {
         &report,
         &wheelleg_runtime::robot::WHEELLEG,
         &config,
-    );
+    )
+    .unwrap();
     let red = (0..canvas.height())
         .flat_map(|y| (0..canvas.width()).map(move |x| (x, y)))
         .filter(|&(x, y)| canvas.pixel(x, y) == Some([255, 0, 0]))
