@@ -12,10 +12,11 @@
 #
 #   bash scripts/hil.sh
 #   HIL_SCENES=50 bash scripts/hil.sh
+#   HIL_SKIP=21 HIL_SCENES=2 bash scripts/hil.sh   # held-out scenes 21 and 22
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 
 bash scripts/embedded-toolchain.sh >&2
 (cd controller && nice -n 10 cargo +nightly build --quiet --release --bin wheelleg-controller)
-WHEELLEG_HIL_SCENES="${HIL_SCENES:-2}" nice -n 10 cargo test --quiet --release --test hil -- \
+WHEELLEG_HIL_SCENES="${HIL_SCENES:-2}" WHEELLEG_HIL_SKIP="${HIL_SKIP:-0}" nice -n 10 cargo test --quiet --release --test hil -- \
     --test-threads=1 --nocapture
