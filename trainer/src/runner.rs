@@ -173,7 +173,7 @@ pub fn train_stage(
         kind,
         start_yaw: config.start_yaw(),
         stage: schedule.as_ref().map_or(1.0, StartStageSchedule::stage),
-        composed_share: run.composed_share,
+        composed_share: composed_share_at(run, 0),
     };
     let mut envs = VecEnv::with_scenes(scenes, n, env_seed, env_config, run.threads)?;
     if run.failure_resample_probability > 0.0 {
@@ -275,6 +275,7 @@ pub fn train_stage(
     while env_steps < run.total_env_steps && opts.max_iterations.is_none_or(|m| iterations_here < m)
     {
         let iter_start = Instant::now();
+        envs.set_composed_share(composed_share_at(run, env_steps));
         // 1. Sample trajectories with the current policy.
         storage.clear();
         let mut episodes = Vec::new();
@@ -416,6 +417,16 @@ pub fn train_stage(
     })
 }
 
+/// The share of composed scenes for episodes drawn after `env_steps` env steps of the run:
+/// `run.composed_share` from `run.composed_from_env_steps` on, none before.
+fn composed_share_at(run: &crate::config::RunConfig, env_steps: u64) -> f64 {
+    if env_steps >= run.composed_from_env_steps {
+        run.composed_share
+    } else {
+        0.0
+    }
+}
+
 /// Writes the stored trajectories as a trajectory batch of originals only (no randomized
 /// scenes), beside the checkpoint: to a fresh temporary file, then renamed over the old one, so a
 /// crash leaves the previous set.
@@ -476,4 +487,23 @@ pub fn read_metrics(run: &Path) -> Result<Vec<IterationMetrics>, String> {
             serde_json::from_str(l).map_err(|e| format!("{} line {}: {e}", path.display(), i + 1))
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn composed_scenes_start_at_their_env_step() {
+        let mut run = crate::config::RunConfig {
+            composed_share: 0.5,
+            ..Default::default()
+        };
+        assert_eq!(composed_share_at(&run, 0), 0.5, "from the start by default");
+        run.composed_from_env_steps = 10_000_000;
+        assert_eq!(composed_share_at(&run, 0), 0.0);
+        assert_eq!(composed_share_at(&run, 9_990_000), 0.0);
+        assert_eq!(composed_share_at(&run, 10_000_000), 0.5);
+        assert_eq!(composed_share_at(&run, 29_000_000), 0.5);
+    }
 }

@@ -354,6 +354,11 @@ impl VecEnv {
         self.scenes.stage = stage;
     }
 
+    /// Sets the share of composed scenes of the episodes that start from now on.
+    pub fn set_composed_share(&mut self, share: f64) {
+        self.scenes.composed_share = share;
+    }
+
     /// The start stage each env's current scene was drawn at (for checkpoints).
     pub fn env_stages(&self) -> Vec<f32> {
         self.slots.iter().map(|s| s.stage).collect()
@@ -661,5 +666,35 @@ mod tests {
         let composed = half.iter().filter(|n| family(n) == "composed").count();
         assert!((10..=30).contains(&composed), "{composed} of 40 composed");
         assert_eq!(half, names(0.5), "the same seed, the same mix");
+    }
+
+    #[test]
+    fn a_composed_share_set_during_a_run_applies_to_the_scenes_drawn_after_it() {
+        let scenes = Scenes {
+            kind: SceneKind::Complex,
+            start_yaw: StartYaw::Any,
+            stage: 1.0,
+            composed_share: 0.0,
+        };
+        let mut v = VecEnv::with_scenes(scenes, 8, 5, EnvConfig::default(), 1).unwrap();
+        let family = |v: &VecEnv| -> Vec<String> {
+            v.slots
+                .iter()
+                .map(|s| s.scenario.name.split('-').next().unwrap_or("").to_string())
+                .collect()
+        };
+        assert!(family(&v).iter().all(|f| f == "complex"));
+        v.set_composed_share(1.0);
+        // The scenes already drawn stay; the next episode of each env is composed.
+        assert!(family(&v).iter().all(|f| f == "complex"));
+        let (scenes, config) = (v.scenes, v.config);
+        for (i, slot) in v.slots.iter_mut().enumerate() {
+            slot.reset(scenes, config, i);
+        }
+        assert!(
+            family(&v).iter().all(|f| f == "composed"),
+            "{:?}",
+            family(&v)
+        );
     }
 }

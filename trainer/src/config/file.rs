@@ -5,9 +5,10 @@ use super::*;
 
 /// `run` keys a resumed run may change: its budget, the re-sampling of failed scenes and the
 /// share of composed scenes (which only change which scenes come next).
-const RESUMABLE_CHANGES: [&str; 4] = [
+const RESUMABLE_CHANGES: [&str; 5] = [
     "total_env_steps",
     "composed_share",
+    "composed_from_env_steps",
     "failure_resample_probability",
     "failure_memory_per_env",
 ];

@@ -153,6 +153,10 @@ pub struct RunConfig {
     /// `wheelleg_sim::generate::SceneKind::Composed`) instead of `scene_kind`. 0, the default,
     /// draws `scene_kind` alone. A finished run may be continued with it changed (`--resume`).
     pub composed_share: f64,
+    /// Env steps of the run before `composed_share` applies (0, the default: from the start).
+    /// One run then does what a run on `scene_kind` continued with the mix does: the shipped
+    /// primary's first 10 M env steps on complex scenes alone (configs/shipped.toml).
+    pub composed_from_env_steps: u64,
 }
 
 impl Default for RunConfig {
@@ -175,6 +179,7 @@ impl Default for RunConfig {
             failure_resample_probability: 0.0,
             failure_memory_per_env: 8,
             composed_share: 0.0,
+            composed_from_env_steps: 0,
         }
     }
 }
