@@ -97,35 +97,49 @@ fn load_network(dir: &Path) -> Result<NetworkF32, String> {
         .to_network()
 }
 
+/// The config of `behaviour`'s secondary stage (`first`: the straight-line policy, which starts
+/// from scratch): the run's settings with the curriculum's secondary budget, batch, entropy,
+/// start yaw and start stages.
+fn secondary_stage(config: &TrainConfig, behaviour: Behaviour, first: bool) -> TrainConfig {
+    let mut stage = config.clone();
+    // The mix of composed scenes and the learning rate's anneal are the primary's: a
+    // secondary trains on its behaviour's scenes alone, at the constant rate.
+    stage.run.composed_share = 0.0;
+    stage.run.composed_from_env_steps = 0;
+    stage.ppo.learning_rate_final = None;
+    stage.ppo.anneal_start_env_steps = crate::config::PpoConfig::default().anneal_start_env_steps;
+    stage.run.scene_kind = behaviour.name().to_string();
+    stage.run.steps_per_iteration = config.curriculum.secondary_steps_per_iteration;
+    stage.run.total_env_steps = config
+        .curriculum
+        .secondary_env_steps_by_behaviour
+        .get(behaviour.name())
+        .copied()
+        .unwrap_or(config.curriculum.secondary_env_steps);
+    if !first {
+        stage.ppo.entropy_coef = config.curriculum.secondary_entropy_coef;
+        stage.run.start_yaw_within_deg = config.curriculum.secondary_start_yaw_within_deg;
+    }
+    let c = &config.curriculum;
+    if c.start_stage_behaviours
+        .iter()
+        .any(|b| b == behaviour.name())
+    {
+        stage.run.start_stage = c.start_stage_initial;
+        stage.run.start_stage_step = c.start_stage_step;
+        stage.run.start_stage_success_rate = c.start_stage_success_rate;
+        stage.run.start_stage_window = c.start_stage_window;
+    }
+    stage
+}
+
 /// Algorithm 1: one secondary policy per behaviour, straight first, the others initialised
 /// from it; each keeps its latest successful trajectories.
 pub fn run_secondary(config: &TrainConfig, opts: &CurriculumOptions) -> Result<(), String> {
     let behaviours = behaviours(config)?;
     let mut straight: Option<NetworkF32> = None;
     for (index, &behaviour) in behaviours.iter().enumerate() {
-        let mut stage = config.clone();
-        stage.run.scene_kind = behaviour.name().to_string();
-        stage.run.steps_per_iteration = config.curriculum.secondary_steps_per_iteration;
-        stage.run.total_env_steps = config
-            .curriculum
-            .secondary_env_steps_by_behaviour
-            .get(behaviour.name())
-            .copied()
-            .unwrap_or(config.curriculum.secondary_env_steps);
-        if straight.is_some() {
-            stage.ppo.entropy_coef = config.curriculum.secondary_entropy_coef;
-            stage.run.start_yaw_within_deg = config.curriculum.secondary_start_yaw_within_deg;
-        }
-        let c = &config.curriculum;
-        if c.start_stage_behaviours
-            .iter()
-            .any(|b| b == behaviour.name())
-        {
-            stage.run.start_stage = c.start_stage_initial;
-            stage.run.start_stage_step = c.start_stage_step;
-            stage.run.start_stage_success_rate = c.start_stage_success_rate;
-            stage.run.start_stage_window = c.start_stage_window;
-        }
+        let stage = secondary_stage(config, behaviour, straight.is_none());
         let dir = secondary_dir(&opts.out, behaviour);
         let summary = run_stage(
             &stage,
@@ -351,6 +365,24 @@ pub fn run_all(config: &TrainConfig, opts: &CurriculumOptions) -> Result<RunSumm
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn secondaries_train_on_their_behaviour_alone_at_the_constant_rate() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/shipped.toml");
+        let config = TrainConfig::load(std::path::Path::new(path)).unwrap();
+        assert!(config.run.composed_share > 0.0 && config.ppo.learning_rate_final.is_some());
+        for (first, behaviour) in [(true, Behaviour::Straight), (false, Behaviour::Squeeze)] {
+            let stage = secondary_stage(&config, behaviour, first);
+            assert_eq!(stage.run.scene_kind, behaviour.name());
+            assert_eq!(stage.run.composed_share, 0.0);
+            assert_eq!(stage.ppo.learning_rate_final, None);
+            assert_eq!(
+                stage.run.total_env_steps,
+                config.curriculum.secondary_env_steps
+            );
+            stage.validate().unwrap();
+        }
+    }
     use crate::network::init_policy;
     use crate::network_f32::Architecture;
     use rand::SeedableRng;
