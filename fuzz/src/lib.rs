@@ -380,5 +380,5 @@ pub fn check_trajectory_batch(data: &[u8]) {
     for index in 0..batch.len().min(64) {
         let _ = batch.trajectory(index);
     }
-    let _ = batch.counts_by_origin();
+    let _ = batch.counts_by_behaviour();
 }
