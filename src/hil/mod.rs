@@ -112,14 +112,18 @@ fn io(context: &str) -> impl Fn(std::io::Error) -> HilError + '_ {
 /// How much lower than the host's QEMU's scheduling priority is (`nice` increment).
 const QEMU_NICE_INCREMENT: &str = "5";
 
-/// `qemu-system-arm`, under `nice` when the machine has it (see [`Hil::start`]).
+/// `qemu-system-arm`, under `nice` when the machine has it (see [`Hil::start`]; asked once
+/// per process, not per episode).
 fn qemu_command() -> Command {
-    let has_nice = Command::new("nice")
-        .arg("true")
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success());
+    static HAS_NICE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    let has_nice = *HAS_NICE.get_or_init(|| {
+        Command::new("nice")
+            .arg("true")
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success())
+    });
     if has_nice {
         let mut command = Command::new("nice");
         command.args(["-n", QEMU_NICE_INCREMENT, "qemu-system-arm"]);

@@ -194,6 +194,21 @@ pub fn scene_chart<'a, 'b>(
     Ok(chart)
 }
 
+/// The robot at its start, in every picture.
+pub const START: RGBColor = RGBColor(30, 60, 220);
+/// The target, in every picture.
+pub const TARGET: RGBColor = RGBColor(20, 170, 60);
+/// Obstacles' edges.
+pub const EDGE: RGBColor = RGBColor(50, 50, 50);
+
+/// Draws the target as a disc.
+pub fn draw_target(chart: &mut SceneChart<'_, '_>, target: Point2<f32>) -> Result<(), RenderError> {
+    chart
+        .draw_series([Circle::new((target.x, target.y), 6, TARGET.filled())])
+        .map_err(draw_error)?;
+    Ok(())
+}
+
 /// The colour of an obstacle kind in every picture.
 pub fn kind_colour(kind: ObstacleKind) -> RGBColor {
     match kind {
@@ -243,7 +258,7 @@ pub fn obstacle_rect(o: &Obstacle, fill: RGBColor) -> [Rectangle<(f32, f32)>; 2]
     let corners = [(b.min_x_m, b.min_y_m), (b.max_x_m, b.max_y_m)];
     [
         Rectangle::new(corners, fill.filled()),
-        Rectangle::new(corners, RGBColor(50, 50, 50).stroke_width(1)),
+        Rectangle::new(corners, EDGE.stroke_width(1)),
     ]
 }
 

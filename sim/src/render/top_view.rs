@@ -5,9 +5,7 @@ use super::*;
 use crate::scenario::Scenario;
 
 /// Colours of the robot's way.
-const START: RGBColor = RGBColor(30, 60, 220);
 const WAY: RGBColor = RGBColor(240, 140, 20);
-const TARGET: RGBColor = RGBColor(20, 170, 60);
 const COLLISION: RGBColor = RGBColor(220, 0, 0);
 
 /// At most this many footprints are drawn along the way (every k-th state beyond it).
@@ -73,13 +71,7 @@ pub fn top_view(
             draw_robot(&mut chart, geometry, last, WAY, 2)?;
             legend.push((Mark::Outline(WAY), "end".into()));
         }
-        chart
-            .draw_series([Circle::new(
-                (scenario.target.x, scenario.target.y),
-                6,
-                TARGET.filled(),
-            )])
-            .map_err(draw_error)?;
+        draw_target(&mut chart, scenario.target)?;
         legend.push((Mark::Dot(TARGET), "target".into()));
         if !collided.is_empty() {
             chart

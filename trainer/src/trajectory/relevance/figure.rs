@@ -6,16 +6,14 @@ use plotters::prelude::*;
 use wheelleg_runtime::robot::RobotGeometry;
 use wheelleg_sim::env::EnvConfig;
 use wheelleg_sim::render::{
-    chart_size, draw_error, draw_legend, draw_robot, obstacle_rect, scene_chart, scene_extent,
-    Canvas, Mark, RenderError, FONT, LEGEND_PX,
+    chart_size, draw_error, draw_legend, draw_robot, draw_target, obstacle_rect, scene_chart,
+    scene_extent, Canvas, Mark, RenderError, EDGE, FONT, LEGEND_PX, START, TARGET,
 };
 use wheelleg_sim::scenario::Scenario;
 
-/// Trajectories with every obstacle, without one, the start and the target.
+/// Trajectories with every obstacle and without one.
 const WITH_ALL: RGBColor = RGBColor(110, 110, 110);
 const WITHOUT: RGBColor = RGBColor(220, 40, 30);
-const START: RGBColor = RGBColor(30, 60, 220);
-const TARGET: RGBColor = RGBColor(30, 60, 220);
 /// Obstacles of the right panel, where only the trajectories carry the figure's message.
 const FADED: RGBColor = RGBColor(228, 228, 228);
 /// A removal that moves the trajectory less than this leaves it where it was.
@@ -81,10 +79,7 @@ pub fn render(
             )
             .map_err(draw_error)?;
         draw_robot(&mut chart, geometry, &scenario.start, START, 2)?;
-        let target = (scenario.target.x, scenario.target.y);
-        chart
-            .draw_series([Circle::new(target, 6, TARGET.filled())])
-            .map_err(draw_error)?;
+        draw_target(&mut chart, scenario.target)?;
 
         let mut chart = scene_chart(&right, min, max, "trajectories with and without each")?;
         for o in &scenario.obstacles {
@@ -128,9 +123,7 @@ pub fn render(
                     .map_err(draw_error)?;
             }
         }
-        chart
-            .draw_series([Circle::new(target, 6, TARGET.filled())])
-            .map_err(draw_error)?;
+        draw_target(&mut chart, scenario.target)?;
 
         let mut legend = vec![
             (
@@ -138,7 +131,7 @@ pub fn render(
                 format!("most relevant: moved {most_m:.3} m"),
             ),
             (Mark::Fill(relevance_colour(0.5)), "half as relevant".into()),
-            (Mark::Outline(RGBColor(50, 50, 50)), "not relevant".into()),
+            (Mark::Outline(EDGE), "not relevant".into()),
             (Mark::Line(WITH_ALL), "with every obstacle".into()),
         ];
         legend.extend(moved.iter().map(|o| {
