@@ -105,6 +105,7 @@ fn secondary_stage(config: &TrainConfig, behaviour: Behaviour, first: bool) -> T
     // The mix of composed scenes and the learning rate's anneal are the primary's: a
     // secondary trains on its behaviour's scenes alone, at the constant rate.
     stage.run.composed_share = 0.0;
+    stage.run.exit_share = 0.0;
     stage.run.composed_from_env_steps = 0;
     stage.ppo.learning_rate_final = None;
     stage.ppo.anneal_start_env_steps = crate::config::PpoConfig::default().anneal_start_env_steps;

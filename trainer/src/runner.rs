@@ -174,6 +174,8 @@ pub fn train_stage(
         start_yaw: config.start_yaw(),
         stage: schedule.as_ref().map_or(1.0, StartStageSchedule::stage),
         composed_share: composed_share_at(run, 0),
+        exit_share: exit_share_at(run, 0),
+        exit_behaviour: exit_behaviour(run)?,
     };
     let mut envs = VecEnv::with_scenes(scenes, n, env_seed, env_config, run.threads)?;
     if run.failure_resample_probability > 0.0 {
@@ -276,6 +278,7 @@ pub fn train_stage(
     {
         let iter_start = Instant::now();
         envs.set_composed_share(composed_share_at(run, env_steps));
+        envs.set_exit_share(exit_share_at(run, env_steps));
         // 1. Sample trajectories with the current policy.
         storage.clear();
         let mut episodes = Vec::new();
@@ -425,6 +428,29 @@ fn composed_share_at(run: &crate::config::RunConfig, env_steps: u64) -> f64 {
     } else {
         0.0
     }
+}
+
+/// The share of exit scenes for episodes drawn after `env_steps` env steps of the run, gated as
+/// [`composed_share_at`].
+fn exit_share_at(run: &crate::config::RunConfig, env_steps: u64) -> f64 {
+    if env_steps >= run.composed_from_env_steps {
+        run.exit_share
+    } else {
+        0.0
+    }
+}
+
+/// The fence of the run's exit scenes (`run.exit_behaviour`).
+fn exit_behaviour(run: &crate::config::RunConfig) -> Result<Behaviour, String> {
+    Behaviour::ALL
+        .into_iter()
+        .find(|b| b.name() == run.exit_behaviour)
+        .ok_or_else(|| {
+            format!(
+                "run.exit_behaviour: no fence named {:?}",
+                run.exit_behaviour
+            )
+        })
 }
 
 /// Writes the stored trajectories as a trajectory batch of originals only (no randomized

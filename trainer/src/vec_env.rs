@@ -11,7 +11,7 @@ use wheelleg_runtime::action::{Action, DIMS};
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
 use wheelleg_sim::env::{Env, EnvConfig, Observation, Status};
 use wheelleg_sim::failure_memory::FailureMemory;
-use wheelleg_sim::generate::{generate_staged, SceneKind, StartYaw};
+use wheelleg_sim::generate::{exit_scene, generate_staged, Behaviour, SceneKind, StartYaw};
 use wheelleg_sim::scenario::Scenario;
 
 /// How a finished episode went.
@@ -104,12 +104,26 @@ pub struct Scenes {
     pub stage: f32,
     /// Share of episodes on composed scenes instead of `kind` (`run.composed_share`).
     pub composed_share: f64,
+    /// Share of episodes on exit scenes of `exit_behaviour`'s fence (`run.exit_share`).
+    pub exit_share: f64,
+    /// The fence of the exit scenes.
+    pub exit_behaviour: Behaviour,
 }
 
 fn new_scene(scenes: Scenes, rng: &mut ChaCha8Rng, env: usize, episode: u64) -> Scenario {
-    // Without composed scenes nothing extra is drawn, so such a run sees exactly the scenes it
-    // saw before the mix existed.
-    let kind = if scenes.composed_share > 0.0 && rng.random_bool(scenes.composed_share.min(1.0)) {
+    // Without exit or composed scenes nothing extra is drawn, so such a run sees exactly the
+    // scenes it saw before the mixes existed.
+    if scenes.exit_share > 0.0 && rng.random_bool(scenes.exit_share.min(1.0)) {
+        let name = format!("{}-exit-e{env}-{episode}", scenes.exit_behaviour.name());
+        return exit_scene(scenes.exit_behaviour, scenes.start_yaw, rng, name);
+    }
+    // Of the episodes left, so many that `composed_share` of all are composed.
+    let composed = if scenes.exit_share > 0.0 {
+        scenes.composed_share / (1.0 - scenes.exit_share)
+    } else {
+        scenes.composed_share
+    };
+    let kind = if composed > 0.0 && rng.random_bool(composed.min(1.0)) {
         SceneKind::Composed
     } else {
         scenes.kind
@@ -275,6 +289,8 @@ impl VecEnv {
             start_yaw,
             stage,
             composed_share: 0.0,
+            exit_share: 0.0,
+            exit_behaviour: Behaviour::Squeeze,
         };
         VecEnv::with_scenes(scenes, num_envs, seed, config, threads)
     }
@@ -357,6 +373,11 @@ impl VecEnv {
     /// Sets the share of composed scenes of the episodes that start from now on.
     pub fn set_composed_share(&mut self, share: f64) {
         self.scenes.composed_share = share;
+    }
+
+    /// Sets the share of exit scenes of the episodes that start from now on.
+    pub fn set_exit_share(&mut self, share: f64) {
+        self.scenes.exit_share = share;
     }
 
     /// The start stage each env's current scene was drawn at (for checkpoints).
@@ -637,13 +658,15 @@ mod tests {
     }
 
     #[test]
-    fn the_composed_share_mixes_composed_scenes_in_deterministically() {
-        let names = |share: f64| -> Vec<String> {
+    fn the_composed_and_exit_shares_mix_their_scenes_in_deterministically() {
+        let names = |share: f64, exit_share: f64| -> Vec<String> {
             let scenes = Scenes {
                 kind: SceneKind::Complex,
                 start_yaw: StartYaw::Any,
                 stage: 1.0,
                 composed_share: share,
+                exit_share,
+                exit_behaviour: Behaviour::Squeeze,
             };
             let v = VecEnv::with_scenes(scenes, 40, 5, EnvConfig::default(), 1).unwrap();
             v.snapshot()
@@ -660,12 +683,22 @@ mod tests {
                 .collect()
         };
         let family = |n: &String| n.split('-').next().unwrap_or("").to_string();
-        assert!(names(0.0).iter().all(|n| family(n) == "complex"));
-        assert!(names(1.0).iter().all(|n| family(n) == "composed"));
-        let half = names(0.5);
+        assert!(names(0.0, 0.0).iter().all(|n| family(n) == "complex"));
+        assert!(names(1.0, 0.0).iter().all(|n| family(n) == "composed"));
+        assert!(names(0.0, 1.0)
+            .iter()
+            .all(|n| n.starts_with("squeeze-exit-")));
+        let half = names(0.5, 0.0);
         let composed = half.iter().filter(|n| family(n) == "composed").count();
         assert!((10..=30).contains(&composed), "{composed} of 40 composed");
-        assert_eq!(half, names(0.5), "the same seed, the same mix");
+        assert_eq!(half, names(0.5, 0.0), "the same seed, the same mix");
+        let thirds = names(0.4, 0.3);
+        let exits = thirds
+            .iter()
+            .filter(|n| n.starts_with("squeeze-exit-"))
+            .count();
+        assert!((4..=24).contains(&exits), "{exits} of 40 exit scenes");
+        assert_eq!(thirds, names(0.4, 0.3));
     }
 
     #[test]
@@ -675,6 +708,8 @@ mod tests {
             start_yaw: StartYaw::Any,
             stage: 1.0,
             composed_share: 0.0,
+            exit_share: 0.0,
+            exit_behaviour: Behaviour::Squeeze,
         };
         let mut v = VecEnv::with_scenes(scenes, 8, 5, EnvConfig::default(), 1).unwrap();
         let family = |v: &VecEnv| -> Vec<String> {

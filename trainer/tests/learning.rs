@@ -139,11 +139,11 @@ fn a_resumed_run_matches_an_uninterrupted_one() {
     assert_eq!(strip(&whole), strip(&split));
     // A different config is refused.
     let mut other = config.clone();
-    other.ppo.learning_rate *= 2.0;
+    other.ppo.clip_epsilon *= 2.0;
     let e = train(&other, &opts(split.clone(), true, None)).unwrap_err();
     assert!(e.contains("different config"), "{e}");
     assert!(
-        e.contains("ppo.learning_rate: "),
+        e.contains("ppo.clip_epsilon: "),
         "the message names the key: {e}"
     );
     // A curriculum key is the stage's business only if the stage says it reads it.

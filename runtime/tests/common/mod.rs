@@ -19,6 +19,9 @@ use wheelleg_runtime::model::format::{
 };
 use wheelleg_runtime::model::load::open_envelope;
 
+mod inputs;
+pub use inputs::raw_inputs_mm;
+
 /// The shipped weights file (`weights/policy.wlw`, in the repository): the default architecture,
 /// 3 convs 16-32-32 over the 32 x 32 map, 4 state features, one hidden layer of 128, the action
 /// head and a value head, format version 2.
@@ -451,26 +454,7 @@ pub fn random_architecture(rng: &mut ChaCha8Rng) -> Architecture {
     }
 }
 
-/// Raw integer inputs: usually plausible, sometimes far out of range, to exercise clamping.
+/// Raw integer inputs for `arch` ([`raw_inputs_mm`]).
 pub fn random_inputs_mm(rng: &mut ChaCha8Rng, arch: &Architecture) -> (Vec<i16>, Vec<i32>) {
-    let wild = rng.random_bool(0.2);
-    let height = (0..arch.height_rows * arch.height_cols)
-        .map(|_| {
-            if wild {
-                rng.random()
-            } else {
-                rng.random_range(-20..600)
-            }
-        })
-        .collect();
-    let state = (0..arch.state_len)
-        .map(|_| {
-            if wild {
-                rng.random()
-            } else {
-                rng.random_range(-8000..8000)
-            }
-        })
-        .collect();
-    (height, state)
+    raw_inputs_mm(rng, arch.height_rows * arch.height_cols, arch.state_len)
 }

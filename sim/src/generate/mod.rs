@@ -19,10 +19,13 @@
 //! - straight: no obstacles.
 //!
 //! Composed scenes (`composed.rs`) put those fences amid clutter: one or two fences, mixed kinds,
-//! clutter off the passage's lane, targets in and beyond the passages.
+//! clutter off the passage's lane, targets in and beyond the passages. Exit scenes (`exit.rs`)
+//! are behaviour scenes whose target stands just past the fence, beside the opening.
 
 mod composed;
+mod exit;
 pub use composed::{ComposedEnding, ComposedVariant, COMPOSED_PAIRS};
+pub use exit::exit_scene;
 
 use crate::obstacle::{cell_centre_m, Obstacle, ObstacleKind, ObstacleYaw, GRID_CELL_M};
 use crate::scenario::Scenario;

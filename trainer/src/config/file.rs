@@ -4,18 +4,24 @@
 use super::*;
 
 /// `run` keys a resumed run may change: its budget, the re-sampling of failed scenes and the
-/// share of composed scenes (which only change which scenes come next).
-const RESUMABLE_CHANGES: [&str; 5] = [
+/// shares of composed and exit scenes (which only change which scenes come next).
+const RESUMABLE_CHANGES: [&str; 7] = [
     "total_env_steps",
     "composed_share",
+    "exit_share",
+    "exit_behaviour",
     "composed_from_env_steps",
     "failure_resample_probability",
     "failure_memory_per_env",
 ];
 
-/// `ppo` keys a resumed run may change: the learning rate's anneal (which only changes the
-/// steps to come).
-const RESUMABLE_PPO_CHANGES: [&str; 2] = ["learning_rate_final", "anneal_start_env_steps"];
+/// `ppo` keys a resumed run may change: the learning rate and its anneal (which only change the
+/// steps to come; a continuation of an annealed run starts where the anneal left the rate).
+const RESUMABLE_PPO_CHANGES: [&str; 3] = [
+    "learning_rate",
+    "learning_rate_final",
+    "anneal_start_env_steps",
+];
 
 /// How many `extends` a config may chain: more is a cycle or a mistake.
 const MAX_EXTENDS: usize = 8;

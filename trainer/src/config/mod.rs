@@ -153,7 +153,15 @@ pub struct RunConfig {
     /// `wheelleg_sim::generate::SceneKind::Composed`) instead of `scene_kind`. 0, the default,
     /// draws `scene_kind` alone. A finished run may be continued with it changed (`--resume`).
     pub composed_share: f64,
-    /// Env steps of the run before `composed_share` applies (0, the default: from the start).
+    /// Share of episodes drawn as exit scenes of `exit_behaviour`'s fence (the target just past
+    /// the fence, beside the opening: `wheelleg_sim::generate::exit_scene`) instead of
+    /// `scene_kind` or composed scenes. 0, the default, draws none. A finished run may be
+    /// continued with it changed (`--resume`).
+    pub exit_share: f64,
+    /// The fence of the exit scenes: lift, spread or squeeze.
+    pub exit_behaviour: String,
+    /// Env steps of the run before `composed_share` and `exit_share` apply (0, the default:
+    /// from the start).
     /// One run then does what a run on `scene_kind` continued with the mix does: the shipped
     /// primary's first 10 M env steps on complex scenes alone (configs/shipped.toml).
     pub composed_from_env_steps: u64,
@@ -179,6 +187,8 @@ impl Default for RunConfig {
             failure_resample_probability: 0.0,
             failure_memory_per_env: 8,
             composed_share: 0.0,
+            exit_share: 0.0,
+            exit_behaviour: "squeeze".into(),
             composed_from_env_steps: 0,
         }
     }

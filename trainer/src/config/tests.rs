@@ -120,6 +120,9 @@ fn the_learning_rate_anneals_linearly_over_its_span_and_may_change_on_resume() {
     c.ppo.learning_rate_final = Some(0.0001);
     c.ppo.anneal_start_env_steps = 20_000_000;
     c.validate().unwrap();
+    let mut lower = c.clone();
+    lower.ppo.learning_rate = 0.0005;
+    assert!(lower.changes_from_stored(&stored, &[]).unwrap().is_empty());
     let at = |steps| c.ppo.learning_rate_at(steps, 30_000_000);
     assert_eq!(at(10_000_000), 0.001, "before the span");
     assert_eq!(at(20_000_000), 0.001, "at its start");

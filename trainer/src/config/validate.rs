@@ -16,6 +16,14 @@ impl TrainConfig {
             (0.0..=1.0).contains(&r.composed_share),
             "run.composed_share must be between 0 and 1",
         )?;
+        check(
+            (0.0..=1.0).contains(&r.exit_share) && r.composed_share + r.exit_share <= 1.0,
+            "run.exit_share must be between 0 and 1, and with run.composed_share at most 1",
+        )?;
+        check(
+            ["lift", "spread", "squeeze"].contains(&r.exit_behaviour.as_str()),
+            "run.exit_behaviour must be one of lift, spread, squeeze",
+        )?;
         check(r.num_envs >= 1, "run.num_envs must be at least 1")?;
         check(
             r.steps_per_iteration >= r.num_envs,

@@ -17,6 +17,10 @@ use wheelleg_trainer::quantize::{
     quantize_for_version, Calibration, QuantizedLayer, QuantizedNetwork, RangeMethod,
 };
 
+#[path = "../../../runtime/tests/common/inputs.rs"]
+mod inputs;
+pub use inputs::raw_inputs_mm;
+
 /// A random architecture of the family: 0-3 convs of random channels, kernel, stride and
 /// padding on a random non-square map, 0-5 state features, 0-2 hidden layers, value head or not.
 pub fn random_architecture(rng: &mut ChaCha8Rng) -> Architecture {
@@ -123,28 +127,9 @@ pub fn default_quantized(seed: u64) -> (NetworkF32, QuantizedNetwork) {
     )
 }
 
-/// Raw integer inputs: usually plausible, sometimes far out of range, to exercise clamping.
+/// Raw integer inputs for `arch` ([`raw_inputs_mm`]).
 pub fn random_inputs_mm(rng: &mut ChaCha8Rng, arch: &Architecture) -> (Vec<i16>, Vec<i32>) {
-    let wild = rng.random_bool(0.2);
-    let height = (0..arch.height_rows * arch.height_cols)
-        .map(|_| {
-            if wild {
-                rng.random()
-            } else {
-                rng.random_range(-20..600)
-            }
-        })
-        .collect();
-    let state = (0..arch.state_len)
-        .map(|_| {
-            if wild {
-                rng.random()
-            } else {
-                rng.random_range(-8000..8000)
-            }
-        })
-        .collect();
-    (height, state)
+    raw_inputs_mm(rng, arch.height_rows * arch.height_cols, arch.state_len)
 }
 
 // ---------------------------------------------------------------------------------------------
