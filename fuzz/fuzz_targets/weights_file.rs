@@ -1,4 +1,4 @@
-//! The runtime's weights loader on raw file bytes (runtime/src/model/load.rs).
+//! The runtime's weights loader on raw file bytes (runtime/src/model/load/).
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;

@@ -183,7 +183,7 @@ impl WindowBounds {
 ///
 /// Heights are little-endian `i16` pairs in a byte slice, so that a controller can lend the
 /// same bytes to inference first and to the window after (the two are never needed at once).
-/// Cells outside the window read as flat ground: [`CollisionGuard::fine_window`] chooses the
+/// Cells outside the window read as flat ground: [`crate::guard::CollisionGuard::fine_window`] chooses the
 /// window so that no column outside can meet any part of the robot along any step.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FineWindow<'a> {
