@@ -21,198 +21,36 @@
 //! cannot see ([`Rig::true_pose`], [`Rig::true_legs`]: integrated from the simulated motors' own
 //! state every physics step) and can inject a fault at a chosen instant, in the middle of a
 //! motion ([`Rig::schedule`], [`TimedFault`]).
+//!
+//! Pieces: the rig and its control tick here; settings, errors and reports in `config.rs`;
+//! ground truth and injected faults in `faults.rs`; the safe stop in `safe_stop.rs`.
 
-use crate::bus::{BusError, Faults, InProcessBus, Port, Transport};
+use crate::bus::{Faults, InProcessBus, Port, Transport};
 use crate::candump::CandumpWriter;
 use crate::firmware::Firmware;
 use nalgebra::Isometry2;
 use std::io::Write;
 use wheelleg_runtime::action::Action;
-use wheelleg_runtime::base::{BaseError, MecanumBase, Odometry, WheelSpeeds};
-use wheelleg_runtime::can::bus_load::frame_bits;
-use wheelleg_runtime::can::host::{CanError, Commander, FeedbackTracker, Health, TxQueue};
-use wheelleg_runtime::can::node_map::{Axis, NodeMap};
+use wheelleg_runtime::base::{MecanumBase, Odometry};
+use wheelleg_runtime::can::host::{Commander, FeedbackTracker, TxQueue};
+use wheelleg_runtime::can::node_map::Axis;
 use wheelleg_runtime::can::protocol::AxisState;
 use wheelleg_runtime::can::CanFrame;
-use wheelleg_runtime::leg::{IkError, LegConfig};
-use wheelleg_runtime::motion::{
-    ideal_step, MotionConfig, MotionError, Setpoint, StepMotion, StopMotion,
-};
+use wheelleg_runtime::leg::LegConfig;
+use wheelleg_runtime::motion::{ideal_step, MotionConfig, Setpoint, StepMotion, StopMotion};
 use wheelleg_runtime::robot::RobotGeometry;
+
+mod config;
+mod faults;
+mod safe_stop;
+
+pub use config::{
+    MeasuredBusLoad, RigConfig, RigError, StepReport, StopReason, TimedFault, TrafficCounts,
+};
+pub use faults::TrueSample;
 
 /// Capacity of the controller's transmit queue: two ticks' worth of start-up frames.
 pub const TX_QUEUE_FRAMES: usize = 64;
-
-/// Settings of the closed loop.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct RigConfig {
-    /// Control rate, step duration and limits.
-    pub motion: MotionConfig,
-    /// Physics step of the simulated axes (in-process bus only).
-    pub physics_dt_us: u64,
-    /// Hold time after each step's setpoints, so the motors settle before the pose is read.
-    pub settle_s: f32,
-    /// An axis not heard from for this long is silent.
-    pub health_timeout_us: u64,
-    /// Fault injection on the in-process bus.
-    pub faults: Faults,
-    /// Node map and calibration.
-    pub map: NodeMap,
-}
-
-impl Default for RigConfig {
-    /// 100 Hz control, 1 kHz physics, 0.2 s settling, 50 ms silence timeout (5 missed encoder
-    /// estimates at 100 Hz: one lost frame is noise, five in a row is a dead node).
-    fn default() -> Self {
-        RigConfig {
-            motion: MotionConfig::default(),
-            physics_dt_us: 1_000,
-            settle_s: 0.2,
-            health_timeout_us: 50_000,
-            faults: Faults::NONE,
-            map: NodeMap::NOMINAL,
-        }
-    }
-}
-
-/// Why the rig cannot go on.
-#[derive(Debug)]
-pub enum RigError {
-    /// The step is impossible or too fast.
-    Motion(MotionError),
-    /// A leg configuration has no IK solution.
-    Ik(IkError),
-    /// The base kinematics refused a measured value.
-    Base(BaseError),
-    /// Frames could not be queued.
-    Can(CanError),
-    /// The transport failed.
-    Bus(BusError),
-    /// Writing the traffic log failed.
-    Log(std::io::Error),
-    /// The axes did not all reach closed loop at start-up.
-    StartupFailed(Health),
-}
-
-impl std::fmt::Display for RigError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{self:?}")
-    }
-}
-
-impl std::error::Error for RigError {}
-
-macro_rules! from_error {
-    ($($variant:ident($t:ty)),*) => {$(
-        impl From<$t> for RigError {
-            fn from(e: $t) -> Self {
-                RigError::$variant(e)
-            }
-        }
-    )*};
-}
-from_error!(
-    Motion(MotionError),
-    Ik(IkError),
-    Base(BaseError),
-    Can(CanError),
-    Bus(BusError),
-    Log(std::io::Error)
-);
-
-/// Why the controller went into safe stop.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum StopReason {
-    /// These axes were not heard from within the timeout.
-    Silent(wheelleg_runtime::can::host::AxisSet),
-    /// These axes reported errors (for example `WATCHDOG_TIMER_EXPIRED`).
-    AxisError(wheelleg_runtime::can::host::AxisSet),
-}
-
-/// A fault the rig injects by itself when simulated time reaches a chosen instant, so that a
-/// test can hit the middle of a motion rather than the gap between two steps.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum TimedFault {
-    /// The axis stops transmitting for good (it still obeys commands): a broken transmitter.
-    Silence(Axis),
-    /// The axis drops off the bus for good: it neither transmits nor receives (a cut cable, a
-    /// node in bus-off), so it runs on its last setpoint until its watchdog idles it.
-    Disconnect(Axis),
-    /// The controller's transmit path hangs (it keeps listening), as [`Rig::pause_commands`].
-    HangCommands,
-}
-
-/// What one step achieved, beside what it should have.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct StepReport {
-    /// Ideal pose change (in the frame of the step's start pose).
-    pub ideal_pose: Isometry2<f32>,
-    /// Measured pose change, by odometry from the measured wheel speeds.
-    pub achieved_pose: Isometry2<f32>,
-    /// Ideal leg configuration at the end of the step.
-    pub ideal_legs: LegConfig,
-    /// Measured leg configuration at the end of the step (forward kinematics).
-    pub achieved_legs: LegConfig,
-    /// Set if the controller stopped the robot during the step.
-    pub stopped: Option<StopReason>,
-}
-
-impl StepReport {
-    /// Distance between ideal and achieved position.
-    pub fn position_error_m(&self) -> f32 {
-        (self.ideal_pose.inverse() * self.achieved_pose)
-            .translation
-            .vector
-            .norm()
-    }
-
-    /// Angle between ideal and achieved heading.
-    pub fn yaw_error_rad(&self) -> f32 {
-        (self.ideal_pose.inverse() * self.achieved_pose)
-            .rotation
-            .angle()
-            .abs()
-    }
-}
-
-/// Traffic the controller put on or heard from the bus since the rig was made: every frame of
-/// the robot's bus passes the controller, so this is the bus's whole traffic.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
-pub struct TrafficCounts {
-    /// Frames sent and received.
-    pub frames: u64,
-    /// Their bits on the wire without stuff bits (including intermission).
-    pub bits_nominal: u64,
-    /// Their bits on the wire with worst-case stuffing.
-    pub bits_worst_case: u64,
-}
-
-impl TrafficCounts {
-    fn count(&mut self, frame: &CanFrame) {
-        use embedded_can::Frame;
-        // A remote frame carries a DLC but no data bits.
-        let data_len = if frame.is_remote_frame() {
-            0
-        } else {
-            frame.data().len() as u8
-        };
-        let bits = frame_bits(data_len);
-        self.frames += 1;
-        self.bits_nominal += u64::from(bits.nominal);
-        self.bits_worst_case += u64::from(bits.worst_case);
-    }
-}
-
-/// Measured bus load: traffic over elapsed time, as a fraction of the bus's capacity.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct MeasuredBusLoad {
-    /// Frames per second.
-    pub frames_per_s: f64,
-    /// Fraction of capacity used, without stuff bits.
-    pub nominal: f64,
-    /// Fraction of capacity used, with worst-case stuffing.
-    pub worst_case: f64,
-}
 
 /// The controller and, on an in-process bus, the simulated motors, stepped together.
 pub struct Rig {
@@ -252,18 +90,6 @@ pub struct Rig {
     true_odometry: Odometry,
     /// Ground truth at the end of every control tick, while recording ([`Rig::record_truth`]).
     truth: Option<Vec<TrueSample>>,
-}
-
-/// Where the robot really was at one instant (in-process bus only): what a fault test checks
-/// for collisions at every control tick, not only after each step.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct TrueSample {
-    /// Simulated time.
-    pub at_us: u64,
-    /// [`Rig::true_pose`] then.
-    pub pose: Isometry2<f32>,
-    /// [`Rig::true_legs`] then.
-    pub legs: LegConfig,
 }
 
 impl Rig {
@@ -422,75 +248,6 @@ impl Rig {
         self.stopped_at_us
     }
 
-    /// Injects `fault` at the first physics step at or after `at_us` (in-process bus only: a
-    /// remote rig has no physics steps, and its motors are out of reach).
-    pub fn schedule(&mut self, at_us: u64, fault: TimedFault) {
-        self.scheduled.push((at_us, fault));
-    }
-
-    /// Where the robot really is relative to where it started: odometry of the simulated
-    /// wheels' true speeds at every physics step, with the true leg track. Unlike
-    /// [`Rig::pose`], a silent or lying node cannot corrupt it. Identity for a remote rig.
-    pub fn true_pose(&self) -> Isometry2<f32> {
-        self.true_odometry.pose
-    }
-
-    /// The legs as the simulated joints really are (forward kinematics of their true
-    /// positions, averaged over the four legs); `None` for a remote rig.
-    pub fn true_legs(&self) -> Option<LegConfig> {
-        self.firmware.true_legs(&self.config.map, &self.geometry)
-    }
-
-    fn true_wheel_speeds(&self) -> Option<WheelSpeeds> {
-        self.firmware.true_wheel_speeds(&self.config.map)
-    }
-
-    /// Starts (or stops) recording the ground truth at the end of every control tick; what was
-    /// recorded so far is kept until [`Rig::take_truth`].
-    pub fn record_truth(&mut self, on: bool) {
-        match (on, &self.truth) {
-            (true, None) => self.truth = Some(Vec::new()),
-            (false, Some(_)) => self.truth = None,
-            _ => {}
-        }
-    }
-
-    /// The ground truth recorded since the last call (empty when not recording).
-    pub fn take_truth(&mut self) -> Vec<TrueSample> {
-        self.truth.as_mut().map(std::mem::take).unwrap_or_default()
-    }
-
-    /// Applies the scheduled faults that are due at `now_us`.
-    fn inject_due_faults(&mut self) {
-        let now_us = self.now_us;
-        let (due, later): (Vec<_>, Vec<_>) = self
-            .scheduled
-            .drain(..)
-            .partition(|(at_us, _)| *at_us <= now_us);
-        self.scheduled = later;
-        for (_, fault) in due {
-            match fault {
-                TimedFault::Silence(axis) => {
-                    if let Some(motor) = self.firmware.axis_mut(axis) {
-                        motor.set_silent(true);
-                    }
-                }
-                TimedFault::Disconnect(axis) => {
-                    if let Some(motor) = self.firmware.axis_mut(axis) {
-                        motor.set_silent(true);
-                        motor.set_deaf(true);
-                    }
-                }
-                TimedFault::HangCommands => self.commands_paused = true,
-            }
-        }
-    }
-
-    /// Simulates a controller whose transmit path hangs: it keeps listening but sends nothing.
-    pub fn pause_commands(&mut self, paused: bool) {
-        self.commands_paused = paused;
-    }
-
     /// Arms every axis and holds the start pose until all report closed loop.
     pub fn start_up(&mut self) -> Result<(), RigError> {
         self.commander.queue_startup(&mut self.tx)?;
@@ -610,77 +367,6 @@ impl Rig {
             (false, None) => self.now_us = end_us,
         }
         Ok(())
-    }
-
-    /// Plans the safe stop the moment it is decided, before this tick's setpoint (tick
-    /// `tick_in_step` of the active step) goes out: inside a step, decelerate along the step's
-    /// path ([`StepMotion::stop_after`]) for every axis, the silent one included (if it still
-    /// hears, it follows; if not, its own watchdog idles it); outside a step, rest where the
-    /// last setpoint sent put the robot.
-    fn begin_stop(&mut self, tick_in_step: u32) {
-        self.stopping = self
-            .active
-            .as_ref()
-            .and_then(|motion| motion.stop_after(tick_in_step).ok());
-        self.rest = match &self.stopping {
-            Some(stop) => Some(stop.rest()),
-            None => self.last_sent.map(|sent| Setpoint {
-                joint_rates: Default::default(),
-                base: wheelleg_runtime::base::BaseVelocity::ZERO,
-                wheels: WheelSpeeds::ZERO,
-                ..sent
-            }),
-        };
-    }
-
-    /// The safe stop's command for this tick: the next setpoint of the controlled stop, then
-    /// its rest pose; `None` when no plan is known (the commander then holds the measured
-    /// joints).
-    fn next_stop_setpoint(&mut self) -> Option<Setpoint> {
-        if let Some(stop) = &mut self.stopping {
-            match stop.next() {
-                Some(setpoint) => return Some(setpoint),
-                None => {
-                    self.rest = Some(stop.rest());
-                    self.stopping = None;
-                }
-            }
-        }
-        self.rest
-    }
-
-    /// Where the safe stop holds the legs, once it has been decided.
-    pub fn stop_rest(&self) -> Option<Setpoint> {
-        self.rest
-    }
-
-    /// Sends Estop to every axis (they disarm and latch `ESTOP_REQUESTED`) and keeps the rig in
-    /// safe stop; then runs one control period so the motors see it.
-    pub fn estop(&mut self) -> Result<(), RigError> {
-        self.commander.queue_estop(&mut self.tx)?;
-        let health = self
-            .tracker
-            .health(self.now_us, self.config.health_timeout_us);
-        if self.stopped.is_none() {
-            self.stopped = Some(StopReason::AxisError(health.errored));
-            self.stopped_at_us = Some(self.now_us);
-            self.begin_stop(0);
-        }
-        let hold = Setpoint::hold(&self.geometry, self.legs)?;
-        self.control_tick(&hold, false)
-    }
-
-    /// Recovers from a stop: Clear_Errors to every axis, then the start-up sequence again. Axes
-    /// re-arm where they are, then move (within their speed limits) to the commanded legs; the
-    /// odometry pose is kept.
-    pub fn recover(&mut self) -> Result<(), RigError> {
-        self.commander.queue_clear_errors(&mut self.tx)?;
-        self.stopped = None;
-        self.stopped_at_us = None;
-        self.stopping = None;
-        self.rest = None;
-        self.commands_paused = false;
-        self.start_up()
     }
 
     /// Runs one supervised control tick with `setpoint` (for callers that drive a
