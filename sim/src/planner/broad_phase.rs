@@ -95,6 +95,89 @@ impl Convex {
     }
 }
 
+impl Convex {
+    /// Segments inside the part: for a link its axis, for a wheel its axle and two diameters
+    /// of its middle disc (one horizontal, one as near vertical as the axle allows); none for
+    /// the body, whose boxes the separating-axis test decides whole.
+    fn inner_segments(&self) -> heapless::Vec<(Vector3<f32>, Vector3<f32>), 3> {
+        let mut out = heapless::Vec::new();
+        match *self {
+            Convex::Cuboid { .. } => {}
+            Convex::Capsule { a, b, .. } => {
+                out.push((a, b)).expect("room for one");
+            }
+            Convex::Cylinder {
+                centre,
+                axle,
+                half_length,
+                radius,
+            } => {
+                let along = axle * half_length;
+                out.push((centre - along, centre + along)).expect("room");
+                let across = axle.cross(&Vector3::z());
+                if across.norm() > 1.0e-3 {
+                    let across = across.normalize();
+                    let up = axle.cross(&across);
+                    for d in [across, up] {
+                        out.push((centre - d * radius, centre + d * radius))
+                            .expect("room");
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    /// Whether the part, shifted by `by`, surely meets the box `centre ± half`: a segment
+    /// inside the part runs through the box shrunk by `depth_m` on every side. The part then
+    /// overlaps the box by at least that much, which an exact intersection test cannot miss.
+    pub(super) fn surely_meets(
+        &self,
+        by: &Vector3<f32>,
+        centre: &Vector3<f32>,
+        half: &Vector3<f32>,
+        depth_m: f32,
+    ) -> bool {
+        let lo = centre - half.add_scalar(-depth_m) - by;
+        let hi = centre + half.add_scalar(-depth_m) - by;
+        if (0..3).any(|i| lo[i] >= hi[i]) {
+            return false;
+        }
+        self.inner_segments()
+            .iter()
+            .any(|(a, b)| segment_meets_box(a, b, &lo, &hi))
+    }
+}
+
+/// Whether the segment from `a` to `b` meets the box `lo..hi` (Liang-Barsky clipping).
+fn segment_meets_box(
+    a: &Vector3<f32>,
+    b: &Vector3<f32>,
+    lo: &Vector3<f32>,
+    hi: &Vector3<f32>,
+) -> bool {
+    let d = b - a;
+    let (mut t0, mut t1) = (0.0f32, 1.0f32);
+    for i in 0..3 {
+        if d[i] == 0.0 {
+            if a[i] < lo[i] || a[i] > hi[i] {
+                return false;
+            }
+            continue;
+        }
+        let (mut near, mut far) = ((lo[i] - a[i]) / d[i], (hi[i] - a[i]) / d[i]);
+        if near > far {
+            std::mem::swap(&mut near, &mut far);
+        }
+        t0 = t0.max(near);
+        t1 = t1.min(far);
+        if t0 > t1 {
+            return false;
+        }
+    }
+    true
+}
+
 /// An obstacle's box, for the separating-axis filter.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct ObstacleBox {
@@ -166,7 +249,8 @@ pub(super) fn part_boxes(parts: &RobotParts) -> PartBoxes {
 pub(super) enum Contact {
     /// Surely touches no obstacle.
     Clear,
-    /// Surely collides: the body box overlaps an obstacle box.
+    /// Surely collides: the body box, or a segment inside a wheel or link, overlaps an obstacle
+    /// box.
     Collides,
     /// Within a hair of touching: only the exact test can tell.
     Unknown,
@@ -178,8 +262,9 @@ pub(super) enum Contact {
 /// a separating axis with room to spare proves the pair apart. The body is a box turned about
 /// the vertical only, so against an axis-aligned obstacle box the five axes tried (world x, y,
 /// z, body x, y) are all the separating-axis theorem needs: overlap on all five, with room to
-/// spare, proves a collision. Only what is within the slack of touching is left to the exact
-/// test.
+/// spare, proves a collision. A wheel or a link proves one when a segment inside it runs through
+/// the obstacle box with room to spare ([`Convex::surely_meets`]). Only what neither settles is
+/// left to the exact test.
 pub(super) fn classify(
     boxes: &PartBoxes,
     position: Point2<f32>,
@@ -196,6 +281,9 @@ pub(super) fn classify(
             match o.gap(part, &by, &boxes.body_axes) {
                 gap if gap > AABB_SLACK_M => {}
                 gap if index == 0 && gap < -AABB_SLACK_M => return Contact::Collides,
+                _ if part.surely_meets(&by, &o.centre, &o.half, AABB_SLACK_M) => {
+                    return Contact::Collides
+                }
                 _ => unknown = true,
             }
         }

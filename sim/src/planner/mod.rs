@@ -38,9 +38,11 @@
 
 mod broad_phase;
 mod heuristic;
+mod lazy;
 mod legs;
 mod moves;
 mod search;
+mod valid;
 mod way;
 
 use crate::env::{Env, Status};
