@@ -66,7 +66,7 @@ fn planned_scenes() -> Vec<Planned> {
         ..PlannerConfig::default()
     };
     let mut out = Vec::new();
-    // The seeds of tests/closed_loop.rs: scenes the planner solves quickly (proving a scene
+    // The seeds of tests/closed_loop/mechanics.rs: scenes the planner solves quickly (proving a scene
     // unsolvable can take minutes, which a soak should not spend).
     let kinds = [
         (SceneKind::Complex, 4, 21),
