@@ -166,28 +166,80 @@ impl LegHint {
     /// by the entry (the larger of the leg steps and the way there), then the robot goes on
     /// from the entry to the target; the largest of these.
     pub(super) fn steps(&self, pose: &Pose, target: Point2<f32>, legs: &LegSet) -> u32 {
+        self.entered(pose, target)
+            .map(|(z, other, from_entry)| z.fewest_leg_steps(legs).max(other) + from_entry)
+            .max()
+            .unwrap_or(0)
+    }
+
+    /// The leg configurations of `legs` to prove first when a node's priority may rise once
+    /// its valid set is known: the fewest that hold some zone's term at or below the level
+    /// the priority stands at (`floor`, the pose-only bound, or the hint, whichever is larger)
+    /// and none of which is `proven` valid already. Refuting them all lifts that zone's term,
+    /// so the hint, above the level. `None` when no zone can rise: then the level holds
+    /// whatever the rest proves. The order of proofs changes no verdict, only how soon a rise
+    /// is seen.
+    pub(super) fn holding(
+        &self,
+        pose: &Pose,
+        target: Point2<f32>,
+        legs: &LegSet,
+        proven: &LegSet,
+        floor: u32,
+    ) -> Option<LegSet> {
+        let level = floor.max(self.steps(pose, target, legs));
+        let mut best: Option<LegSet> = None;
+        for (z, other, from_entry) in self.entered(pose, target) {
+            let Some(threshold) = level.checked_sub(from_entry).filter(|&t| other <= t) else {
+                continue;
+            };
+            let mut holding = LegSet::default();
+            for (row, col) in legs.iter() {
+                if z.leg_steps[row * LEG_COLS + col] as u32 <= threshold {
+                    holding.insert(row, col);
+                }
+            }
+            if holding.is_empty() || !holding.intersection(proven).is_empty() {
+                continue;
+            }
+            if best.is_none_or(|b| holding.len() < b.len()) {
+                best = Some(holding);
+            }
+        }
+        best
+    }
+
+    /// Per zone the straight way from `pose` to the target enters: the zone, its steps other
+    /// than the legs' (the turn to line up, the way to the entry), and the steps from the
+    /// entry to the target.
+    fn entered<'z>(
+        &'z self,
+        pose: &'z Pose,
+        target: Point2<f32>,
+    ) -> impl Iterator<Item = (&'z StraddleZone, u32, u32)> + 'z {
         let position = pose.position;
         let whole_m = (target - position).norm();
         let half_turn = YAW_STEPS_PER_TURN / 2;
         let step_deg = wheelleg_runtime::action::YAW_STEP_DEG;
-        self.zones
-            .iter()
-            .filter_map(|z| {
-                let entry = segment_entry(position, target, z.min, z.max)?;
-                let legs_steps = legs
-                    .iter()
-                    .map(|(row, col)| z.leg_steps[row * LEG_COLS + col])
-                    .min()
-                    .unwrap_or(0) as u32;
-                let off = (pose.yaw_steps - z.along_yaw_steps).rem_euclid(half_turn);
-                let off_deg = off.min(half_turn - off) as f32 * step_deg;
-                let turn_steps = ((off_deg - LINED_UP_DEG).max(0.0) / step_deg).ceil() as u32;
-                let to_entry = (entry * whole_m / DIAGONAL_STEP_M).ceil() as u32;
-                let from_entry = ((1.0 - entry) * whole_m / DIAGONAL_STEP_M).ceil() as u32;
-                Some(legs_steps.max(turn_steps).max(to_entry) + from_entry)
-            })
-            .max()
-            .unwrap_or(0)
+        self.zones.iter().filter_map(move |z| {
+            let entry = segment_entry(position, target, z.min, z.max)?;
+            let off = (pose.yaw_steps - z.along_yaw_steps).rem_euclid(half_turn);
+            let off_deg = off.min(half_turn - off) as f32 * step_deg;
+            let turn_steps = ((off_deg - LINED_UP_DEG).max(0.0) / step_deg).ceil() as u32;
+            let to_entry = (entry * whole_m / DIAGONAL_STEP_M).ceil() as u32;
+            let from_entry = ((1.0 - entry) * whole_m / DIAGONAL_STEP_M).ceil() as u32;
+            Some((z, turn_steps.max(to_entry), from_entry))
+        })
+    }
+}
+
+impl StraddleZone {
+    /// The fewest leg steps from a member of `legs` to the passing pose (0 for none).
+    fn fewest_leg_steps(&self, legs: &LegSet) -> u32 {
+        legs.iter()
+            .map(|(row, col)| self.leg_steps[row * LEG_COLS + col])
+            .min()
+            .unwrap_or(0) as u32
     }
 }
 

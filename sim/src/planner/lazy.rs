@@ -86,25 +86,56 @@ impl Search<'_> {
     /// set; false (and the node dead) when no configuration is reachable. Retires the nodes at
     /// the pose it surely beats: they are dead in eager whatever happens to this one.
     pub(super) fn evaluate(&mut self, node: u32) -> bool {
-        let (parent, m, pose, candidates) = {
+        self.prove(node, None)
+    }
+
+    /// As [`Search::evaluate`], but with `up_to`, the priority `node` was popped at, it may
+    /// stop early: once the configurations refuted so far raise its priority above `up_to`
+    /// (the weighted search's leg hint), the node goes back to the queue with the rest
+    /// unproven. It proves first the configurations that hold the hint down
+    /// ([`super::heuristic::LegHint::holding`]), so a node whose hint rises costs few proofs.
+    /// The node's set stays a superset of its valid set throughout, so it counts as candidates
+    /// for dominance until every configuration is decided.
+    pub(super) fn prove(&mut self, node: u32, up_to: Option<f32>) -> bool {
+        let (parent, m, pose) = {
             let n = &self.nodes[node as usize];
-            (n.parent, n.base_move as usize, n.pose, n.legs)
+            (n.parent, n.base_move as usize, n.pose)
         };
         let (from, legs) = {
             let p = &self.nodes[parent as usize];
             (p.pose, p.legs)
         };
         let key = pose.key();
-        let valid = self.valid_subset(&from, &legs, m, &pose, key, &candidates);
-        self.evaluations += 1;
-        let n = &mut self.nodes[node as usize];
-        n.legs = valid;
-        n.evaluated = true;
-        if valid.is_empty() {
-            n.dead = true;
-            self.forget(key, node);
-            return false;
+        loop {
+            let (left, proven, h) = {
+                let n = &self.nodes[node as usize];
+                (n.legs, n.proven, n.h)
+            };
+            let unknown = left.difference(&proven);
+            if unknown.is_empty() {
+                break;
+            }
+            let batch = match (&self.leg_hint, up_to) {
+                (Some(hint), Some(_)) => hint
+                    .holding(&pose, self.env.target(), &left, &proven, h)
+                    .unwrap_or(unknown),
+                _ => unknown,
+            };
+            let valid = self.valid_subset(&from, &legs, m, &pose, key, &batch);
+            self.evaluations += 1;
+            let n = &mut self.nodes[node as usize];
+            n.proven.union_with(&valid);
+            n.legs = left.difference(&batch.difference(&valid));
+            if n.legs.is_empty() {
+                n.dead = true;
+                self.forget(key, node);
+                return false;
+            }
+            if up_to.is_some_and(|f| self.priority(node) > f) {
+                return true;
+            }
         }
+        self.nodes[node as usize].evaluated = true;
         let Some(known) = self.seen.get_mut(&key) else {
             return true;
         };

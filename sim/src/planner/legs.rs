@@ -29,6 +29,11 @@ impl LegSet {
         self.0.iter().all(|&w| w == 0)
     }
 
+    /// How many configurations the set holds.
+    pub(super) fn len(&self) -> u32 {
+        self.0.iter().map(|w| w.count_ones()).sum()
+    }
+
     pub(super) fn is_subset_of(&self, other: &LegSet) -> bool {
         self.0.iter().zip(&other.0).all(|(a, b)| a & !b == 0)
     }
@@ -37,6 +42,14 @@ impl LegSet {
         for (a, b) in self.0.iter_mut().zip(&other.0) {
             *a |= b;
         }
+    }
+
+    /// The members of `self` not in `other`.
+    pub(super) fn difference(mut self, other: &LegSet) -> LegSet {
+        for (a, b) in self.0.iter_mut().zip(&other.0) {
+            *a &= !b;
+        }
+        self
     }
 
     pub(super) fn intersection(mut self, other: &LegSet) -> LegSet {

@@ -38,6 +38,10 @@ pub(super) struct BaseMove {
     pub(super) action: Action,
     /// Allowed (clearance, track) steps with this move; never the idle action.
     pub(super) leg_steps: Vec<(i32, i32)>,
+    /// The same steps, fewest leg dimensions moving first: the order in which the planner tries
+    /// to prove a step to a leg configuration from its possible predecessors. The fewer the
+    /// legs move, the smaller the step's motion bound and the fewer poses its proof places.
+    pub(super) proof_order: Vec<(i32, i32)>,
 }
 
 impl BaseMove {
@@ -62,8 +66,14 @@ impl BaseMove {
                             };
                             full != Action::IDLE && allowed[full.index()]
                         })
-                        .collect();
-                    moves.push(BaseMove { action, leg_steps });
+                        .collect::<Vec<_>>();
+                    let mut proof_order = leg_steps.clone();
+                    proof_order.sort_by_key(|&(dc, dt)| dc.abs() + dt.abs());
+                    moves.push(BaseMove {
+                        action,
+                        leg_steps,
+                        proof_order,
+                    });
                 }
             }
         }

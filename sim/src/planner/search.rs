@@ -73,6 +73,8 @@ pub(super) struct Node {
     /// Beaten by another node at its pose, or no leg configuration reachable: skipped when
     /// popped (see [`super::lazy`]).
     pub(super) dead: bool,
+    /// The members of `legs` already proven valid (all of them once `evaluated`).
+    pub(super) proven: LegSet,
     /// Whether `legs` is the valid set (the step from the parent proven per configuration).
     pub(super) evaluated: bool,
     /// Within the success radius (queued only to be accepted when it is the best in the queue).
@@ -131,7 +133,8 @@ pub(super) struct Search<'a> {
     pub(super) cross_checked: usize,
     /// End poses the broad phase called colliding, so checked as well.
     pub(super) cross_checked_ends: usize,
-    /// Nodes whose steps were proven ([`Search::evaluate`]), for the tests of laziness.
+    /// Rounds of proofs run ([`Search::prove`]: a node's configurations, all or the ones that
+    /// hold its priority down), for the tests of laziness.
     pub(super) evaluations: usize,
     /// The obstacles' boxes, as the simulator builds them, loosened by the slack.
     pub(super) obstacle_boxes: Vec<ObstacleBox>,
@@ -219,6 +222,7 @@ impl<'a> Search<'a> {
             parent: 0,
             base_move: 0,
             dead: false,
+            proven: legs,
             evaluated: true,
             goal: false,
         });
@@ -234,11 +238,12 @@ impl<'a> Search<'a> {
             if self.nodes[node as usize].dead {
                 continue;
             }
-            // A successor's steps are proven when it is first popped (or earlier, when another
-            // node's dominance needs its set). The weighted search's leg hint may then rise:
-            // the node goes back at the priority the search without laziness gave it.
+            // A successor's steps are proven when it is popped (or earlier, when another node's
+            // dominance needs its set). The weighted search's leg hint may then rise: the node
+            // goes back at the priority its valid set gives, or the one its configurations not
+            // yet refuted give, when refuting some of them was enough to lift it.
             if !self.nodes[node as usize].evaluated
-                && (self.surely_beaten(node) || !self.evaluate(node))
+                && (self.surely_beaten(node) || !self.prove(node, Some(f)))
             {
                 continue;
             }
@@ -337,6 +342,7 @@ impl<'a> Search<'a> {
                 parent: node,
                 base_move: m as u8,
                 dead: false,
+                proven: LegSet::default(),
                 evaluated: false,
                 goal,
             });
@@ -461,7 +467,7 @@ mod tests {
         println!(
             "{checked} steps the planner's proof accepted, all accepted by the simulator; \
              {ends} end poses the broad phase called colliding, all colliding; \
-             {proven} of {nodes} nodes proven"
+             {proven} rounds of proofs for {nodes} nodes generated"
         );
         assert!(proven < nodes, "{proven} of {nodes}");
         assert!(ends > 10_000, "{ends}");

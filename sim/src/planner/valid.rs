@@ -132,7 +132,7 @@ impl Search<'_> {
             // matters, not which.
             let mut unsettled: heapless::Vec<RobotState, 9> = heapless::Vec::new();
             let mut ok = false;
-            for &(dc, dt) in &self.moves[m].leg_steps {
+            for &(dc, dt) in &self.moves[m].proof_order {
                 let (r, c) = (row as i32 - dc, col as i32 - dt);
                 if r < 0 || c < 0 || !legs.contains(r as usize, c as usize) {
                     continue;
