@@ -20,9 +20,10 @@
 //!
 //! This search decides the same predicate, at the only moments it matters: when a node is
 //! popped at the priority eager would have queued it at (whether it is expanded), and when a
-//! goal is generated (whether it is accepted at once). [`Search::survives`] first proves the
-//! steps to every node at the pose not yet proven that could beat the one being decided (no
-//! more steps, candidates holding its valid set), then looks for one that does. Nodes are
+//! goal is generated (whether it is accepted at once). [`Search::survives`] first proves, for
+//! every node at the pose not yet proven that could beat the one being decided (no more
+//! steps, candidates holding its valid set), the steps to the members of that valid set (the
+//! rest only when the tie needs them), then looks for one that does. Nodes are
 //! dropped or retired earlier only when beaten for sure: a candidate set inside a known valid
 //! set is beaten, and a known valid set beats a candidate set inside it (the tie, equal sets
 //! and steps, is left for the proof). So the nodes expanded, in order, their sets, the goal
@@ -97,15 +98,7 @@ impl Search<'_> {
     /// The node's set stays a superset of its valid set throughout, so it counts as candidates
     /// for dominance until every configuration is decided.
     pub(super) fn prove(&mut self, node: u32, up_to: Option<f32>) -> bool {
-        let (parent, m, pose) = {
-            let n = &self.nodes[node as usize];
-            (n.parent, n.base_move as usize, n.pose)
-        };
-        let (from, legs) = {
-            let p = &self.nodes[parent as usize];
-            (p.pose, p.legs)
-        };
-        let key = pose.key();
+        let pose = self.nodes[node as usize].pose;
         loop {
             let (left, proven, h) = {
                 let n = &self.nodes[node as usize];
@@ -113,13 +106,38 @@ impl Search<'_> {
             };
             let unknown = left.difference(&proven);
             if unknown.is_empty() {
-                break;
+                return true;
             }
             let batch = match (&self.leg_hint, up_to) {
                 (Some(hint), Some(_)) => hint
                     .holding(&pose, self.env.target(), &left, &proven, h)
                     .unwrap_or(unknown),
                 _ => unknown,
+            };
+            if !self.decide(node, &batch) {
+                return false;
+            }
+            if up_to.is_some_and(|f| self.priority(node) > f) {
+                return true;
+            }
+        }
+    }
+
+    /// Proves the steps to the members of `cells` in `node`'s set not decided yet, and drops
+    /// the refuted ones from it; false (and the node dead) when nothing is left. Once every
+    /// member is decided the node is evaluated, and retires the nodes at the pose it surely
+    /// beats: they are dead in eager whatever happens to this one.
+    fn decide(&mut self, node: u32, cells: &LegSet) -> bool {
+        let (parent, m, pose, left, proven) = {
+            let n = &self.nodes[node as usize];
+            (n.parent, n.base_move as usize, n.pose, n.legs, n.proven)
+        };
+        let key = pose.key();
+        let batch = cells.intersection(&left).difference(&proven);
+        if !batch.is_empty() {
+            let (from, legs) = {
+                let p = &self.nodes[parent as usize];
+                (p.pose, p.legs)
             };
             let valid = self.valid_subset(&from, &legs, m, &pose, key, &batch);
             self.evaluations += 1;
@@ -131,11 +149,12 @@ impl Search<'_> {
                 self.forget(key, node);
                 return false;
             }
-            if up_to.is_some_and(|f| self.priority(node) > f) {
-                return true;
-            }
         }
-        self.nodes[node as usize].evaluated = true;
+        let n = &mut self.nodes[node as usize];
+        if n.evaluated || n.legs != n.proven {
+            return true;
+        }
+        n.evaluated = true;
         let Some(known) = self.seen.get_mut(&key) else {
             return true;
         };
@@ -149,8 +168,9 @@ impl Search<'_> {
     }
 
     /// Whether the evaluated `node` is live: no node at its pose generated so far beats it.
-    /// Proves first the steps to every unproven node there that might (no more steps, its
-    /// candidates holding this node's valid set); false, and the node dead, when beaten.
+    /// Proves first, for every unproven node there that might (no more steps, its candidates
+    /// holding this node's valid set), the steps to the members of this node's set; false,
+    /// and the node dead, when beaten.
     pub(super) fn survives(&mut self, node: u32) -> bool {
         let key = self.nodes[node as usize].pose.key();
         let Some(known) = self.seen.get(&key) else {
@@ -170,11 +190,28 @@ impl Search<'_> {
                     && !(n.steps == x.steps && k > node && n.legs == x.legs)
             })
             .collect();
+        let valid = self.nodes[node as usize].legs;
+        let steps = self.nodes[node as usize].steps;
         for k in rivals {
-            // A rival retired meanwhile by another rival is beaten by that one as well.
-            if !self.nodes[k as usize].dead {
-                self.evaluate(k);
+            if self.nodes[node as usize].dead {
+                return false;
             }
+            // A rival retired meanwhile by another rival is beaten by that one as well.
+            if self.nodes[k as usize].dead {
+                continue;
+            }
+            // It beats this node only if every member of this node's set is valid there: its
+            // other members need no proof unless the two sets might be equal and it is the
+            // newer at as many steps.
+            if !self.decide(k, &valid) || !valid.is_subset_of(&self.nodes[k as usize].proven) {
+                continue;
+            }
+            if self.nodes[k as usize].steps < steps || k < node {
+                self.nodes[node as usize].dead = true;
+                self.forget(key, node);
+                return false;
+            }
+            self.evaluate(k);
         }
         !self.nodes[node as usize].dead && !self.surely_beaten(node)
     }
