@@ -187,15 +187,15 @@ fn the_full_stack_reaches_a_target_beside_a_squeeze_fence_where_the_robot_stack_
         );
         return;
     };
-    // Held-out squeeze-115 (`eval --generated 200 --kind squeeze --seed 1000000`): the robot
-    // passes the gap and dithers beyond it, the target beside a block of the fence
-    // (docs/results.md, "Composed scenes").
+    // Held-out squeeze-7 (`eval --generated 200 --kind squeeze --seed 1000000`), one of the
+    // shipped file's few squeeze failures: the robot passes the gap and dithers beyond it, the
+    // target beside a block of the fence (docs/results.md, "Composed scenes").
     let scenes = wheelleg_sim::generate::generate_many(
         SceneKind::Behaviour(Behaviour::Squeeze),
         &mut ChaCha8Rng::seed_from_u64(1_000_000),
-        116,
+        8,
     );
-    let scene = &scenes[115];
+    let scene = &scenes[7];
     let run = |preset: Preset| {
         let mut env = Env::new(scene, Default::default()).unwrap();
         let mut driver = PolicyDriver::new(&bytes, "weights/policy.wlw", preset.config()).unwrap();
