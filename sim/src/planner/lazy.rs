@@ -108,6 +108,11 @@ impl Search<'_> {
             if unknown.is_empty() {
                 return true;
             }
+            // What is refuted so far (here, or by a rival's proof since the node was queued)
+            // may have lifted it above the priority it was popped at.
+            if up_to.is_some_and(|f| self.priority(node) > f) {
+                return true;
+            }
             let batch = match (&self.leg_hint, up_to) {
                 (Some(hint), Some(_)) => hint
                     .holding(&pose, self.env.target(), &left, &proven, h)
@@ -116,9 +121,6 @@ impl Search<'_> {
             };
             if !self.decide(node, &batch) {
                 return false;
-            }
-            if up_to.is_some_and(|f| self.priority(node) > f) {
-                return true;
             }
         }
     }
