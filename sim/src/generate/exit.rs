@@ -80,7 +80,7 @@ mod tests {
             assert!((0.19..=0.31).contains(&past_m), "{past_m}");
             // The opening: the one cell of the last row without a block, near the start.
             let opening_y_m = (-8..=8)
-                .map(|c| crate::obstacle::cell_centre_m(c))
+                .map(crate::obstacle::cell_centre_m)
                 .find(|&y| {
                     (y - s.start.position.y).abs() < 0.4
                         && !s
