@@ -173,8 +173,8 @@ pub fn train_stage(
         kind,
         start_yaw: config.start_yaw(),
         stage: schedule.as_ref().map_or(1.0, StartStageSchedule::stage),
-        composed_share: composed_share_at(run, 0),
-        exit_share: exit_share_at(run, 0),
+        composed_share: mix_at(run, 0).0,
+        exit_share: mix_at(run, 0).1,
         exit_behaviour: exit_behaviour(run)?,
     };
     let mut envs = VecEnv::with_scenes(scenes, n, env_seed, env_config, run.threads)?;
@@ -277,8 +277,9 @@ pub fn train_stage(
     while env_steps < run.total_env_steps && opts.max_iterations.is_none_or(|m| iterations_here < m)
     {
         let iter_start = Instant::now();
-        envs.set_composed_share(composed_share_at(run, env_steps));
-        envs.set_exit_share(exit_share_at(run, env_steps));
+        let (composed_share, exit_share) = mix_at(run, env_steps);
+        envs.set_composed_share(composed_share);
+        envs.set_exit_share(exit_share);
         // 1. Sample trajectories with the current policy.
         storage.clear();
         let mut episodes = Vec::new();
@@ -420,31 +421,21 @@ pub fn train_stage(
     })
 }
 
-/// The share of composed scenes for episodes drawn after `env_steps` env steps of the run:
-/// `run.composed_share` from `run.composed_from_env_steps` on, none before.
-fn composed_share_at(run: &crate::config::RunConfig, env_steps: u64) -> f64 {
+/// The shares of composed and exit scenes for episodes drawn after `env_steps` env steps of the
+/// run: `run.composed_share` and `run.exit_share` from `run.composed_from_env_steps` on, none
+/// before.
+fn mix_at(run: &crate::config::RunConfig, env_steps: u64) -> (f64, f64) {
     if env_steps >= run.composed_from_env_steps {
-        run.composed_share
+        (run.composed_share, run.exit_share)
     } else {
-        0.0
-    }
-}
-
-/// The share of exit scenes for episodes drawn after `env_steps` env steps of the run, gated as
-/// [`composed_share_at`].
-fn exit_share_at(run: &crate::config::RunConfig, env_steps: u64) -> f64 {
-    if env_steps >= run.composed_from_env_steps {
-        run.exit_share
-    } else {
-        0.0
+        (0.0, 0.0)
     }
 }
 
 /// The fence of the run's exit scenes (`run.exit_behaviour`).
 fn exit_behaviour(run: &crate::config::RunConfig) -> Result<Behaviour, String> {
-    Behaviour::ALL
-        .into_iter()
-        .find(|b| b.name() == run.exit_behaviour)
+    Behaviour::from_name(&run.exit_behaviour)
+        .filter(|b| b.has_fence())
         .ok_or_else(|| {
             format!(
                 "run.exit_behaviour: no fence named {:?}",
@@ -525,11 +516,11 @@ mod tests {
             composed_share: 0.5,
             ..Default::default()
         };
-        assert_eq!(composed_share_at(&run, 0), 0.5, "from the start by default");
+        assert_eq!(mix_at(&run, 0).0, 0.5, "from the start by default");
         run.composed_from_env_steps = 10_000_000;
-        assert_eq!(composed_share_at(&run, 0), 0.0);
-        assert_eq!(composed_share_at(&run, 9_990_000), 0.0);
-        assert_eq!(composed_share_at(&run, 10_000_000), 0.5);
-        assert_eq!(composed_share_at(&run, 29_000_000), 0.5);
+        assert_eq!(mix_at(&run, 0).0, 0.0);
+        assert_eq!(mix_at(&run, 9_990_000).0, 0.0);
+        assert_eq!(mix_at(&run, 10_000_000).0, 0.5);
+        assert_eq!(mix_at(&run, 29_000_000).0, 0.5);
     }
 }

@@ -34,10 +34,7 @@ pub fn exit_scene(
 ) -> Scenario {
     loop {
         let (mut scenario, passage) = behaviour_scene(behaviour, rng, name.clone(), start_yaw);
-        if matches!(
-            behaviour,
-            Behaviour::LiftOver | Behaviour::SpreadOver | Behaviour::Squeeze
-        ) {
+        if behaviour.has_fence() {
             let last_row_x_m = passage.entry_x_m + (fence_rows(behaviour) - 1) as f32 * GRID_CELL_M;
             let past = rng.random_range(PAST_LAST_ROW_STEPS) as f32 * MOVE_STEP_M;
             let side = if rng.random_bool(0.5) { 1.0 } else { -1.0 };

@@ -70,6 +70,19 @@ impl Behaviour {
             Behaviour::Squeeze => "squeeze",
         }
     }
+
+    /// The behaviour named `name` ([`Behaviour::name`]).
+    pub fn from_name(name: &str) -> Option<Behaviour> {
+        Behaviour::ALL.into_iter().find(|b| b.name() == name)
+    }
+
+    /// Whether the behaviour's scenes put a fence across the arena (lift, spread, squeeze).
+    pub const fn has_fence(self) -> bool {
+        matches!(
+            self,
+            Behaviour::LiftOver | Behaviour::SpreadOver | Behaviour::Squeeze
+        )
+    }
 }
 
 /// What to generate.

@@ -21,7 +21,8 @@ impl TrainConfig {
             "run.exit_share must be between 0 and 1, and with run.composed_share at most 1",
         )?;
         check(
-            ["lift", "spread", "squeeze"].contains(&r.exit_behaviour.as_str()),
+            wheelleg_sim::generate::Behaviour::from_name(&r.exit_behaviour)
+                .is_some_and(|b| b.has_fence()),
             "run.exit_behaviour must be one of lift, spread, squeeze",
         )?;
         check(r.num_envs >= 1, "run.num_envs must be at least 1")?;
