@@ -18,11 +18,12 @@ use wheelleg_runtime::observation::STATE_LEN;
 use wheelleg_runtime::robot::{RobotGeometry, WHEELLEG};
 
 mod guard_map;
+mod way_proof;
 mod way_there;
 
 pub use guard_map::GuardMap;
+pub(crate) use way_proof::{proof_cap_m, prove_way, ProofPose, WayClearance};
 use way_there::horizontal_reach_m;
-pub(crate) use way_there::proof_cap_m;
 
 /// Motion shorter than this that cannot be proven clear of an obstacle counts as touching it
 /// (see [`Env::check_transition`]): 0.1 mm, far below what a real robot tracks, far above

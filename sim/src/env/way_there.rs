@@ -2,8 +2,9 @@
 //! the obstacles ([`Env::check_transition`]), and the bound on how far any point of the robot
 //! moves in a step that the proof rests on ([`Env::motion_bound_m`]).
 
-use super::{Env, InvalidAction, SweptCollision, GRAZE_TOLERANCE_M};
-use crate::collision::{place_parts, ObstacleSet, Part, RobotParts, PART_COUNT};
+use super::way_proof::{prove_way, ProofPose, WayClearance};
+use super::{Env, InvalidAction, SweptCollision};
+use crate::collision::{place_parts, Part, RobotParts, PART_COUNT};
 use crate::state::RobotState;
 use nalgebra::Point2;
 use wheelleg_runtime::action::YAW_STEP_DEG;
@@ -19,10 +20,6 @@ const LEG_PATH_PIECES: u32 = 16;
 /// padding, so 1.5).
 const LEG_PATH_SAFETY: f32 = 1.5;
 
-/// Stretches the clearance proof can hold at once: one per halving level, and a step's motion
-/// (under 0.2 m) halves below [`GRAZE_TOLERANCE_M`] in 11 levels.
-const PROOF_STACK: usize = 40;
-
 impl Env {
     /// Whether the step from `from` to `to` is valid: the end pose reachable by the legs and
     /// inside the arena, and no part of the robot touching an obstacle at the end pose **or
@@ -33,7 +30,7 @@ impl Env {
     /// the stretch of motion within `d / D` of it clear, where `D` bounds how far any point of
     /// the robot moves over the whole step ([`Env::motion_bound_m`]). The step is bisected
     /// until every stretch is covered this way; a pose that touches is a collision, and so is a
-    /// stretch shorter than [`GRAZE_TOLERANCE_M`] of motion that still cannot be proven clear
+    /// stretch shorter than [`GRAZE_TOLERANCE_M`](super::GRAZE_TOLERANCE_M) of motion that still cannot be proven clear
     /// (the robot would graze an obstacle within that tolerance).
     pub fn check_transition(
         &self,
@@ -116,14 +113,7 @@ impl Env {
     }
 
     /// Bisects the step until the clearance at the poses covers every stretch between them
-    /// (see [`Env::check_transition`]).
-    ///
-    /// The clearance of a pose is parry's exact query ([`ObstacleSet::clearance_m`]), but a
-    /// stretch is first tried with a cheap lower bound on it
-    /// ([`ObstacleSet::clearance_lower_bound_m`], from box gaps): a stretch the bounds prove is
-    /// one the exact values prove too, and only a stretch they do not prove asks for the exact
-    /// values at its ends. The verdict is the one the exact values alone give, found with
-    /// fewer of parry's queries.
+    /// ([`prove_way`], with the simulator's values: [`SimulatorClearance`]).
     fn prove_way_clear(
         &self,
         from: &RobotState,
@@ -132,95 +122,17 @@ impl Env {
         start: &RobotParts,
         end: &RobotParts,
     ) -> Result<(), InvalidAction> {
-        // Clearance is only looked for as far as it can help: a stretch of travel `T` needs
-        // its two ends' clearances to sum to more than `T`, so each pose's search stops a
-        // little past half the travel of the stretch it ends (fewer part/obstacle pairs get
-        // parry's exact query). Capped values are lower bounds, so the proof stays sound; a
-        // capped pair may just split once more.
-        let enough = proof_cap_m;
-        let start_pose = ProofPose::new(&self.obstacles, 0.0, start, enough(bound_m));
-        let mut end_pose = ProofPose::new(&self.obstacles, 1.0, end, enough(bound_m));
-        // A pose whose bound cannot rule out touching gets its exact clearance at once: a pose
-        // that touches ends the proof there (a start that touches, only possible within
-        // parry's rounding of a pose the contact rule accepted, counts as clearance 0 instead:
-        // the motion must then prove itself from the other end; that is settled when needed).
-        if end_pose.cheap_m <= 0.0 {
-            end_pose.exact_m = Some(
-                self.obstacles
-                    .clearance_m(end, end_pose.cap_m)
-                    .ok_or(InvalidAction::Collision)?,
-            );
-        }
-        // Stretches still to prove, between two poses, as fractions of the step. The depth is
-        // bounded: each split halves a stretch, and a stretch shorter than the graze tolerance
-        // ends the search.
-        let mut open: heapless::Vec<(ProofPose, ProofPose), PROOF_STACK> = heapless::Vec::new();
-        // Room for a split at every level down to the tolerance; a full stack (only with a
-        // robot that moves kilometres per step) is a step not proven clear.
-        let full = |_| InvalidAction::Collision;
-        open.push((start_pose, end_pose)).map_err(full)?;
-        // The latest in-between pose placed: the stretch from the pose before it is tried
-        // next, and may need its exact clearance.
-        let mut latest: Option<(f32, RobotParts)> = None;
-        while let Some((mut a, mut b)) = open.pop() {
-            let travel_m = bound_m * (b.t - a.t);
-            if a.best_m() + b.best_m() > travel_m {
-                continue;
-            }
-            for pose in [&mut a, &mut b] {
-                if pose.exact_m.is_some() {
-                    continue;
-                }
-                let placed;
-                let parts = match &latest {
-                    _ if pose.t == 0.0 => start,
-                    _ if pose.t == 1.0 => end,
-                    Some((t, parts)) if *t == pose.t => parts,
-                    _ => {
-                        placed = self
-                            .pose_between(from, to, pose.t)
-                            .map_err(InvalidAction::Impossible)?;
-                        &placed
-                    }
-                };
-                let exact_m = match self.obstacles.clearance_m(parts, pose.cap_m) {
-                    Some(exact_m) => exact_m,
-                    None if pose.t == 0.0 => 0.0,
-                    None => return Err(InvalidAction::Collision),
-                };
-                pose.exact_m = Some(exact_m);
-                // The other stretch that ends at this pose is waiting in the stack.
-                for (c, d) in open.iter_mut() {
-                    for other in [c, d] {
-                        if other.t == pose.t {
-                            other.exact_m = Some(exact_m);
-                        }
-                    }
-                }
-            }
-            if a.best_m() + b.best_m() > travel_m {
-                continue;
-            }
-            if travel_m < GRAZE_TOLERANCE_M {
-                return Err(InvalidAction::Collision);
-            }
-            let t = 0.5 * (a.t + b.t);
-            let parts = self
-                .pose_between(from, to, t)
-                .map_err(InvalidAction::Impossible)?;
-            let mut mid = ProofPose::new(&self.obstacles, t, &parts, enough(travel_m));
-            if mid.cheap_m <= 0.0 {
-                mid.exact_m = Some(
-                    self.obstacles
-                        .clearance_m(&parts, mid.cap_m)
-                        .ok_or(InvalidAction::Collision)?,
-                );
-            }
-            latest = Some((t, parts));
-            open.push((mid, b)).map_err(full)?;
-            open.push((a, mid)).map_err(full)?;
-        }
-        Ok(())
+        prove_way(
+            &mut SimulatorClearance {
+                env: self,
+                from,
+                to,
+                start,
+                end,
+                latest: None,
+            },
+            bound_m,
+        )
     }
 
     /// The robot's parts at fraction `t` of the step from `from` to `to` (0 = start, 1 = end):
@@ -340,42 +252,59 @@ impl Env {
     }
 }
 
-/// A pose of the clearance proof ([`Env::prove_way_clear`]): where along the step it is, and
-/// what is known of its clearance.
-#[derive(Clone, Copy, Debug)]
-struct ProofPose {
-    /// Fraction of the step.
-    t: f32,
-    /// A lower bound on `exact_m`, from box gaps: at most 0 when the pose may touch.
-    cheap_m: f32,
-    /// [`ObstacleSet::clearance_m`] up to `cap_m`, once asked for.
-    exact_m: Option<f32>,
-    /// How far the clearance is looked for (see `enough` in [`Env::prove_way_clear`]).
-    cap_m: f32,
+/// The simulator's clearance values for [`prove_way`]: a stretch is first tried with a cheap
+/// lower bound on it ([`ObstacleSet::clearance_lower_bound_m`](crate::collision::ObstacleSet::clearance_lower_bound_m), from box gaps), and only a
+/// stretch those do not prove asks for parry's exact values at its ends
+/// ([`ObstacleSet::clearance_m`](crate::collision::ObstacleSet::clearance_m)): the verdict is the one the exact values alone give, found
+/// with fewer of parry's queries.
+struct SimulatorClearance<'a> {
+    env: &'a Env,
+    from: &'a RobotState,
+    to: &'a RobotState,
+    /// The robot's parts at the start and the end, already placed.
+    start: &'a RobotParts,
+    end: &'a RobotParts,
+    /// The latest in-between pose placed: the stretch from the pose before it is tried next,
+    /// and may need its exact clearance.
+    latest: Option<(f32, RobotParts)>,
 }
 
-impl ProofPose {
-    fn new(obstacles: &ObstacleSet, t: f32, parts: &RobotParts, cap_m: f32) -> Self {
-        ProofPose {
-            t,
-            cheap_m: obstacles.clearance_lower_bound_m(parts, cap_m),
-            exact_m: None,
-            cap_m,
+impl SimulatorClearance<'_> {
+    /// The parts at fraction `t`, placed again only when they are not at hand.
+    fn parts(&mut self, t: f32) -> Result<&RobotParts, InvalidAction> {
+        if t == 0.0 {
+            return Ok(self.start);
         }
-    }
-
-    /// The best lower bound on the pose's clearance known so far.
-    fn best_m(&self) -> f32 {
-        self.exact_m.unwrap_or(self.cheap_m.max(0.0))
+        if t == 1.0 {
+            return Ok(self.end);
+        }
+        if !matches!(&self.latest, Some((at, _)) if *at == t) {
+            let parts = self
+                .env
+                .pose_between(self.from, self.to, t)
+                .map_err(InvalidAction::Impossible)?;
+            self.latest = Some((t, parts));
+        }
+        Ok(&self.latest.as_ref().expect("just placed").1)
     }
 }
 
-/// How far the clearance proof ([`Env::check_transition`]) looks for the clearance of a pose
-/// that ends a stretch of `travel_m`: a stretch needs its two ends' clearances to sum to more
-/// than its travel, so a little past half of it. The planner's own proof of the way there
-/// (`crate::planner`) uses the same caps, so its bounds are never above the simulator's.
-pub(crate) fn proof_cap_m(travel_m: f32) -> f32 {
-    0.5 * travel_m * (1.0 + 1.0e-3) + GRAZE_TOLERANCE_M
+impl WayClearance for SimulatorClearance<'_> {
+    type Refusal = InvalidAction;
+
+    fn cheap_m(&mut self, t: f32, cap_m: f32) -> Result<f32, InvalidAction> {
+        let env = self.env;
+        Ok(env.obstacles.clearance_lower_bound_m(self.parts(t)?, cap_m))
+    }
+
+    fn exact_m(&mut self, pose: &ProofPose) -> Result<Option<f32>, InvalidAction> {
+        let env = self.env;
+        Ok(env.obstacles.clearance_m(self.parts(pose.t)?, pose.cap_m))
+    }
+
+    fn touches(&self) -> InvalidAction {
+        InvalidAction::Collision
+    }
 }
 
 /// The legs' term of [`Env::motion_bound_m`]: how far any point of a leg (or the body, as it

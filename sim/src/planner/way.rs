@@ -1,13 +1,15 @@
-//! The planner's proof of the way there: the simulator's bisection of a step, replayed with
-//! cheap clearance bounds alone (see [`way_proven`]).
+//! The planner's proof of the way there: the simulator's bisection of a step, run with cheap
+//! clearance bounds alone (see [`way_proven`]).
 
 use super::moves::PoseKey;
 use super::search::FastMap;
 use crate::collision::place_parts;
 use crate::collision::CLEARANCE_SLACK_M;
 use crate::env::proof_cap_m;
+use crate::env::prove_way;
 use crate::env::Env;
-use crate::env::GRAZE_TOLERANCE_M;
+use crate::env::ProofPose;
+use crate::env::WayClearance;
 use crate::state::RobotState;
 use nalgebra::Point2;
 
@@ -58,23 +60,12 @@ pub(super) fn state_clearance_m(
     (cap_m - CLEARANCE_SLACK_M).min(bound_m) - (state.position - at).norm() - STATE_MARGIN_M
 }
 
-/// Stretches the planner's proof holds at once (one per halving level: a step's motion halves
-/// below the graze tolerance in 11 levels); deeper, the simulator decides.
-pub(super) const WAY_PROOF_STACK: usize = 24;
-
 /// Whether the simulator's proof of the way from `from` to `to` (`Env::check_transition`,
 /// motion bound `bound_m`) surely succeeds, decided without parry: the end pose is already
-/// known clear (the caller's test), and this replays the simulator's bisection with the cheap
-/// bounds alone, each no higher than the value the simulator uses at the same pose.
-///
-/// The simulator splits a stretch only when its values at the ends do not cover the travel;
-/// these values are lower, so this proof splits that stretch too, at the same fraction, with the
-/// same caps. So every pose the simulator places is placed here (the same `Env::pose_between`:
-/// a pose the legs cannot take ends this proof), every stretch the simulator ends with is one
-/// this proof covered, and none is shorter than the graze tolerance. A pose whose cheap bound is
-/// not above 0 ends this proof (the simulator might ask parry there and find it touching),
-/// except the start, which the simulator counts as 0. The verdict is the simulator's: this only
-/// ever says yes where it says yes, and the caller asks the simulator whenever this says no.
+/// known clear (the caller's test), and this runs the simulator's own bisection
+/// ([`prove_way`]) with the cheap bounds alone ([`PlannerClearance`]), each no higher than the
+/// value the simulator uses at the same pose. So this only ever says yes where the simulator
+/// says yes, and the caller asks the simulator whenever this says no.
 ///
 /// `from` and `to` come with their pose keys and leg cells, for [`state_clearance_m`].
 pub(super) fn way_proven(
@@ -84,50 +75,66 @@ pub(super) fn way_proven(
     (to, to_key, to_cell): (&RobotState, PoseKey, usize),
     bound_m: f32,
 ) -> bool {
-    let cap_m = proof_cap_m(bound_m);
-    if cap_m > STATE_CAP_M {
+    if proof_cap_m(bound_m) > STATE_CAP_M {
         return false;
     }
-    let end_m = state_clearance_m(env, cache, to, to_key, to_cell, cap_m);
-    if end_m <= 0.0 {
-        return false;
-    }
-    let start_m = state_clearance_m(env, cache, from, from_key, from_cell, cap_m).max(0.0);
     // Every pose on the way has its centre within the motion bound of the start, every part
     // within the reach of its centre, and only clearances up to the cap count.
-    let near = env
-        .obstacles()
-        .near(from.position, env.reach_m() + bound_m + cap_m);
-    // Stretches still to prove: (fraction, clearance bound) at each end.
-    let mut open: heapless::Vec<((f32, f32), (f32, f32)), WAY_PROOF_STACK> = heapless::Vec::new();
-    open.push(((0.0, start_m), (1.0, end_m)))
-        .expect("room for one");
-    while let Some(((a_t, a_m), (b_t, b_m))) = open.pop() {
-        let travel_m = bound_m * (b_t - a_t);
-        if a_m + b_m > travel_m {
-            continue;
+    let near = env.obstacles().near(
+        from.position,
+        env.reach_m() + bound_m + proof_cap_m(bound_m),
+    );
+    prove_way(
+        &mut PlannerClearance {
+            env,
+            cache,
+            from: (from, from_key, from_cell),
+            to: (to, to_key, to_cell),
+            near,
+        },
+        bound_m,
+    )
+    .is_ok()
+}
+
+/// The planner's clearance values for [`prove_way`]: at the ends the lattice states' cached
+/// bounds ([`state_clearance_m`]), in between the box-gap bound of the parts less
+/// [`STATE_MARGIN_M`]. Each is no higher than the simulator's value at the same pose, and there
+/// are no exact values: a pose these do not show clear ends the proof (the start counts as 0,
+/// as in the simulator).
+struct PlannerClearance<'a, 'c> {
+    env: &'a Env,
+    cache: &'c mut StateClearance,
+    from: (&'a RobotState, PoseKey, usize),
+    to: (&'a RobotState, PoseKey, usize),
+    /// The obstacles any pose on the way can be near.
+    near: Vec<usize>,
+}
+
+impl WayClearance for PlannerClearance<'_, '_> {
+    /// Not proven here; the simulator decides.
+    type Refusal = ();
+
+    fn cheap_m(&mut self, t: f32, cap_m: f32) -> Result<f32, ()> {
+        let env = self.env;
+        if t == 0.0 || t == 1.0 {
+            let (state, key, cell) = if t == 0.0 { self.from } else { self.to };
+            return Ok(state_clearance_m(env, self.cache, state, key, cell, cap_m));
         }
-        if travel_m < GRAZE_TOLERANCE_M {
-            return false;
-        }
-        let t = 0.5 * (a_t + b_t);
-        let Ok(parts) = env.parts_between(from, to, t) else {
-            return false;
-        };
-        let mid_m = env.obstacles().parts_clearance_lower_bound_m(
+        let parts = env
+            .parts_between(self.from.0, self.to.0, t)
+            .map_err(|_| ())?;
+        Ok(env.obstacles().parts_clearance_lower_bound_m(
             &parts,
             env.reach_m(),
-            proof_cap_m(travel_m),
-            Some(&near),
-        ) - STATE_MARGIN_M;
-        if mid_m <= 0.0 {
-            return false;
-        }
-        if open.push(((t, mid_m), (b_t, b_m))).is_err()
-            || open.push(((a_t, a_m), (t, mid_m))).is_err()
-        {
-            return false;
-        }
+            cap_m,
+            Some(&self.near),
+        ) - STATE_MARGIN_M)
     }
-    true
+
+    fn exact_m(&mut self, pose: &ProofPose) -> Result<Option<f32>, ()> {
+        Ok((pose.cheap_m > 0.0).then_some(pose.cheap_m))
+    }
+
+    fn touches(&self) {}
 }
