@@ -182,6 +182,7 @@ fn a_training_run_killed_at_any_moment_resumes_to_the_same_result() {
             resume: false,
             progress: false,
             max_iterations: None,
+            stop_at_env_steps: None,
             kind: "baseline".into(),
         },
     )

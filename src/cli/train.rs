@@ -47,6 +47,11 @@ pub struct Args {
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
+    /// Stop the baseline or the primary, with a checkpoint, once it has this many env steps,
+    /// short of the config's budget (a comparison at a smaller budget); `--resume` later goes
+    /// on to the config's total on the same schedules.
+    #[arg(long, value_name = "N")]
+    stop_at_env_steps: Option<u64>,
 }
 
 /// Runs `train`.
@@ -56,6 +61,7 @@ pub fn run(args: Args) -> CliResult {
         out: args.out.clone(),
         seed: args.seed,
         progress: !args.quiet,
+        stop_at_env_steps: args.stop_at_env_steps,
     };
     let summary = match args.stage {
         Stage::Baseline => return baseline(&config, &args),
@@ -80,6 +86,7 @@ fn baseline(config: &TrainConfig, args: &Args) -> CliResult {
         resume: args.resume,
         progress: !args.quiet,
         max_iterations: None,
+        stop_at_env_steps: args.stop_at_env_steps,
         kind: "baseline".into(),
     };
     let summary = train(config, &opts)?;

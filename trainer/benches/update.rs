@@ -98,6 +98,7 @@ fn training_iteration(c: &mut Criterion) {
                 resume: false,
                 progress: false,
                 max_iterations: None,
+                stop_at_env_steps: None,
                 kind: "bench".into(),
             };
             train(&config, &opts).expect("train")

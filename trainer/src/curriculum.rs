@@ -40,6 +40,9 @@ pub struct CurriculumOptions {
     pub seed: u64,
     /// Draw progress bars.
     pub progress: bool,
+    /// Stop the primary stage, with a checkpoint, at this many env steps, short of its budget
+    /// ([`RunOptions::stop_at_env_steps`]; the secondaries always run to theirs).
+    pub stop_at_env_steps: Option<u64>,
 }
 
 /// The run folder of a behaviour's secondary policy.
@@ -77,6 +80,7 @@ fn run_stage(
     seed: u64,
     kind: &str,
     progress: bool,
+    stop_at_env_steps: Option<u64>,
     inputs: StageInputs<'_>,
 ) -> Result<RunSummary, String> {
     let resume = dir.join(crate::runner::CHECKPOINT_FILE).exists();
@@ -86,6 +90,7 @@ fn run_stage(
         resume,
         progress,
         max_iterations: None,
+        stop_at_env_steps,
         kind: kind.to_string(),
     };
     train_stage(config, &opts, inputs)
@@ -148,6 +153,7 @@ pub fn run_secondary(config: &TrainConfig, opts: &CurriculumOptions) -> Result<(
             opts.seed.wrapping_add(1 + index as u64),
             &format!("secondary-{}", behaviour.name()),
             opts.progress,
+            None,
             StageInputs {
                 init: straight.as_ref(),
                 record: Some(behaviour),
@@ -332,6 +338,7 @@ pub fn run_primary(config: &TrainConfig, opts: &CurriculumOptions) -> Result<Run
         opts.seed,
         "primary",
         opts.progress,
+        opts.stop_at_env_steps,
         StageInputs {
             init: init.as_ref(),
             replay: Some(&batch),

@@ -94,6 +94,10 @@ pub struct RunOptions {
     /// Stop after this many iterations in this process (tests of resume; `None`: run to the
     /// budget).
     pub max_iterations: Option<u64>,
+    /// Stop, with a checkpoint, once the run has this many env steps, short of its budget (a
+    /// comparison at a smaller budget; `--resume` later goes on to the config's total, on the
+    /// same schedules). `None`: run to the budget.
+    pub stop_at_env_steps: Option<u64>,
     /// Label stored in checkpoints.
     pub kind: String,
 }
@@ -274,8 +278,10 @@ pub fn train_stage(
     let start = Instant::now();
     let mut last = None;
     let mut iterations_here = 0;
-    while env_steps < run.total_env_steps && opts.max_iterations.is_none_or(|m| iterations_here < m)
-    {
+    let stop_at = opts
+        .stop_at_env_steps
+        .map_or(run.total_env_steps, |s| s.min(run.total_env_steps));
+    while env_steps < stop_at && opts.max_iterations.is_none_or(|m| iterations_here < m) {
         let iter_start = Instant::now();
         let (composed_share, exit_share) = mix_at(run, env_steps);
         envs.set_composed_share(composed_share);
@@ -383,7 +389,7 @@ pub fn train_stage(
                 .map_or(String::new(), |s| format!(" stage {:.2}", s.stage()))
         ));
         last = Some(m);
-        let finished = env_steps >= run.total_env_steps
+        let finished = env_steps >= stop_at
             || opts.max_iterations.is_some_and(|mx| iterations_here >= mx);
         if iteration % run.checkpoint_interval as u64 == 0 || finished {
             if inputs.record.is_some() {

@@ -40,6 +40,7 @@ fn the_whole_pipeline_runs_and_resumes() {
         out: out.clone(),
         seed: 5,
         progress: false,
+        stop_at_env_steps: None,
     };
     let summary = run_all(&config, &opts).unwrap();
     assert_eq!(summary.env_steps, 2000);
@@ -96,6 +97,7 @@ fn the_primary_stage_names_the_missing_batch() {
         out: PathBuf::from(&out),
         seed: 0,
         progress: false,
+        stop_at_env_steps: None,
     };
     let e = wheelleg_trainer::curriculum::run_primary(&tiny_config(), &opts).unwrap_err();
     assert!(
@@ -113,6 +115,7 @@ fn a_behaviour_given_its_own_budget_is_continued_alone() {
         out: out.clone(),
         seed: 3,
         progress: false,
+        stop_at_env_steps: None,
     };
     let env_steps = |behaviour| {
         Checkpoint::load(&secondary_dir(&out, behaviour).join(CHECKPOINT_FILE))

@@ -35,6 +35,7 @@ fn opts(out: PathBuf, resume: bool, max_iterations: Option<u64>) -> RunOptions {
         resume,
         progress: false,
         max_iterations,
+        stop_at_env_steps: None,
         kind: "test".into(),
     }
 }
@@ -167,4 +168,45 @@ fn a_resumed_run_matches_an_uninterrupted_one() {
     assert_eq!(TrainConfig::from_toml(&stored).unwrap(), longer);
     let _ = std::fs::remove_dir_all(&whole);
     let _ = std::fs::remove_dir_all(&split);
+}
+
+/// A comparison at a smaller budget stops the run there with a checkpoint (`--stop-at-env-steps`),
+/// and resumed later it goes on to the config's total on the same schedules (the learning rate's
+/// anneal to the total): the same network as a run never stopped.
+#[test]
+fn a_run_stopped_short_of_its_budget_resumes_on_the_same_schedule() {
+    let mut config = smoke_config();
+    config.run.steps_per_iteration = 400;
+    config.run.num_envs = 20;
+    config.run.total_env_steps = 1600;
+    config.run.checkpoint_interval = 2;
+    config.ppo.learning_rate_final = Some(0.0);
+    config.ppo.anneal_start_env_steps = 400;
+    config.validate().unwrap();
+    let whole = temp_dir("stop-whole");
+    let stopped = temp_dir("stop-short");
+    let a = train(&config, &opts(whole.clone(), false, None)).unwrap();
+    let short = RunOptions {
+        stop_at_env_steps: Some(1200),
+        ..opts(stopped.clone(), false, None)
+    };
+    let s = train(&config, &short).unwrap();
+    assert_eq!(s.env_steps, 1200);
+    // The stop falls between checkpoints: the run checkpoints where it stops.
+    assert_eq!(Checkpoint::load(&s.checkpoint).unwrap().env_steps, 1200);
+    // Asked again, a run already at its stop trains nothing.
+    let again = train(&config, &RunOptions { resume: true, ..short }).unwrap();
+    assert_eq!(again.env_steps, 1200);
+    assert_eq!(read_metrics(&stopped).unwrap().len(), 3);
+    let b = train(&config, &opts(stopped.clone(), true, None)).unwrap();
+    let (ca, cb) = (
+        Checkpoint::load(&a.checkpoint).unwrap(),
+        Checkpoint::load(&b.checkpoint).unwrap(),
+    );
+    assert_eq!(ca.env_steps, 1600);
+    assert_eq!(ca.env_steps, cb.env_steps);
+    assert_eq!(ca.network, cb.network);
+    assert_eq!(ca.adam, cb.adam);
+    let _ = std::fs::remove_dir_all(&whole);
+    let _ = std::fs::remove_dir_all(&stopped);
 }

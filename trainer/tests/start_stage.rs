@@ -39,6 +39,7 @@ fn opts(out: PathBuf, resume: bool, max_iterations: Option<u64>) -> RunOptions {
         resume,
         progress: false,
         max_iterations,
+        stop_at_env_steps: None,
         kind: "test".into(),
     }
 }
