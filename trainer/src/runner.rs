@@ -389,8 +389,8 @@ pub fn train_stage(
                 .map_or(String::new(), |s| format!(" stage {:.2}", s.stage()))
         ));
         last = Some(m);
-        let finished = env_steps >= stop_at
-            || opts.max_iterations.is_some_and(|mx| iterations_here >= mx);
+        let finished =
+            env_steps >= stop_at || opts.max_iterations.is_some_and(|mx| iterations_here >= mx);
         if iteration % run.checkpoint_interval as u64 == 0 || finished {
             if inputs.record.is_some() {
                 save_trajectories(&trajectories_path, solved.make_contiguous(), env_config)?;

@@ -28,6 +28,17 @@ fn smoke_config() -> TrainConfig {
     TrainConfig::load(std::path::Path::new(path)).unwrap()
 }
 
+/// The smoke config as a run of four iterations of 400 env steps, checkpointing every
+/// `checkpoint_interval` of them.
+fn four_iterations(checkpoint_interval: usize) -> TrainConfig {
+    let mut config = smoke_config();
+    config.run.steps_per_iteration = 400;
+    config.run.num_envs = 20;
+    config.run.total_env_steps = 1600;
+    config.run.checkpoint_interval = checkpoint_interval;
+    config
+}
+
 fn opts(out: PathBuf, resume: bool, max_iterations: Option<u64>) -> RunOptions {
     RunOptions {
         out,
@@ -110,11 +121,7 @@ fn ppo_learns_to_drive_straight_to_the_target() {
 
 #[test]
 fn a_resumed_run_matches_an_uninterrupted_one() {
-    let mut config = smoke_config();
-    config.run.steps_per_iteration = 400;
-    config.run.num_envs = 20;
-    config.run.total_env_steps = 1600;
-    config.run.checkpoint_interval = 1;
+    let config = four_iterations(1);
     let whole = temp_dir("whole");
     let split = temp_dir("split");
     let a = train(&config, &opts(whole.clone(), false, None)).unwrap();
@@ -175,11 +182,7 @@ fn a_resumed_run_matches_an_uninterrupted_one() {
 /// anneal to the total): the same network as a run never stopped.
 #[test]
 fn a_run_stopped_short_of_its_budget_resumes_on_the_same_schedule() {
-    let mut config = smoke_config();
-    config.run.steps_per_iteration = 400;
-    config.run.num_envs = 20;
-    config.run.total_env_steps = 1600;
-    config.run.checkpoint_interval = 2;
+    let mut config = four_iterations(2);
     config.ppo.learning_rate_final = Some(0.0);
     config.ppo.anneal_start_env_steps = 400;
     config.validate().unwrap();
@@ -195,7 +198,14 @@ fn a_run_stopped_short_of_its_budget_resumes_on_the_same_schedule() {
     // The stop falls between checkpoints: the run checkpoints where it stops.
     assert_eq!(Checkpoint::load(&s.checkpoint).unwrap().env_steps, 1200);
     // Asked again, a run already at its stop trains nothing.
-    let again = train(&config, &RunOptions { resume: true, ..short }).unwrap();
+    let again = train(
+        &config,
+        &RunOptions {
+            resume: true,
+            ..short
+        },
+    )
+    .unwrap();
     assert_eq!(again.env_steps, 1200);
     assert_eq!(read_metrics(&stopped).unwrap().len(), 3);
     let b = train(&config, &opts(stopped.clone(), true, None)).unwrap();

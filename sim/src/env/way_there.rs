@@ -30,8 +30,8 @@ impl Env {
     /// the stretch of motion within `d / D` of it clear, where `D` bounds how far any point of
     /// the robot moves over the whole step ([`Env::motion_bound_m`]). The step is bisected
     /// until every stretch is covered this way; a pose that touches is a collision, and so is a
-    /// stretch shorter than [`GRAZE_TOLERANCE_M`](super::GRAZE_TOLERANCE_M) of motion that still cannot be proven clear
-    /// (the robot would graze an obstacle within that tolerance).
+    /// stretch shorter than [`GRAZE_TOLERANCE_M`](super::GRAZE_TOLERANCE_M) of motion that
+    /// still cannot be proven clear (the robot would graze an obstacle within that tolerance).
     pub fn check_transition(
         &self,
         from: &RobotState,
@@ -253,10 +253,9 @@ impl Env {
 }
 
 /// The simulator's clearance values for [`prove_way`]: a stretch is first tried with a cheap
-/// lower bound on it ([`ObstacleSet::clearance_lower_bound_m`](crate::collision::ObstacleSet::clearance_lower_bound_m), from box gaps), and only a
-/// stretch those do not prove asks for parry's exact values at its ends
-/// ([`ObstacleSet::clearance_m`](crate::collision::ObstacleSet::clearance_m)): the verdict is the one the exact values alone give, found
-/// with fewer of parry's queries.
+/// lower bound on it (`ObstacleSet::clearance_lower_bound_m`, from box gaps), and only a stretch
+/// those do not prove asks for parry's exact values at its ends (`ObstacleSet::clearance_m`):
+/// the verdict is the one the exact values alone give, found with fewer of parry's queries.
 struct SimulatorClearance<'a> {
     env: &'a Env,
     from: &'a RobotState,

@@ -75,15 +75,15 @@ pub(super) fn way_proven(
     (to, to_key, to_cell): (&RobotState, PoseKey, usize),
     bound_m: f32,
 ) -> bool {
-    if proof_cap_m(bound_m) > STATE_CAP_M {
+    let cap_m = proof_cap_m(bound_m);
+    if cap_m > STATE_CAP_M {
         return false;
     }
     // Every pose on the way has its centre within the motion bound of the start, every part
     // within the reach of its centre, and only clearances up to the cap count.
-    let near = env.obstacles().near(
-        from.position,
-        env.reach_m() + bound_m + proof_cap_m(bound_m),
-    );
+    let near = env
+        .obstacles()
+        .near(from.position, env.reach_m() + bound_m + cap_m);
     prove_way(
         &mut PlannerClearance {
             env,
