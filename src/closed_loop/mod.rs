@@ -43,24 +43,24 @@
 pub mod driver;
 pub mod success;
 
+mod fault;
+mod report;
+
 use nalgebra::{Isometry2, Vector2};
-use std::fmt;
 use std::io::Write;
 use wheelleg_firmware_sim::bus::Transport;
 use wheelleg_firmware_sim::candump::CandumpWriter;
-use wheelleg_firmware_sim::rig::{
-    MeasuredBusLoad, Rig, RigConfig, RigError, StepReport, StopReason, TrafficCounts,
-};
+use wheelleg_firmware_sim::rig::{Rig, RigConfig, RigError, StepReport};
 use wheelleg_runtime::action::Action;
-use wheelleg_runtime::can::host::{AxisSet, BusStats};
-use wheelleg_runtime::can::node_map::Axis;
 use wheelleg_runtime::motion::{BaseDisplacement, MotionError, StepMotion};
 use wheelleg_runtime::robot::RobotGeometry;
-use wheelleg_sim::env::{Env, EnvConfig, EpisodeOver, InvalidAction, Status, StepOutcome};
-use wheelleg_sim::scenario::{Scenario, ScenarioError};
+use wheelleg_sim::env::{Env, EnvConfig, InvalidAction};
+use wheelleg_sim::scenario::Scenario;
 use wheelleg_sim::state::RobotState;
 
 pub use driver::{Driver, DriverError, PlannerDriver, PolicyDriver};
+pub use fault::{Fault, LoopError, StepError};
+pub use report::{EpisodeReport, StepKind, StepRecord, Tracking};
 
 /// The robot's CAN bit rate.
 pub const BITRATE_BPS: f64 = 1_000_000.0;
@@ -98,278 +98,6 @@ pub struct LoopConfig {
     pub env: EnvConfig,
     /// How closely an achieved step must match the ideal one.
     pub tolerance: Tolerance,
-}
-
-/// Errors of one achieved step against its ideal.
-#[derive(Clone, Copy, Debug, PartialEq, Default)]
-pub struct StepError {
-    /// Position error.
-    pub position_m: f32,
-    /// Heading error.
-    pub yaw_rad: f32,
-    /// Largest clearance or track error.
-    pub legs_m: f32,
-}
-
-impl StepError {
-    /// Errors of a rig report.
-    pub fn of(report: &StepReport) -> StepError {
-        StepError {
-            position_m: report.position_error_m(),
-            yaw_rad: report.yaw_error_rad(),
-            legs_m: (report.achieved_legs.clearance_m - report.ideal_legs.clearance_m)
-                .abs()
-                .max((report.achieved_legs.track_m - report.ideal_legs.track_m).abs()),
-        }
-    }
-
-    /// Whether every error is within `tolerance`.
-    pub fn within(&self, tolerance: &Tolerance) -> bool {
-        self.position_m <= tolerance.position_m
-            && self.yaw_rad <= tolerance.yaw_rad
-            && self.legs_m <= tolerance.legs_m
-    }
-
-    fn max(self, other: StepError) -> StepError {
-        StepError {
-            position_m: self.position_m.max(other.position_m),
-            yaw_rad: self.yaw_rad.max(other.yaw_rad),
-            legs_m: self.legs_m.max(other.legs_m),
-        }
-    }
-}
-
-/// Why the loop stopped the robot before the episode ended.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Fault {
-    /// The controller put the robot in safe stop (wheels stopped, legs held).
-    SafeStop {
-        /// Decision index (0-based) during which it happened.
-        step: u32,
-        /// What the controller saw.
-        reason: StopReason,
-    },
-    /// A step (or the move backing out of one) ended too far from its ideal.
-    OffTolerance {
-        /// Decision index (0-based).
-        step: u32,
-        /// The errors measured.
-        error: StepError,
-    },
-    /// The controller firmware stopped the robot (wheels stopped, legs held) and said why
-    /// (`wheelleg demo --controller qemu`).
-    Controller {
-        /// Decision index (0-based) during or after which it happened.
-        step: u32,
-        /// What the firmware reported.
-        reason: crate::hil::ControllerStop,
-    },
-    /// The runtime could not reach an action's legs that the simulator accepts.
-    KinematicsDisagree {
-        /// Decision index (0-based).
-        step: u32,
-        /// The action.
-        action: Action,
-    },
-}
-
-fn describe_axes(set: AxisSet) -> String {
-    set.iter()
-        .map(|axis: Axis| format!("node {} ({axis:?})", axis.node_id().get()))
-        .collect::<Vec<_>>()
-        .join(", ")
-}
-
-impl fmt::Display for Fault {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Fault::SafeStop {
-                step,
-                reason: StopReason::Silent(set),
-            } => write!(
-                f,
-                "safe stop during step {}: {} silent (no frames for the health timeout); \
-                 wheels stopped, legs held",
-                step + 1,
-                describe_axes(*set)
-            ),
-            Fault::SafeStop {
-                step,
-                reason: StopReason::AxisError(set),
-            } => write!(
-                f,
-                "safe stop during step {}: {} reported errors; wheels stopped, legs held",
-                step + 1,
-                describe_axes(*set)
-            ),
-            Fault::Controller { step, reason } => write!(
-                f,
-                "the controller stopped the robot at step {}: {reason}; wheels stopped, legs \
-                 held",
-                step + 1
-            ),
-            Fault::OffTolerance { step, error } => write!(
-                f,
-                "step {} ended off its ideal by {:.2} mm, {:.3}°, legs {:.2} mm (beyond \
-                 tolerance); robot held",
-                step + 1,
-                1e3 * error.position_m,
-                error.yaw_rad.to_degrees(),
-                1e3 * error.legs_m
-            ),
-            Fault::KinematicsDisagree { step, action } => write!(
-                f,
-                "step {}: the runtime cannot reach the legs of {action:?} but the simulator \
-                 accepts them; robot held",
-                step + 1
-            ),
-        }
-    }
-}
-
-/// Why the loop could not go on at all (as opposed to a [`Fault`], which is the robot stopping
-/// safely and is part of the episode's report).
-#[derive(Debug)]
-pub enum LoopError {
-    /// The scenario is invalid.
-    Scenario(ScenarioError),
-    /// The rig failed (bus, log, start-up, an impossible motion setting).
-    Rig(RigError),
-    /// The driver could not decide.
-    Driver(DriverError),
-    /// A step was asked for after the episode ended or after a fault.
-    Finished,
-}
-
-impl fmt::Display for LoopError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            LoopError::Scenario(e) => write!(f, "{e}"),
-            LoopError::Rig(RigError::StartupFailed(health)) => write!(
-                f,
-                "the motor controllers did not all reach closed loop at start-up \
-                 (silent: {}; errored: {})",
-                or_none(describe_axes(health.silent)),
-                or_none(describe_axes(health.errored))
-            ),
-            LoopError::Rig(e) => write!(f, "rig: {e}"),
-            LoopError::Driver(e) => write!(f, "driver: {e}"),
-            LoopError::Finished => f.write_str("the episode is over"),
-        }
-    }
-}
-
-fn or_none(s: String) -> String {
-    if s.is_empty() {
-        "none".to_owned()
-    } else {
-        s
-    }
-}
-
-impl std::error::Error for LoopError {}
-
-impl From<ScenarioError> for LoopError {
-    fn from(e: ScenarioError) -> Self {
-        LoopError::Scenario(e)
-    }
-}
-
-impl From<RigError> for LoopError {
-    fn from(e: RigError) -> Self {
-        LoopError::Rig(e)
-    }
-}
-
-impl From<MotionError> for LoopError {
-    fn from(e: MotionError) -> Self {
-        LoopError::Rig(RigError::Motion(e))
-    }
-}
-
-impl From<DriverError> for LoopError {
-    fn from(e: DriverError) -> Self {
-        LoopError::Driver(e)
-    }
-}
-
-impl From<EpisodeOver> for LoopError {
-    fn from(_: EpisodeOver) -> Self {
-        LoopError::Finished
-    }
-}
-
-/// What happened to one decision.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum StepKind {
-    /// Executed by the motors and accepted by the world.
-    Moved,
-    /// Executed, refused by the world (collision or arena), and backed out of.
-    Undone,
-    /// Never sent to the motors: the legs cannot reach the target.
-    Refused,
-    /// Interrupted by a fault; the world did not move.
-    Faulted,
-}
-
-/// One decision through the loop.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct StepRecord {
-    /// The decision.
-    pub action: Action,
-    /// What became of it.
-    pub kind: StepKind,
-    /// The world's verdict (none when the step faulted before the world moved).
-    pub outcome: Option<StepOutcome>,
-    /// The rig's report of the step's motion (none when it was refused).
-    pub report: Option<StepReport>,
-    /// The rig's report of backing out (for [`StepKind::Undone`]).
-    pub retreat: Option<StepReport>,
-}
-
-/// How closely the motors followed, over an episode.
-#[derive(Clone, Copy, Debug, PartialEq, Default)]
-pub struct Tracking {
-    /// Steps executed and accepted.
-    pub moved: u32,
-    /// Steps executed, refused by the world and backed out of.
-    pub undone: u32,
-    /// Steps never sent (unreachable legs).
-    pub refused: u32,
-    /// Largest error of any executed motion (steps and retreats) against its ideal.
-    pub max_error: StepError,
-}
-
-/// The end of an episode through the loop.
-#[derive(Clone, Debug, PartialEq)]
-pub struct EpisodeReport {
-    /// The world's verdict.
-    pub status: Status,
-    /// Decisions taken.
-    pub steps: u32,
-    /// Collisions the world counted.
-    pub collisions: u32,
-    /// Why the robot was stopped early, if it was.
-    pub fault: Option<Fault>,
-    /// How closely the motors followed.
-    pub tracking: Tracking,
-    /// The world's lattice states, from the start, one per accepted step.
-    pub path: Vec<RobotState>,
-    /// The states the robot stood in when the world undid a step of it for a collision.
-    pub collided_at: Vec<RobotState>,
-    /// Odometry against the world at the end: position difference (the drift a localiser
-    /// would correct; the world itself snaps every step).
-    pub odometry_drift_m: f32,
-    /// Heading difference of odometry against the world at the end.
-    pub odometry_drift_rad: f32,
-    /// Simulated (or, on SocketCAN, real) time since the rig was made.
-    pub elapsed_s: f64,
-    /// Frames and bits on the bus.
-    pub traffic: TrafficCounts,
-    /// Bus load at [`BITRATE_BPS`].
-    pub bus_load: Option<MeasuredBusLoad>,
-    /// What the controller made of the feedback it received.
-    pub feedback: BusStats,
 }
 
 /// The world and the robot's motors, stepped together.

@@ -18,18 +18,22 @@
 //! (`Collided`).
 
 mod episode;
+mod faults;
 pub mod memory;
 pub mod onboard;
 pub mod plant;
+mod qemu;
 #[path = "../../controller/src/wire.rs"]
 pub mod wire;
 
 pub use episode::HilEpisode;
+pub use faults::{ControllerStop, Faults, LinkFault};
+pub use qemu::{default_image, find_or_build_image, qemu_available, BUILD_COMMAND};
 
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Stdio};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -49,17 +53,8 @@ use crate::closed_loop::driver::observation_mm;
 use crate::closed_loop::{EpisodeReport, Fault, StepError, Tolerance, Tracking, BITRATE_BPS};
 use memory::{RamLayout, RamUse};
 use plant::{Plant, PlantFault};
-use wire::{stop_reason, FromController, ToController};
-
-/// The production image, where `cargo +nightly build --release` in `controller/` puts it.
-pub fn default_image() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("controller/target/thumbv7em-none-eabihf/release/wheelleg-controller")
-}
-
-/// The command that builds the production image.
-pub const BUILD_COMMAND: &str =
-    "cd controller && cargo +nightly build --release --bin wheelleg-controller";
+use qemu::qemu_command;
+use wire::{FromController, ToController};
 
 /// How long the host waits for any one answer of the firmware (a decision with its guard
 /// takes at most some 0.1 s of QEMU's time; the observation timeout's 50 periods of waiting
@@ -107,127 +102,6 @@ impl std::error::Error for HilError {}
 
 fn io(context: &str) -> impl Fn(std::io::Error) -> HilError + '_ {
     move |e| HilError::Io(format!("{context}: {e}"))
-}
-
-/// How much lower than the host's QEMU's scheduling priority is (`nice` increment).
-const QEMU_NICE_INCREMENT: &str = "5";
-
-/// `qemu-system-arm`, under `nice` when the machine has it (see [`Hil::start`]; asked once
-/// per process, not per episode).
-fn qemu_command() -> Command {
-    static HAS_NICE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    let has_nice = *HAS_NICE.get_or_init(|| {
-        Command::new("nice")
-            .arg("true")
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .status()
-            .is_ok_and(|s| s.success())
-    });
-    if has_nice {
-        let mut command = Command::new("nice");
-        command.args(["-n", QEMU_NICE_INCREMENT, "qemu-system-arm"]);
-        command
-    } else {
-        Command::new("qemu-system-arm")
-    }
-}
-
-/// Whether `qemu-system-arm` runs here.
-pub fn qemu_available() -> bool {
-    Command::new("qemu-system-arm")
-        .arg("--version")
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success())
-}
-
-/// The firmware image at `path`, built first when it is the default one and missing.
-pub fn find_or_build_image(path: Option<&Path>) -> Result<PathBuf, HilError> {
-    let image = path.map_or_else(default_image, Path::to_path_buf);
-    if image.is_file() {
-        return Ok(image);
-    }
-    if path.is_some() {
-        return Err(HilError::NoImage(image, "no such file".into()));
-    }
-    let controller = Path::new(env!("CARGO_MANIFEST_DIR")).join("controller");
-    let built = Command::new("cargo")
-        .args([
-            "+nightly",
-            "build",
-            "--release",
-            "--bin",
-            "wheelleg-controller",
-        ])
-        .current_dir(&controller)
-        .stdout(Stdio::null())
-        .status();
-    match built {
-        Ok(status) if status.success() && image.is_file() => Ok(image),
-        Ok(status) => Err(HilError::NoImage(
-            image,
-            format!("the build failed: {status}"),
-        )),
-        Err(e) => Err(HilError::NoImage(image, format!("cargo cannot run: {e}"))),
-    }
-}
-
-/// A fault of the observation link, injected by the host's side of it.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum LinkFault {
-    /// From this decision (1-based) on, nothing more is sent.
-    StallAt(u32),
-    /// From this decision (1-based) on, every frame is sent with one byte flipped.
-    CorruptAt(u32),
-}
-
-/// Faults to inject in an episode.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct Faults {
-    /// On the observation link.
-    pub link: Option<LinkFault>,
-    /// On the CAN side, from a decision (1-based) on: injected at the first control period the
-    /// firmware polls after that decision was taken (so in the middle of its step).
-    pub plant: Vec<(u32, PlantFault)>,
-}
-
-/// Why the firmware stopped the robot, as it reported it.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct ControllerStop {
-    /// One of [`wire::stop_reason`].
-    pub reason: u8,
-    /// The axes, for silent or errored axes.
-    pub axes: AxisSet,
-    /// The firmware's control period in which it stopped (counted from its first).
-    pub tick: u32,
-}
-
-impl std::fmt::Display for ControllerStop {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        let axes = || {
-            self.axes
-                .iter()
-                .map(|axis| format!("node {} ({axis:?})", axis.node_id().get()))
-                .collect::<Vec<_>>()
-                .join(", ")
-        };
-        match self.reason {
-            stop_reason::SILENT_AXES => write!(f, "{} silent (no frames for 50 ms)", axes()),
-            stop_reason::AXIS_ERRORS => write!(f, "{} reported errors", axes()),
-            stop_reason::CAN_LINK => f.write_str("the CAN adapter stopped answering (50 ms)"),
-            stop_reason::OBSERVATION_STALLED => {
-                f.write_str("no observation for 1 s (observation link stalled)")
-            }
-            stop_reason::OBSERVATION_CORRUPT => {
-                f.write_str("only corrupt frames for 1 s on the observation link")
-            }
-            stop_reason::STARTUP_FAILED => f.write_str("not every axis reached closed loop"),
-            _ => f.write_str("a step could not be driven"),
-        }?;
-        write!(f, ", in control period {}", self.tick)
-    }
 }
 
 /// The firmware in QEMU with both links open, and the motors behind its CAN adapter.

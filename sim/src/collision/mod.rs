@@ -1,0 +1,343 @@
+//! Exact collision between the robot's parts and the obstacles, with parry3d.
+//!
+//! The robot is 13 convex parts: the body (a box), per leg a thigh and a shank (capsules along
+//! the links) and a wheel (a cylinder with its axle along body y). A cheap axis-aligned bounding
+//! box test culls part/obstacle pairs first; what survives gets parry's exact intersection test.
+//! Touching counts as colliding.
+
+mod bounds;
+mod parts;
+
+pub(crate) use parts::place_parts;
+pub use parts::{Part, RobotParts, PART_COUNT};
+
+use crate::obstacle::{GroundBox, Obstacle};
+use bounds::box_gap_m;
+use nalgebra::{Isometry3, Point2, Point3, Translation3};
+use parry3d::bounding_volume::{Aabb, BoundingVolume};
+use parry3d::query;
+use parry3d::shape::Cuboid;
+
+/// What [`ObstacleSet::clearance_lower_bound_m`] allows for parry's rounding: its bounds stay
+/// below parry's distances by this much, so a proof from the bounds is one parry's values give
+/// too. 10 um: a tenth of the graze tolerance of the swept check, a hundred times parry's
+/// rounding at these sizes.
+pub const CLEARANCE_SLACK_M: f32 = 1.0e-5;
+
+/// The static obstacles of a scene, ready for collision queries.
+#[derive(Clone, Debug, Default)]
+pub struct ObstacleSet {
+    boxes: Vec<GroundBox>,
+    aabbs: Vec<Aabb>,
+    poses: Vec<Isometry3<f32>>,
+    shapes: Vec<Cuboid>,
+}
+
+impl ObstacleSet {
+    /// Prepares a scene's obstacles.
+    pub fn new(obstacles: &[Obstacle]) -> Self {
+        ObstacleSet::from_boxes(obstacles.iter().map(Obstacle::ground_box).collect())
+    }
+
+    /// Prepares boxes that are not the generator's obstacles: what the robot perceives of a
+    /// scene ([`crate::local_plan`]), which need not be of the three kinds.
+    pub fn from_boxes(boxes: Vec<GroundBox>) -> Self {
+        ObstacleSet {
+            aabbs: boxes
+                .iter()
+                .map(|b| {
+                    Aabb::new(
+                        Point3::new(b.min_x_m, b.min_y_m, 0.0),
+                        Point3::new(b.max_x_m, b.max_y_m, b.height_m),
+                    )
+                })
+                .collect(),
+            poses: boxes
+                .iter()
+                .map(|b| Isometry3::from_parts(Translation3::from(b.centre()), Default::default()))
+                .collect(),
+            shapes: boxes
+                .iter()
+                .map(|b| Cuboid::new(b.half_extents()))
+                .collect(),
+            boxes,
+        }
+    }
+
+    /// The obstacles' boxes.
+    pub fn boxes(&self) -> &[GroundBox] {
+        &self.boxes
+    }
+
+    /// Whether any obstacle's footprint comes within `reach_m` of `centre` (as a square test:
+    /// cheap, and conservative).
+    pub fn any_within(&self, centre: Point2<f32>, reach_m: f32) -> bool {
+        self.boxes.iter().any(|b| {
+            b.min_x_m <= centre.x + reach_m
+                && b.max_x_m >= centre.x - reach_m
+                && b.min_y_m <= centre.y + reach_m
+                && b.max_y_m >= centre.y - reach_m
+        })
+    }
+
+    /// Whether any obstacle's footprint comes within `reach_m` of the straight segment from
+    /// `a` to `b` (as a test on the box spanning both ends, grown by `reach_m`: cheap, and
+    /// conservative).
+    pub fn any_within_span(&self, a: Point2<f32>, b: Point2<f32>, reach_m: f32) -> bool {
+        let (min_x, max_x) = (a.x.min(b.x) - reach_m, a.x.max(b.x) + reach_m);
+        let (min_y, max_y) = (a.y.min(b.y) - reach_m, a.y.max(b.y) + reach_m);
+        self.boxes.iter().any(|g| {
+            g.min_x_m <= max_x && g.max_x_m >= min_x && g.min_y_m <= max_y && g.max_y_m >= min_y
+        })
+    }
+
+    /// Whether the box `aabb` overlaps any obstacle's bounding box.
+    pub fn may_touch(&self, aabb: &Aabb) -> bool {
+        self.aabbs.iter().any(|b| b.intersects(aabb))
+    }
+
+    /// How deep the robot's parts reach into the obstacles: the largest penetration depth of
+    /// any part into any obstacle, 0 when nothing touches (a measure for reports and tests of
+    /// how bad a contact is; [`ObstacleSet::collides`] is the rule).
+    pub fn penetration_m(&self, robot: &RobotParts) -> f32 {
+        let mut deepest_m = 0.0f32;
+        for (i, obstacle_aabb) in self.aabbs.iter().enumerate() {
+            if !obstacle_aabb.intersects(&robot.aabb) {
+                continue;
+            }
+            for (part, part_aabb) in robot.parts.iter().zip(&robot.aabbs) {
+                if !part_aabb.intersects(obstacle_aabb) {
+                    continue;
+                }
+                let (pose, shape) = part.placed();
+                if let Ok(Some(contact)) =
+                    query::contact(&pose, shape, &self.poses[i], &self.shapes[i], 0.0)
+                {
+                    deepest_m = deepest_m.max(-contact.dist);
+                }
+            }
+        }
+        deepest_m
+    }
+
+    /// Whether any robot part comes within `margin_m` of any obstacle (touching included):
+    /// [`ObstacleSet::collides`] with every obstacle grown by the margin, for motions whose
+    /// real pose may stray from the checked one by up to the margin.
+    pub fn within_margin(&self, robot: &RobotParts, margin_m: f32) -> bool {
+        let robot_aabb = robot.aabb.loosened(margin_m);
+        for (i, obstacle_aabb) in self.aabbs.iter().enumerate() {
+            if !obstacle_aabb.intersects(&robot_aabb) {
+                continue;
+            }
+            for (part, part_aabb) in robot.parts.iter().zip(&robot.aabbs) {
+                if !part_aabb.loosened(margin_m).intersects(obstacle_aabb) {
+                    continue;
+                }
+                let (pose, shape) = part.placed();
+                // A contact "predicted" within the margin is a pair closer than the margin
+                // (parry's contact query; its plain distance query misjudged box pairs here).
+                // Convex-convex, always supported; an error counts as too close (safe side).
+                let close = query::contact(&pose, shape, &self.poses[i], &self.shapes[i], margin_m)
+                    .map_or(true, |contact| contact.is_some());
+                if close {
+                    return true;
+                }
+            }
+        }
+        false
+    }
+
+    /// How far the robot is from the nearest obstacle, looked for up to `up_to_m`: `None` when
+    /// a part touches or enters an obstacle (the contact rule of [`ObstacleSet::collides`]),
+    /// otherwise the smallest part-to-obstacle distance, or `up_to_m` when nothing is closer.
+    /// The swept check of a step ([`crate::env::Env::check_transition`]) proves a stretch of
+    /// motion clear from these distances.
+    pub fn clearance_m(&self, robot: &RobotParts, up_to_m: f32) -> Option<f32> {
+        let mut nearest_m = up_to_m.max(0.0);
+        let robot_aabb = robot.aabb.loosened(nearest_m);
+        for (i, obstacle_aabb) in self.aabbs.iter().enumerate() {
+            if !obstacle_aabb.intersects(&robot_aabb) {
+                continue;
+            }
+            for (part, part_aabb) in robot.parts.iter().zip(&robot.aabbs) {
+                // Boxes farther apart than the nearest distance so far cannot lower it.
+                if !part_aabb.loosened(nearest_m).intersects(obstacle_aabb) {
+                    continue;
+                }
+                let (pose, shape) = part.placed();
+                // parry's contact query with a prediction distance: its plain distance query
+                // misjudged box pairs (see `within_margin`). Convex-convex pairs are always
+                // supported; an error counts as touching (the safe side).
+                match query::contact(&pose, shape, &self.poses[i], &self.shapes[i], nearest_m) {
+                    Ok(Some(contact)) if contact.dist <= 0.0 => return None,
+                    Ok(Some(contact)) => nearest_m = nearest_m.min(contact.dist),
+                    Ok(None) => {}
+                    Err(_) => return None,
+                }
+            }
+        }
+        Some(nearest_m)
+    }
+
+    /// A lower bound on [`ObstacleSet::clearance_m`]`(robot, up_to_m)`, cheap: from the gaps
+    /// between the parts' and the obstacles' boxes (a part is inside its box, so it is at least
+    /// as far from an obstacle as its box is), less [`CLEARANCE_SLACK_M`] for the rounding of
+    /// parry's query. At most 0 when some part may touch an obstacle; `up_to_m` less the slack
+    /// when nothing is within `up_to_m`.
+    pub fn clearance_lower_bound_m(&self, robot: &RobotParts, up_to_m: f32) -> f32 {
+        let mut nearest_m = up_to_m.max(0.0);
+        let robot_aabb = robot.aabb.loosened(nearest_m);
+        for obstacle_aabb in &self.aabbs {
+            if !obstacle_aabb.intersects(&robot_aabb) {
+                continue;
+            }
+            for (part, part_aabb) in robot.parts.iter().zip(&robot.aabbs) {
+                let gap_m = box_gap_m(part_aabb, obstacle_aabb);
+                // The box gap is all a pair far enough away needs; closer, the part's own
+                // shape gives a better bound.
+                if gap_m >= nearest_m {
+                    continue;
+                }
+                nearest_m = nearest_m.min(gap_m.max(part.distance_lower_bound_m(obstacle_aabb)));
+            }
+        }
+        nearest_m - CLEARANCE_SLACK_M
+    }
+
+    /// A lower bound on [`ObstacleSet::clearance_lower_bound_m`] for the parts `parts` (placed
+    /// by [`place_parts`], so without their boxes), for poses placed only to be bounded:
+    /// each part/obstacle pair counts with the part's own distance bound (which that function
+    /// takes the better of with the box gap), or, when a ball around the part is already
+    /// farther than the nearest found, not at all (the ball's distance is below the part's
+    /// bound). Equal to it up to rounding, or lower.
+    ///
+    /// `reach_m` bounds how far any part reaches horizontally from the body centre (every
+    /// shape the part bounds measure included): an obstacle whose footprint is farther than
+    /// that plus the nearest found is skipped whole. `near`, when given, lists the only
+    /// obstacles (indices) that can be within `reach_m + up_to_m` ([`ObstacleSet::near`]).
+    pub(crate) fn parts_clearance_lower_bound_m(
+        &self,
+        parts: &[Part; PART_COUNT],
+        reach_m: f32,
+        up_to_m: f32,
+        near: Option<&[usize]>,
+    ) -> f32 {
+        let mut nearest_m = up_to_m.max(0.0);
+        let Part::Body { pose, .. } = &parts[0] else {
+            unreachable!("the body comes first")
+        };
+        let (x, y) = (pose.translation.x, pose.translation.y);
+        let mut visit = |obstacle_aabb: &Aabb| {
+            let dx = (obstacle_aabb.mins.x - x)
+                .max(x - obstacle_aabb.maxs.x)
+                .max(0.0);
+            let dy = (obstacle_aabb.mins.y - y)
+                .max(y - obstacle_aabb.maxs.y)
+                .max(0.0);
+            if (dx * dx + dy * dy).sqrt() - reach_m >= nearest_m {
+                return;
+            }
+            for part in parts {
+                if part.ball_gap_m(obstacle_aabb) >= nearest_m {
+                    continue;
+                }
+                nearest_m = nearest_m.min(part.distance_lower_bound_m(obstacle_aabb));
+            }
+        };
+        match near {
+            Some(near) => near.iter().for_each(|&i| visit(&self.aabbs[i])),
+            None => self.aabbs.iter().for_each(visit),
+        }
+        nearest_m - CLEARANCE_SLACK_M
+    }
+
+    /// The obstacles (indices) whose footprint comes within `within_m` of `centre`, as a
+    /// square test (so never fewer than a round one would find).
+    pub(crate) fn near(&self, centre: Point2<f32>, within_m: f32) -> Vec<usize> {
+        (0..self.boxes.len())
+            .filter(|&i| {
+                let b = &self.boxes[i];
+                b.min_x_m <= centre.x + within_m
+                    && b.max_x_m >= centre.x - within_m
+                    && b.min_y_m <= centre.y + within_m
+                    && b.max_y_m >= centre.y - within_m
+            })
+            .collect()
+    }
+
+    /// Whether some part, anywhere within `grow_m` of the box spanning its places in `start`
+    /// and `end`, could meet an obstacle's box. When not, a motion from `start` to `end` that
+    /// moves no point of the robot farther than `2 * grow_m` touches nothing on the way: every
+    /// point of a part at any moment is within `grow_m` of where it was at one end.
+    pub fn sweep_may_touch(&self, start: &RobotParts, end: &RobotParts, grow_m: f32) -> bool {
+        let whole = start.aabb.merged(&end.aabb).loosened(grow_m);
+        self.aabbs.iter().filter(|o| o.intersects(&whole)).any(|o| {
+            start
+                .aabbs
+                .iter()
+                .zip(&end.aabbs)
+                .any(|(a, b)| a.merged(b).loosened(grow_m).intersects(o))
+        })
+    }
+
+    /// Whether any robot part intersects any obstacle.
+    pub fn collides(&self, robot: &RobotParts) -> bool {
+        for (i, obstacle_aabb) in self.aabbs.iter().enumerate() {
+            if !obstacle_aabb.intersects(&robot.aabb) {
+                continue;
+            }
+            for (part, part_aabb) in robot.parts.iter().zip(&robot.aabbs) {
+                if part_aabb.intersects(obstacle_aabb)
+                    && part.intersects(&self.poses[i], &self.shapes[i])
+                {
+                    return true;
+                }
+            }
+        }
+        false
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::obstacle::{ObstacleKind, ObstacleYaw};
+    use wheelleg_runtime::leg::LegConfig;
+    use wheelleg_runtime::robot::WHEELLEG;
+
+    fn robot_at(x_m: f32) -> RobotParts {
+        let legs = LegConfig {
+            clearance_m: WHEELLEG.default_clearance_m,
+            track_m: WHEELLEG.default_track_m,
+        };
+        RobotParts::new(&WHEELLEG, Point2::new(x_m, 0.0), 0.0, legs).unwrap()
+    }
+
+    #[test]
+    fn margin_and_depth_agree_with_the_contact_rule() {
+        // A block 0.20 m long centred 1 m ahead: its near face at x = 0.9 m.
+        let set = ObstacleSet::new(&[Obstacle::new(
+            ObstacleKind::Block,
+            1.0,
+            0.0,
+            ObstacleYaw::default(),
+        )]);
+        // Drive up in millimetres until the first contact.
+        let touch_m = (0..1000)
+            .map(|mm| mm as f32 * 1e-3)
+            .find(|&x_m| set.collides(&robot_at(x_m)))
+            .unwrap();
+        // 2 cm short of it: free, and within a 3 cm margin but not a 1 cm one.
+        let near = robot_at(touch_m - 0.02);
+        assert!(!set.collides(&near));
+        assert_eq!(set.penetration_m(&near), 0.0);
+        assert!(!set.within_margin(&near, 0.01));
+        assert!(set.within_margin(&near, 0.03));
+        // 1 cm further than the first contact: colliding, about 1 cm deep, within any margin.
+        let into = robot_at(touch_m + 0.01);
+        assert!(set.collides(&into));
+        let depth_m = set.penetration_m(&into);
+        assert!(depth_m > 0.008 && depth_m < 0.012, "{depth_m}");
+        assert!(set.within_margin(&into, 0.0));
+    }
+}

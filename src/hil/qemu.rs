@@ -1,0 +1,82 @@
+//! The firmware's production image and the QEMU process that runs it: where the image is,
+//! how it is built when missing, and how QEMU is started below the host's priority.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+
+use super::HilError;
+
+/// The production image, where `cargo +nightly build --release` in `controller/` puts it.
+pub fn default_image() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("controller/target/thumbv7em-none-eabihf/release/wheelleg-controller")
+}
+
+/// The command that builds the production image.
+pub const BUILD_COMMAND: &str =
+    "cd controller && cargo +nightly build --release --bin wheelleg-controller";
+
+/// How much lower than the host's QEMU's scheduling priority is (`nice` increment).
+const QEMU_NICE_INCREMENT: &str = "5";
+
+/// `qemu-system-arm`, under `nice` when the machine has it (see [`Hil::start`]; asked once
+/// per process, not per episode).
+pub(super) fn qemu_command() -> Command {
+    static HAS_NICE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    let has_nice = *HAS_NICE.get_or_init(|| {
+        Command::new("nice")
+            .arg("true")
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success())
+    });
+    if has_nice {
+        let mut command = Command::new("nice");
+        command.args(["-n", QEMU_NICE_INCREMENT, "qemu-system-arm"]);
+        command
+    } else {
+        Command::new("qemu-system-arm")
+    }
+}
+
+/// Whether `qemu-system-arm` runs here.
+pub fn qemu_available() -> bool {
+    Command::new("qemu-system-arm")
+        .arg("--version")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success())
+}
+
+/// The firmware image at `path`, built first when it is the default one and missing.
+pub fn find_or_build_image(path: Option<&Path>) -> Result<PathBuf, HilError> {
+    let image = path.map_or_else(default_image, Path::to_path_buf);
+    if image.is_file() {
+        return Ok(image);
+    }
+    if path.is_some() {
+        return Err(HilError::NoImage(image, "no such file".into()));
+    }
+    let controller = Path::new(env!("CARGO_MANIFEST_DIR")).join("controller");
+    let built = Command::new("cargo")
+        .args([
+            "+nightly",
+            "build",
+            "--release",
+            "--bin",
+            "wheelleg-controller",
+        ])
+        .current_dir(&controller)
+        .stdout(Stdio::null())
+        .status();
+    match built {
+        Ok(status) if status.success() && image.is_file() => Ok(image),
+        Ok(status) => Err(HilError::NoImage(
+            image,
+            format!("the build failed: {status}"),
+        )),
+        Err(e) => Err(HilError::NoImage(image, format!("cargo cannot run: {e}"))),
+    }
+}
