@@ -1,4 +1,4 @@
-//! Fault soak of the closed loop (issue 7): many planner-driven episodes on solvable scenes,
+//! Fault soak of the closed loop: many planner-driven episodes on solvable scenes,
 //! each with a seeded mix of CAN faults, asserting the documented safe behaviour every time
 //! (docs/can-protocol.md, "Safety"; figures in docs/robustness.md):
 //!

@@ -1,4 +1,4 @@
-//! Training survives being killed at any point (issue 7): `wheelleg train baseline` is killed
+//! Training survives being killed at any point: `wheelleg train baseline` is killed
 //! (SIGKILL, like a crash or the OOM killer) again and again at seeded moments, some random,
 //! some the instant a checkpoint write starts, some the instant an iteration's metrics line
 //! lands, and resumed with `--resume` each time. After every kill the run folder must be
