@@ -49,7 +49,7 @@ pub fn check_weights_file(bytes: &[u8]) {
 /// own writer, so mutations reach the layer records instead of failing the checksum.
 pub fn check_weights_payload(payload: &[u8]) {
     let version = wheelleg_runtime::model::format::FORMAT_VERSION;
-    if let Ok(file) = wheelleg_trainer::quantize::build::envelope_bytes(version, payload) {
+    if let Ok(file) = wheelleg_trainer::quantize::file_bytes::envelope_bytes(version, payload) {
         check_weights_file(&file);
     }
 }

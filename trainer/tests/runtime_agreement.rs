@@ -15,7 +15,7 @@ use wheelleg_runtime::model::kernel::Kernel;
 use wheelleg_runtime::model::load::Model;
 use wheelleg_runtime::model::{DefaultPolicy, LoadError, Outputs};
 use wheelleg_trainer::network_f32::{Architecture, ConvSpec};
-use wheelleg_trainer::quantize::build::envelope_bytes;
+use wheelleg_trainer::quantize::file_bytes::envelope_bytes;
 use wheelleg_trainer::quantize::{Int8Policy, RangeMethod};
 
 use common::*;

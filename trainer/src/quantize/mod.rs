@@ -18,6 +18,7 @@
 pub mod agreement;
 pub mod build;
 pub mod calibrate;
+pub mod file_bytes;
 pub mod params;
 pub mod qat;
 pub mod synthetic;
