@@ -10,8 +10,8 @@
 //!
 //! - [`wire`]: the observation link's frames (COBS, CRC-16, `postcard`), both ends.
 //!
-//! Two programs for QEMU's mps2-an386 (Cortex-M4F): the production image `src/main.rs` (what
-//! flash is measured on) and the check image `src/check/main.rs` (scripts/mcu.sh's vectors,
+//! Two programs for QEMU's mps2-an386 (Cortex-M4F): the production image `src/production/`
+//! (what flash is measured on) and the check image `src/check/` (scripts/mcu.sh's vectors,
 //! counts and kernel comparison); docs/controller.md says how to build, run and flash them.
 #![no_std]
 

@@ -1,5 +1,5 @@
 //! The check image on QEMU's mps2-an386 (Cortex-M4F): boots, checks the weights file, then runs
-//! the check harness of scripts/mcu.sh, which the production image (`src/main.rs`) leaves
+//! the check harness of scripts/mcu.sh, which the production image (`src/production/`) leaves
 //! out. It decides on every recorded observation of `decisions.bin` and writes each decision to `decisions.out`, then drives the recorded
 //! episode of `episode.bin` (decisions, the 100 Hz setpoint stream, the axes' feedback) and
 //! writes its frames to `episode.frames.out` and its decisions to `episode.decisions.out`; the
