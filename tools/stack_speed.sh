@@ -33,12 +33,9 @@ target=${CARGO_TARGET_DIR:-$root/target}
 jobs=${JOBS:-1}
 mkdir -p "$out"
 
-old_src=$out/old-src
-if [ ! -d "$old_src" ]; then
-    git -C "$root" worktree add --detach "$old_src" "$old_rev" >/dev/null
-else
-    git -C "$old_src" checkout --quiet --detach "$old_rev"
-fi
+# shellcheck source=tools/old_tree.sh
+source "$root/tools/old_tree.sh"
+old_tree "$root" "$out" "$old_rev"
 
 build() { # tree, target dir, name
     (cd "$1" && CARGO_TARGET_DIR=$2 nice -n 5 \
