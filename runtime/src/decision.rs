@@ -173,6 +173,22 @@ impl<const STATES: usize> Decider<STATES> {
         }
     }
 
+    /// Remembers `action` as taken at observation `key`, as if [`Decider::choose`] had chosen
+    /// it there: the observation's memory is made if new (evicting the oldest) and starts over
+    /// first if every action was taken. For layers above the rule (a look-ahead) that take an
+    /// action of their own choosing.
+    pub fn remember_taken(&mut self, key: ObservationKey, action: Action) {
+        let index = action.index();
+        if let Some(taken) = self.slot(key) {
+            if count(taken) >= COUNT {
+                *taken = [0; WORDS];
+            }
+            if let Some(word) = taken.get_mut(index / 32) {
+                *word |= 1 << (index % 32);
+            }
+        }
+    }
+
     fn mark_taken(&mut self, key: ObservationKey, action: Action) {
         let index = action.index();
         if let Some(word) = self
@@ -357,6 +373,26 @@ pub(crate) mod tests {
         assert_ne!(third, second);
         assert_eq!(decider.taken_count(A), 3);
         assert_eq!(decider.remembered(), 2);
+    }
+
+    #[test]
+    fn an_action_remembered_as_taken_is_passed_over_as_a_chosen_one_is() {
+        let logits = forward_logits();
+        let mut chosen = Decider::<2>::new();
+        let first = chosen.choose(A, &logits);
+        let mut remembered = Decider::<2>::new();
+        remembered.remember_taken(A, first);
+        assert!(remembered.was_taken(A, first));
+        assert_eq!(remembered.taken_count(A), 1);
+        assert_eq!(remembered, chosen);
+        assert_eq!(remembered.choose(A, &logits), chosen.choose(A, &logits));
+        // New observations take slots, the oldest evicted, as choosing does.
+        for key in [B, ObservationKey(3)] {
+            remembered.remember_taken(key, first);
+            chosen.choose(key, &logits);
+        }
+        assert_eq!(remembered, chosen);
+        assert!(!remembered.was_taken(A, first));
     }
 
     #[test]

@@ -273,10 +273,14 @@ impl Driver for PolicyDriver<'_> {
             Some(first) => first,
             None => {
                 let first = found.first().copied().unwrap_or_default();
-                let allows = |action| rule.allows(action);
-                lookahead.push(0, env, &self.decider, key, found, &allows);
+                lookahead.push(0, env, &self.decider, key, found);
                 let weighed = lookahead
-                    .weigh(&*policy, self.stack.arrival, success_radius_m)
+                    .weigh(
+                        &*policy,
+                        self.stack.arrival,
+                        success_radius_m,
+                        &mut |_, a| rule.allows(a),
+                    )
                     .map_err(|e| DriverError(format!("{}: look-ahead: {e}", self.label)))?;
                 let weighed = weighed.first();
                 // No candidate arrives within the horizon: the policy is lost here, so the

@@ -131,30 +131,15 @@ pub fn run_episodes(
                         .try_into()
                         .map_err(|_| "log-probabilities of the wrong size".to_string())?;
                     let state = &states[k * STATE_LEN..(k + 1) * STATE_LEN];
-                    let map = match (&guard, &mut guard_map) {
-                        (None, _) => None,
-                        (Some(_), None) => {
-                            let cells = &heights[k * HEIGHT_MAP_CELLS..(k + 1) * HEIGHT_MAP_CELLS];
-                            let cells: &[f32; HEIGHT_MAP_CELLS] = cells
-                                .try_into()
-                                .map_err(|_| "height map of the wrong size".to_string())?;
-                            Some(HeightMapRef::Metres(cells))
-                        }
-                        (Some(_), Some(guard_map)) => Some(
-                            guard_map
-                                .observe(&envs[i])
-                                .map_err(|e| format!("guard map: {e}"))?,
-                        ),
-                    };
+                    let cells = &heights[k * HEIGHT_MAP_CELLS..(k + 1) * HEIGHT_MAP_CELLS];
                     let rule = RobotRule {
-                        guard: guard.as_ref().zip(map).map(|(guard, map)| GuardAt {
-                            guard,
-                            map,
-                            legs: LegConfig {
-                                clearance_m: state[0],
-                                track_m: state[1],
-                            },
-                        }),
+                        guard: guard_at(
+                            guard.as_ref(),
+                            guard_map.as_mut(),
+                            &envs[i],
+                            cells,
+                            state,
+                        )?,
                         arrival: stack
                             .arrival
                             .then(|| Arrival::from_state_m(state, success_radius_m)),
@@ -172,8 +157,7 @@ pub fn run_episodes(
                                 first
                             }
                             None => {
-                                let allows = |action| rule.allows(action);
-                                lookahead.push(i, &envs[i], &deciders[i], key, found, &allows);
+                                lookahead.push(i, &envs[i], &deciders[i], key, found);
                                 continue;
                             }
                         }
@@ -182,7 +166,32 @@ pub fn run_episodes(
             };
             chosen[k] = Some(action);
         }
-        for weighed in lookahead.weigh(policy, stack.arrival, success_radius_m)? {
+        // The guard of a pushed decision, asked again at weighing: the episodes have not moved
+        // since, and the guard map is one buffer rendered per episode.
+        let mut guard_error = None;
+        let mut allows = |i: usize, action: Action| {
+            let Ok(k) = running.binary_search(&i) else {
+                return false;
+            };
+            let cells = &heights[k * HEIGHT_MAP_CELLS..(k + 1) * HEIGHT_MAP_CELLS];
+            let state = &states[k * STATE_LEN..(k + 1) * STATE_LEN];
+            match guard_at(guard.as_ref(), guard_map.as_mut(), &envs[i], cells, state) {
+                Ok(at) => RobotRule {
+                    guard: at,
+                    arrival: None,
+                }
+                .allows(action),
+                Err(e) => {
+                    guard_error = Some(e);
+                    false
+                }
+            }
+        };
+        let weighed = lookahead.weigh(policy, stack.arrival, success_radius_m, &mut allows)?;
+        if let Some(e) = guard_error {
+            return Err(e);
+        }
+        for weighed in weighed {
             // Slots are episodes, so that a way kept for one is offered to it again.
             let i = weighed.slot;
             let k = running
@@ -229,6 +238,37 @@ pub fn run_episodes(
             local_plans: last_metres.as_ref().map_or(0, LastMetres::plans),
         })
         .collect())
+}
+
+/// The guard at episode `env`'s observation (its `cells` and `state`, in metres), reading
+/// `guard_map` where one is rendered and the observation's own height map otherwise; none
+/// without a guard.
+fn guard_at<'a>(
+    guard: Option<&'a CollisionGuard>,
+    guard_map: Option<&'a mut GuardMap>,
+    env: &Env,
+    cells: &'a [f32],
+    state: &[f32],
+) -> Result<Option<GuardAt<'a>>, String> {
+    let Some(guard) = guard else {
+        return Ok(None);
+    };
+    let map = match guard_map {
+        None => {
+            let cells: &[f32; HEIGHT_MAP_CELLS] = cells
+                .try_into()
+                .map_err(|_| "height map of the wrong size".to_string())?;
+            HeightMapRef::Metres(cells)
+        }
+        Some(guard_map) => guard_map
+            .observe(env)
+            .map_err(|e| format!("guard map: {e}"))?,
+    };
+    let legs = LegConfig {
+        clearance_m: state.first().copied().unwrap_or_default(),
+        track_m: state.get(1).copied().unwrap_or_default(),
+    };
+    Ok(Some(GuardAt { guard, map, legs }))
 }
 
 fn from_choices(choices: [u8; DIMS]) -> Action {

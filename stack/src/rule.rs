@@ -100,8 +100,7 @@ pub fn mark_taken(decider: &mut Decider, key: ObservationKey, action: Action) {
     if decider.was_taken(key, action) {
         return;
     }
-    let logits = [0.0f32; DIMS * CHOICES];
-    decider.choose_checked(key, &logits, 1, |_, a| a == action);
+    decider.remember_taken(key, action);
 }
 
 #[cfg(test)]

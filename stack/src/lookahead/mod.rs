@@ -37,7 +37,9 @@
 
 mod rollout;
 
-pub use rollout::{arrives, best_candidate, rollout_cost, rollout_costs, Rollout};
+pub use rollout::{
+    arrives, best_candidate, rollout_cost, rollout_costs, steps_still_needed, Rollout,
+};
 
 use crate::policy::BatchPolicy;
 use wheelleg_runtime::action::Action;
@@ -109,8 +111,16 @@ struct Pending {
     decider: Decider,
     key: ObservationKey,
     incumbent: Option<KeptPlan>,
-    /// The actions the robot's guard allows now, where the search is on.
-    allowed: Vec<Action>,
+}
+
+impl Pending {
+    /// Whether a searched or kept way's first step `action` may be taken as the rule would
+    /// take it: passed by the guard (`allows`), and not already tried at this observation (a
+    /// step the world refused leaves the robot where it was, and the same search would offer
+    /// it again forever).
+    fn takes(&self, action: Action, allows: &mut dyn FnMut(usize, Action) -> bool) -> bool {
+        !self.decider.was_taken(self.key, action) && allows(self.slot, action)
+    }
 }
 
 /// The way the last decision of an episode expected to arrive by: the actions after the one
@@ -165,10 +175,8 @@ impl Lookahead {
     /// Queues a decision of episode `slot` (a number that stays with the episode, so that the
     /// way kept for it is offered again): `env` as it stands (the look-ahead sees it only
     /// through its robot's map), the robot's `decider` before deciding, the observation's
-    /// `key`, the rule's `candidates` in order ([`crate::rule::candidates`], at least `stuck_candidates` of
-    /// them where the rule has that many), and whether the robot's guard `allows` an action
-    /// now (asked only with the search on: a searched or kept way's next step must pass it,
-    /// and must not have been taken at `key` already).
+    /// `key`, and the rule's `candidates` in order ([`crate::rule::candidates`], at least
+    /// `stuck_candidates` of them where the rule has that many).
     pub fn push(
         &mut self,
         slot: usize,
@@ -176,20 +184,8 @@ impl Lookahead {
         decider: &Decider,
         key: ObservationKey,
         candidates: Vec<Action>,
-        allows: &dyn Fn(Action) -> bool,
     ) {
         let (seen, _) = self.perceived.of(env);
-        // A searched or kept way's step is taken only as the rule would take it: passed by
-        // the guard, and not already tried at this observation (a step the world refused
-        // leaves the robot where it was, and the same search would offer it again forever).
-        let allowed = if self.config.search_expansions > 0 {
-            (0..wheelleg_runtime::action::COUNT)
-                .filter_map(Action::from_index)
-                .filter(|&a| allows(a) && !decider.was_taken(key, a))
-                .collect()
-        } else {
-            Vec::new()
-        };
         // The way kept from the last decision holds only where the robot stands where it was
         // to lead (the action taken was the one weighed, and the world moved it as the map
         // said it would).
@@ -205,25 +201,32 @@ impl Lookahead {
             decider: decider.clone(),
             key,
             incumbent,
-            allowed,
         });
     }
 
     /// Weighs every queued decision by rollouts of `policy` (see [`rollout_costs`]): the
     /// first `candidates` of each, then the rest up to `stuck_candidates` of those where none
     /// arrived (nor a kept way). With the search on, a shorter searched way or the kept way
-    /// may stand instead (see the module's notes). Returns the choices in the order pushed
-    /// and empties the queue.
+    /// may stand instead (see the module's notes), where its first step passes the robot's
+    /// guard: `allows(slot, action)` says whether the guard of the decision pushed as `slot`
+    /// lets `action` be sent now. It is asked only of those first steps, at most two per
+    /// decision, because checking all 243 actions at every decision cost more than the
+    /// rollouts and searches together. Returns the choices in the order pushed and empties the
+    /// queue.
     pub fn weigh(
         &mut self,
         policy: &dyn BatchPolicy,
         arrival: bool,
         success_radius_m: f32,
+        allows: &mut dyn FnMut(usize, Action) -> bool,
     ) -> Result<Vec<Weighed>, String> {
         let pending = std::mem::take(&mut self.pending);
         let horizon = self.config.horizon_steps;
         let first = self.config.candidates.max(1);
-        let incumbents: Vec<Option<Found>> = pending.iter().map(replay_incumbent).collect();
+        let incumbents: Vec<Option<Found>> = pending
+            .iter()
+            .map(|p| replay_incumbent(p, &mut *allows))
+            .collect();
         let mut found = self.costs_of(policy, &pending, 0..first, arrival, success_radius_m)?;
         let lost: Vec<usize> = (0..pending.len())
             .filter(|&p| {
@@ -250,7 +253,7 @@ impl Lookahead {
                 .as_ref()
                 .filter(|c| searching && arrives(c.cost, horizon))
             {
-                if let Some(searched) = self.shorter_way(p, best.cost as u32) {
+                if let Some(searched) = self.shorter_way(p, best.cost as u32, &mut *allows) {
                     chosen = Some(searched);
                 }
             }
@@ -293,8 +296,13 @@ impl Lookahead {
     }
 
     /// A way strictly shorter than `steps` in the perceived scene, by an exact search within
-    /// the configured expansions, whose first action the robot's guard allows.
-    fn shorter_way(&self, p: &Pending, steps: u32) -> Option<Found> {
+    /// the configured expansions, whose first action the robot's rule would take.
+    fn shorter_way(
+        &self,
+        p: &Pending,
+        steps: u32,
+        allows: &mut dyn FnMut(usize, Action) -> bool,
+    ) -> Option<Found> {
         if self.config.search_expansions == 0 || steps < 2 {
             return None;
         }
@@ -307,7 +315,7 @@ impl Lookahead {
             return None;
         };
         let first = *actions.first()?;
-        if !p.allowed.contains(&first) {
+        if !p.takes(first, allows) {
             return None;
         }
         Some(Found {
@@ -327,19 +335,22 @@ impl Lookahead {
         success_radius_m: f32,
     ) -> Result<Vec<Vec<Found>>, String> {
         let mut rollouts = Vec::new();
+        let mut groups = Vec::new();
         let mut counts = Vec::with_capacity(pending.len());
-        for p in pending {
+        for (group, p) in pending.iter().enumerate() {
             let these = p.candidates.get(range.clone()).unwrap_or_default();
             counts.push(these.len());
             for &candidate in these {
                 let mut rollout = Rollout::new(p.seen.clone(), p.decider.clone());
                 rollout.take_candidate(p.key, candidate)?;
                 rollouts.push(rollout);
+                groups.push(group);
             }
         }
         let costs = rollout_costs(
             policy,
             &mut rollouts,
+            &groups,
             self.config.horizon_steps,
             arrival,
             success_radius_m,
@@ -361,10 +372,10 @@ impl Lookahead {
 /// The kept way of decision `p`, replayed in the scene as now perceived: its cost and
 /// actions where the robot's guard still allows its first action and it still arrives with
 /// no step refused; `None` otherwise.
-fn replay_incumbent(p: &Pending) -> Option<Found> {
+fn replay_incumbent(p: &Pending, allows: &mut dyn FnMut(usize, Action) -> bool) -> Option<Found> {
     let plan = p.incumbent.as_ref()?;
     let first = *plan.actions.first()?;
-    if !p.allowed.contains(&first) {
+    if !p.takes(first, allows) {
         return None;
     }
     let mut env = p.seen.clone();

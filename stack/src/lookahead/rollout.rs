@@ -142,21 +142,59 @@ pub fn arrives(cost: f32, horizon_steps: u32) -> bool {
 /// A step the perceived scene refuses (it would collide there) is stepped, so the rule moves
 /// on to its next choice, but not counted: the robot runs the guard, which refuses such an
 /// action before it is sent and takes the next choice in the same decision.
+///
+/// `groups[i]` names the decision rollout `i` weighs. A rollout that can no longer arrive as
+/// soon as one of its group already has (its steps so far plus the fewest it still needs at
+/// the longest step, [`steps_still_needed`]) is stopped there, and costs that bound: it can
+/// no longer be chosen ([`best_candidate`] takes the least cost, ties to the first), and the
+/// group has a rollout that arrives, so what is chosen is the same as had it run on. Most of
+/// the steps of the rollouts that do not arrive are spared that way.
 pub fn rollout_costs(
     policy: &dyn BatchPolicy,
     rollouts: &mut [Rollout],
+    groups: &[usize],
     horizon_steps: u32,
     arrival: bool,
     success_radius_m: f32,
 ) -> Result<Vec<f32>, String> {
+    if groups.len() != rollouts.len() {
+        return Err("a rollout without its decision".to_string());
+    }
     let taken = |r: &Rollout| r.env.steps() - r.decision_step;
+    // The steps a rollout's cost counts: all since the decision but those refused.
+    let counted = |r: &Rollout| taken(r) - r.refused_steps;
     let mut nearest_m: Vec<f32> = rollouts
         .iter()
         .map(|r| r.env.distance_to_target_m())
         .collect();
+    let group_count = groups.iter().max().map_or(0, |&g| g + 1);
+    // By group, the fewest steps a rollout of it arrived in so far.
+    let mut best_arrived: Vec<Option<u32>> = vec![None; group_count];
+    // By rollout, the bound it was stopped at.
+    let mut stopped: Vec<Option<u32>> = vec![None; rollouts.len()];
     loop {
+        for (i, r) in rollouts.iter().enumerate() {
+            if r.env.status() == Status::Success {
+                let steps = counted(r);
+                let best = &mut best_arrived[groups[i]];
+                *best = Some(best.map_or(steps, |b| b.min(steps)));
+            }
+        }
+        for (i, r) in rollouts.iter().enumerate() {
+            if stopped[i].is_some() || r.env.status().is_done() {
+                continue;
+            }
+            let at_least = counted(r) + steps_still_needed(&r.env);
+            if best_arrived[groups[i]].is_some_and(|best| at_least > best) {
+                stopped[i] = Some(at_least);
+            }
+        }
         let running: Vec<usize> = (0..rollouts.len())
-            .filter(|&i| !rollouts[i].env.status().is_done() && taken(&rollouts[i]) < horizon_steps)
+            .filter(|&i| {
+                stopped[i].is_none()
+                    && !rollouts[i].env.status().is_done()
+                    && taken(&rollouts[i]) < horizon_steps
+            })
             .collect();
         if running.is_empty() {
             break;
@@ -189,16 +227,28 @@ pub fn rollout_costs(
     let costs = rollouts
         .iter()
         .zip(&nearest_m)
-        .map(|(r, &nearest_m)| {
-            rollout_cost(
-                r.env.status(),
-                taken(r) - r.refused_steps,
-                horizon_steps,
-                nearest_m,
-            )
+        .zip(&stopped)
+        .map(|((r, &nearest_m), &stopped)| match stopped {
+            Some(at_least) => at_least as f32,
+            None => rollout_cost(r.env.status(), counted(r), horizon_steps, nearest_m),
         })
         .collect();
     Ok(costs)
+}
+
+/// The fewest further counted steps in which a running episode `env` can arrive: at least one,
+/// and at least its distance beyond the success radius at the longest step (a diagonal move;
+/// no step moves the body centre further, and a refused one does not move it).
+pub fn steps_still_needed(env: &Env) -> u32 {
+    // The slack keeps this a bound where the distance and the division round.
+    let longest_step_m = MOVE_STEP_M * core::f32::consts::SQRT_2 * (1.0 + 1.0e-3);
+    let beyond_m = env.distance_to_target_m() - env.config().success_radius_m;
+    let steps = (beyond_m / longest_step_m).floor();
+    if steps.is_finite() && steps > 1.0 {
+        steps.min(u32::MAX as f32 / 4.0) as u32
+    } else {
+        1
+    }
 }
 
 /// The candidate to take: the first (the policy's preference) of those with the least cost.
