@@ -11,8 +11,13 @@
 //! node, axis error, step off its ideal) or the loop could not run at all. Outputs are written
 //! in every case where the loop started.
 
+mod bus;
+mod qemu;
+
 use super::stack_args::StackArgs;
 use super::CliResult;
+use bus::{open_slcan, open_socketcan, LogFile};
+use qemu::run_qemu;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use std::borrow::Cow;
@@ -188,80 +193,6 @@ fn closed_loop(args: &Args, scenario: &Scenario) -> Result<ClosedLoop, String> {
     ClosedLoop::remote(scenario, config, transport).map_err(|e| e.to_string())
 }
 
-/// How long connecting to an SLCAN adapter, and each answer of its open sequence, may take.
-const SLCAN_TIMEOUT_S: u64 = 3;
-
-fn open_slcan(endpoint: &str) -> Result<Box<dyn wheelleg_firmware_sim::bus::Transport>, String> {
-    use wheelleg_firmware_sim::slcan::{EndpointSpec, SlcanClient};
-    let spec: EndpointSpec = endpoint
-        .parse()
-        .map_err(|e| format!("--can slcan:{endpoint}: {e}"))?;
-    if spec == EndpointSpec::Pty {
-        return Err(format!(
-            "--can slcan:{endpoint}: the demo reaches an SLCAN adapter by TCP only: \
-             slcan:tcp:HOST:PORT"
-        ));
-    }
-    let timeout = std::time::Duration::from_secs(SLCAN_TIMEOUT_S);
-    match SlcanClient::connect(&spec, timeout) {
-        Ok(client) => Ok(Box::new(client)),
-        Err(e) => Err(format!(
-            "cannot open the SLCAN adapter at {endpoint}: {e}. Start the motors behind one \
-             with `firmware_sim --slcan {endpoint}`, or leave out --can to use the in-process bus"
-        )),
-    }
-}
-
-#[cfg(target_os = "linux")]
-fn open_socketcan(iface: &str) -> Result<Box<dyn wheelleg_firmware_sim::bus::Transport>, String> {
-    match wheelleg_firmware_sim::socketcan::SocketCan::open(iface) {
-        Ok(socket) => Ok(Box::new(socket)),
-        Err(e) => Err(format!(
-            "cannot open SocketCAN interface {iface}: {e}. Create a virtual bus with `ip link \
-             add dev {iface} type vcan && ip link set up {iface}` and start the motors on it \
-             with `firmware_sim --can {iface}`, or leave out --can to use the in-process bus"
-        )),
-    }
-}
-
-#[cfg(not(target_os = "linux"))]
-fn open_socketcan(iface: &str) -> Result<Box<dyn wheelleg_firmware_sim::bus::Transport>, String> {
-    Err(format!(
-        "cannot open SocketCAN interface {iface}: SocketCAN exists only on Linux; leave out \
-         --can to use the in-process bus"
-    ))
-}
-
-/// Writes into `dir/.name.tmp`; [`LogFile::commit`] renames it over `dir/name` once complete.
-struct LogFile {
-    tmp: PathBuf,
-    path: PathBuf,
-}
-
-impl LogFile {
-    fn create(path: PathBuf) -> Result<(LogFile, Box<dyn Write + Send>), String> {
-        let name = path.file_name().map_or_else(
-            || "bus.log".to_owned(),
-            |n| n.to_string_lossy().into_owned(),
-        );
-        let tmp = path.with_file_name(format!(".{name}.tmp"));
-        let file = std::fs::File::create(&tmp)
-            .map_err(|e| format!("cannot create {}: {e}", tmp.display()))?;
-        Ok((
-            LogFile { tmp, path },
-            Box::new(std::io::BufWriter::new(file)),
-        ))
-    }
-
-    fn commit(self) -> Result<(), String> {
-        let fail = |e: std::io::Error| format!("cannot write {}: {e}", self.path.display());
-        std::fs::File::open(&self.tmp)
-            .and_then(|f| f.sync_all())
-            .map_err(fail)?;
-        std::fs::rename(&self.tmp, &self.path).map_err(fail)
-    }
-}
-
 /// Runs `demo`.
 pub fn run(args: Args) -> CliResult {
     let planner = PlannerConfig {
@@ -319,7 +250,7 @@ pub fn run(args: Args) -> CliResult {
     let started = closed_loop.start();
     if let Err(e) = started {
         let _ = closed_loop.take_log();
-        let _ = std::fs::remove_file(&log_file.tmp);
+        log_file.discard();
         return Err(match (&args.can, e) {
             (Some(iface), LoopError::Rig(RigError::StartupFailed(_))) => {
                 let run = match iface.strip_prefix("slcan:") {
@@ -369,102 +300,6 @@ pub fn run(args: Args) -> CliResult {
     if let Some(e) = failure {
         return Err(e.into());
     }
-    match report.fault {
-        Some(fault) => Err(format!("robot stopped: {fault}").into()),
-        None => Ok(()),
-    }
-}
-
-/// `demo --controller qemu`: the episode through the firmware in QEMU.
-fn run_qemu(args: &Args, scenario: &Scenario, origin: &str) -> CliResult {
-    use wheelleg::hil::{
-        find_or_build_image, plant::PlantFault, Faults, Hil, PERIOD_BUDGET_CYCLES,
-    };
-    let refused = [
-        (
-            args.can.is_some(),
-            "--can (the firmware's CAN adapter is the simulated one)",
-        ),
-        (args.planner, "--planner"),
-        (
-            args.weights.is_some(),
-            "--weights (the firmware's policy is built into its image)",
-        ),
-        (
-            !args.stack.is_robot_default(),
-            "a stack other than the default robot one",
-        ),
-    ];
-    if let Some((_, what)) = refused.iter().find(|(given, _)| *given) {
-        return Err(format!(
-            "--controller qemu runs the firmware's own stack (policy, guard on the fine \
-             window, arrival): {what} does not apply"
-        )
-        .into());
-    }
-    let image = find_or_build_image(args.firmware.as_deref())?;
-    let mut env = Env::new(scenario, LoopConfig::default().env).map_err(|e| e.to_string())?;
-    let legs = env.state().leg_config(env.geometry());
-    let mut faults = Faults::default();
-    if let (Some(node), Some(at)) = (args.silent_node, args.silent_at_step) {
-        if let Some(axis) = Axis::ALL.into_iter().find(|a| a.node_id().get() == node) {
-            outln!("inject:    node {node} ({axis:?}) goes silent during step {at}");
-            faults.plant.push((at, PlantFault::SilentAxis(axis)));
-        }
-    }
-    outln!(
-        "scene:     {} ({origin}); target {:.2} m away",
-        scenario.name,
-        env.distance_to_target_m()
-    );
-    outln!(
-        "driver:    the controller firmware {} in QEMU mps2-an386 (Cortex-M4F): shipped int8 \
-         policy, decision rule, collision guard on the 1 cm fine window, arrival",
-        image.display()
-    );
-    outln!(
-        "links:     observation link on UART 1 (COBS, CRC-16, postcard); SLCAN adapter on \
-         UART 2, 16 simulated ODrive axes behind it, 1 Mbit/s, control 100 Hz in lockstep"
-    );
-    std::fs::create_dir_all(&args.out)
-        .map_err(|e| format!("cannot create {}: {e}", args.out.display()))?;
-    let mut hil = Hil::start(&image, legs)?;
-    let (log_file, writer) = LogFile::create(args.out.join("bus.log"))?;
-    hil.plant()
-        .log_to(CandumpWriter::new(writer, "slcan0", DEFAULT_EPOCH_US));
-    let wall_clock = std::time::Instant::now();
-    let episode = hil.run(&mut env, &faults);
-    let taken = hil.plant().take_log();
-    let episode = episode?;
-    taken.map_err(|e| format!("cannot write the bus log: {e}"))?;
-    log_file.commit()?;
-    let ram = hil.ram_use()?;
-    let busiest_period = hil.busiest_period_instructions()?;
-    hil.shutdown()?;
-    let report = &episode.report;
-    let png = args.out.join("path.png");
-    top_view(scenario, &WHEELLEG, &report.path, &report.collided_at)?
-        .save_png(&png)
-        .map_err(|e| format!("cannot write {}: {e}", png.display()))?;
-    print_report(report, wall_clock.elapsed().as_secs_f64());
-    outln!(
-        "wrote:     {} and {} ({} frames)",
-        png.display(),
-        args.out.join("bus.log").display(),
-        report.traffic.frames
-    );
-    outln!(
-        "RAM:       {} bytes in use on the controller (statics {}, stack at its deepest {}, \
-         painted by QEMU's loader)",
-        ram.total_bytes(),
-        ram.statics_bytes,
-        ram.peak_stack_bytes
-    );
-    outln!(
-        "period:    at most {busiest_period} instructions of work in one control period ({:.1} % \
-         of its 10 ms at 170 MHz, one cycle per instruction)",
-        100.0 * busiest_period as f64 / PERIOD_BUDGET_CYCLES as f64
-    );
     match report.fault {
         Some(fault) => Err(format!("robot stopped: {fault}").into()),
         None => Ok(()),

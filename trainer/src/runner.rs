@@ -10,7 +10,7 @@ use crate::config::TrainConfig;
 use crate::curriculum::StartStageSchedule;
 use crate::network::{init_policy, BackendKind};
 use crate::network_f32::NetworkF32;
-use crate::ppo::{Ppo, UpdateStats};
+use crate::ppo::Ppo;
 use crate::replay::{replay_samples, ReplayOptions};
 use crate::storage::RolloutStorage;
 use crate::trajectory::batch_file::{partial_path, TrajectoryBatch};
@@ -20,9 +20,7 @@ use crate::vec_env::{EpisodeStats, Scenes, SolvedEpisode, VecEnv};
 use indicatif::{ProgressBar, ProgressStyle};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
@@ -36,49 +34,10 @@ pub const TRAJECTORIES_FILE: &str = "trajectories.wltb";
 /// Name of the metrics log in a run folder.
 pub const METRICS_FILE: &str = "metrics.jsonl";
 
-/// One iteration's line in `metrics.jsonl`.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct IterationMetrics {
-    /// Iteration number, from 1.
-    pub iteration: u64,
-    /// Environment steps taken so far.
-    pub env_steps: u64,
-    /// Episodes finished during the iteration.
-    pub episodes: usize,
-    /// Mean undiscounted return of those episodes.
-    pub mean_return: f32,
-    /// Fraction that reached the target.
-    pub success_rate: f32,
-    /// Fraction that reached the target without any collision.
-    pub collision_free_rate: f32,
-    /// Mean steps of the successful episodes (path length); none without successes.
-    pub mean_success_steps: Option<f32>,
-    /// PPO statistics.
-    pub update: UpdateStats,
-    /// Environment steps per second of the whole iteration (rollout + update).
-    pub steps_per_s: f32,
-    /// Seconds of training so far.
-    pub elapsed_s: f64,
-    /// Start stage of the scenes drawn during the iteration (runs with the start-stage
-    /// curriculum only; `run.start_stage`).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub start_stage: Option<f32>,
-    /// Success rate of the iteration's episodes that started at that stage.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub start_stage_success_rate: Option<f32>,
-}
+mod metrics;
 
-/// Episode outcomes summarised.
-pub fn summarise(episodes: &[EpisodeStats]) -> (f32, f32, f32, Option<f32>) {
-    let n = episodes.len().max(1) as f32;
-    let successes: Vec<&EpisodeStats> = episodes.iter().filter(|e| e.success).collect();
-    let mean_return = episodes.iter().map(|e| e.return_sum).sum::<f32>() / n;
-    let success = successes.len() as f32 / n;
-    let collision_free = successes.iter().filter(|e| e.collisions == 0).count() as f32 / n;
-    let steps = (!successes.is_empty())
-        .then(|| successes.iter().map(|e| e.steps as f32).sum::<f32>() / successes.len() as f32);
-    (mean_return, success, collision_free, steps)
-}
+use metrics::{append_metrics, truncate_metrics};
+pub use metrics::{read_metrics, summarise, IterationMetrics};
 
 /// Options of a run besides the config.
 #[derive(Clone, Debug)]
@@ -469,47 +428,6 @@ fn save_trajectories(
     };
     randomize_batch_with(trajectories, &config, &temp, |_| {}).map_err(|e| e.to_string())?;
     std::fs::rename(&temp, path).map_err(|e| format!("cannot write {}: {e}", path.display()))
-}
-
-fn append_metrics(path: &Path, m: &IterationMetrics) -> Result<(), String> {
-    let line = serde_json::to_string(m).map_err(|e| e.to_string())?;
-    let mut f = std::fs::OpenOptions::new()
-        .create(true)
-        .append(true)
-        .open(path)
-        .map_err(|e| format!("cannot open {}: {e}", path.display()))?;
-    writeln!(f, "{line}").map_err(|e| format!("cannot write {}: {e}", path.display()))
-}
-
-/// Drops metric lines after `iteration` (written after the checkpoint a resume starts from), so
-/// the log has each iteration exactly once.
-fn truncate_metrics(path: &Path, iteration: u64) -> Result<(), String> {
-    let Ok(text) = std::fs::read_to_string(path) else {
-        return Ok(());
-    };
-    let kept: String = text
-        .lines()
-        .filter(|l| {
-            serde_json::from_str::<IterationMetrics>(l).is_ok_and(|m| m.iteration <= iteration)
-        })
-        .map(|l| format!("{l}\n"))
-        .collect();
-    wheelleg_sim::atomic_write(path, kept.as_bytes())
-        .map_err(|e| format!("cannot rewrite {}: {e}", path.display()))
-}
-
-/// Reads a run's metrics (for plots).
-pub fn read_metrics(run: &Path) -> Result<Vec<IterationMetrics>, String> {
-    let path = run.join(METRICS_FILE);
-    let text = std::fs::read_to_string(&path)
-        .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
-    text.lines()
-        .enumerate()
-        .filter(|(_, l)| !l.trim().is_empty())
-        .map(|(i, l)| {
-            serde_json::from_str(l).map_err(|e| format!("{} line {}: {e}", path.display(), i + 1))
-        })
-        .collect()
 }
 
 #[cfg(test)]

@@ -1,0 +1,108 @@
+//! `demo --controller qemu`: the on-board stack and the motor commands in the controller
+//! firmware's production image in QEMU.
+
+use super::{print_report, Args, LogFile};
+use crate::cli::CliResult;
+use wheelleg::closed_loop::LoopConfig;
+use wheelleg_firmware_sim::candump::{CandumpWriter, DEFAULT_EPOCH_US};
+use wheelleg_runtime::can::node_map::Axis;
+use wheelleg_runtime::robot::WHEELLEG;
+use wheelleg_sim::env::Env;
+use wheelleg_sim::render::top_view;
+use wheelleg_sim::scenario::Scenario;
+
+/// `demo --controller qemu`: the episode through the firmware in QEMU.
+pub(super) fn run_qemu(args: &Args, scenario: &Scenario, origin: &str) -> CliResult {
+    use wheelleg::hil::{
+        find_or_build_image, plant::PlantFault, Faults, Hil, PERIOD_BUDGET_CYCLES,
+    };
+    let refused = [
+        (
+            args.can.is_some(),
+            "--can (the firmware's CAN adapter is the simulated one)",
+        ),
+        (args.planner, "--planner"),
+        (
+            args.weights.is_some(),
+            "--weights (the firmware's policy is built into its image)",
+        ),
+        (
+            !args.stack.is_robot_default(),
+            "a stack other than the default robot one",
+        ),
+    ];
+    if let Some((_, what)) = refused.iter().find(|(given, _)| *given) {
+        return Err(format!(
+            "--controller qemu runs the firmware's own stack (policy, guard on the fine \
+             window, arrival): {what} does not apply"
+        )
+        .into());
+    }
+    let image = find_or_build_image(args.firmware.as_deref())?;
+    let mut env = Env::new(scenario, LoopConfig::default().env).map_err(|e| e.to_string())?;
+    let legs = env.state().leg_config(env.geometry());
+    let mut faults = Faults::default();
+    if let (Some(node), Some(at)) = (args.silent_node, args.silent_at_step) {
+        if let Some(axis) = Axis::ALL.into_iter().find(|a| a.node_id().get() == node) {
+            outln!("inject:    node {node} ({axis:?}) goes silent during step {at}");
+            faults.plant.push((at, PlantFault::SilentAxis(axis)));
+        }
+    }
+    outln!(
+        "scene:     {} ({origin}); target {:.2} m away",
+        scenario.name,
+        env.distance_to_target_m()
+    );
+    outln!(
+        "driver:    the controller firmware {} in QEMU mps2-an386 (Cortex-M4F): shipped int8 \
+         policy, decision rule, collision guard on the 1 cm fine window, arrival",
+        image.display()
+    );
+    outln!(
+        "links:     observation link on UART 1 (COBS, CRC-16, postcard); SLCAN adapter on \
+         UART 2, 16 simulated ODrive axes behind it, 1 Mbit/s, control 100 Hz in lockstep"
+    );
+    std::fs::create_dir_all(&args.out)
+        .map_err(|e| format!("cannot create {}: {e}", args.out.display()))?;
+    let mut hil = Hil::start(&image, legs)?;
+    let (log_file, writer) = LogFile::create(args.out.join("bus.log"))?;
+    hil.plant()
+        .log_to(CandumpWriter::new(writer, "slcan0", DEFAULT_EPOCH_US));
+    let wall_clock = std::time::Instant::now();
+    let episode = hil.run(&mut env, &faults);
+    let taken = hil.plant().take_log();
+    let episode = episode?;
+    taken.map_err(|e| format!("cannot write the bus log: {e}"))?;
+    log_file.commit()?;
+    let ram = hil.ram_use()?;
+    let busiest_period = hil.busiest_period_instructions()?;
+    hil.shutdown()?;
+    let report = &episode.report;
+    let png = args.out.join("path.png");
+    top_view(scenario, &WHEELLEG, &report.path, &report.collided_at)?
+        .save_png(&png)
+        .map_err(|e| format!("cannot write {}: {e}", png.display()))?;
+    print_report(report, wall_clock.elapsed().as_secs_f64());
+    outln!(
+        "wrote:     {} and {} ({} frames)",
+        png.display(),
+        args.out.join("bus.log").display(),
+        report.traffic.frames
+    );
+    outln!(
+        "RAM:       {} bytes in use on the controller (statics {}, stack at its deepest {}, \
+         painted by QEMU's loader)",
+        ram.total_bytes(),
+        ram.statics_bytes,
+        ram.peak_stack_bytes
+    );
+    outln!(
+        "period:    at most {busiest_period} instructions of work in one control period ({:.1} % \
+         of its 10 ms at 170 MHz, one cycle per instruction)",
+        100.0 * busiest_period as f64 / PERIOD_BUDGET_CYCLES as f64
+    );
+    match report.fault {
+        Some(fault) => Err(format!("robot stopped: {fault}").into()),
+        None => Ok(()),
+    }
+}
