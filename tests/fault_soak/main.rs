@@ -21,24 +21,25 @@
 //! Runs in release (the workspace's test profile is optimised) in well under two minutes.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::indexing_slicing)]
 
-use nalgebra::{Isometry2, Point2, Vector2};
+use nalgebra::{Isometry2, Vector2};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::time::Instant;
-use wheelleg::closed_loop::{ClosedLoop, Driver, Fault, LoopConfig, PlannerDriver, StepKind};
+use wheelleg::closed_loop::{ClosedLoop, Fault, LoopConfig, StepKind};
 use wheelleg_firmware_sim::bus::Faults;
 use wheelleg_firmware_sim::rig::{true_wheel_speed_sum, Rig, StopReason, TimedFault, TrueSample};
-use wheelleg_runtime::action::{Action, YAW_STEP_DEG};
-use wheelleg_runtime::can::node_map::{Axis, AxisKind};
+use wheelleg_runtime::can::node_map::Axis;
 use wheelleg_runtime::can::protocol::AxisState;
-use wheelleg_runtime::leg::LegConfig;
-use wheelleg_runtime::robot::WHEELLEG;
-use wheelleg_sim::collision::{ObstacleSet, RobotParts};
-use wheelleg_sim::env::{Env, Status};
-use wheelleg_sim::generate::{generate, Behaviour, SceneKind};
-use wheelleg_sim::planner::PlannerConfig;
-use wheelleg_sim::scenario::Scenario;
-use wheelleg_sim::state::{RobotState, YAW_STEPS_PER_TURN};
+use wheelleg_sim::env::Status;
+use wheelleg_sim::state::RobotState;
+
+mod figures;
+mod scenes;
+mod truth;
+
+use figures::Figures;
+use scenes::{plan_states, planned_scenes, Planned};
+use truth::{joint_positions, off_path, rest_time_us, true_pose_collides};
 
 /// Episodes of the soak: four fault kinds, cycled, over the scenes.
 const EPISODES: u64 = 80;
@@ -52,70 +53,7 @@ const ENCODER_PERIOD_US: u64 = 10_000;
 const WATCHDOG_TIMEOUT_US: u64 = 100_000;
 const PHYSICS_DT_US: u64 = 1_000;
 /// Poses checked along each planned step: one per control tick of a 0.5 s step.
-const SWEEP_SAMPLES: u32 = 50;
-
-/// A solvable scene and the planner's action sequence for it.
-struct Planned {
-    scene: Scenario,
-    actions: Vec<Action>,
-}
-
-fn planned_scenes() -> Vec<Planned> {
-    let planner = PlannerConfig {
-        max_expansions: 2_000,
-        ..PlannerConfig::default()
-    };
-    let mut out = Vec::new();
-    // The seeds of tests/closed_loop/mechanics.rs: scenes the planner solves quickly (proving a scene
-    // unsolvable can take minutes, which a soak should not spend).
-    let kinds = [
-        (SceneKind::Complex, 4, 21),
-        (SceneKind::Behaviour(Behaviour::LiftOver), 1, 22),
-    ];
-    for (kind, count, seed) in kinds {
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let mut found = 0;
-        for i in 0..10 * count {
-            let scene = generate(kind, &mut rng, format!("{}-{i}", kind.name()));
-            let mut env = Env::new(&scene, LoopConfig::default().env).unwrap();
-            let Ok(mut driver) = PlannerDriver::new(&env, &planner) else {
-                continue;
-            };
-            let mut actions = Vec::new();
-            // Where a safe stop can leave the robot: anywhere along a step's path. The world
-            // proves every step clear all the way, so sampled at every control tick the planned
-            // path touches nothing either.
-            while !env.status().is_done() {
-                let action = driver.decide(&env).unwrap();
-                let from = *env.state();
-                env.step(action).unwrap();
-                let on_the_way = env.check_swept(&from, env.state(), SWEEP_SAMPLES, 0.0);
-                assert!(
-                    on_the_way.is_ok(),
-                    "{}: step {} of the plan touches an obstacle on the way: {on_the_way:?}",
-                    scene.name,
-                    actions.len()
-                );
-                actions.push(action);
-            }
-            assert_eq!(env.status(), Status::Success);
-            assert_eq!(
-                env.collisions(),
-                0,
-                "the planner's paths are collision-free"
-            );
-            out.push(Planned { scene, actions });
-            found += 1;
-            if found == count {
-                break;
-            }
-        }
-        assert_eq!(found, count, "not enough solvable {} scenes", kind.name());
-    }
-    let steps: usize = out.iter().map(|p| p.actions.len()).sum();
-    eprintln!("planned steps: {steps}");
-    out
-}
+pub(crate) const SWEEP_SAMPLES: u32 = 50;
 
 /// The fault injected into one episode besides the lossy bus.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -127,108 +65,6 @@ enum Injected {
     Silence(Axis, u64, bool),
     /// The controller stops sending at this simulated time.
     Hang(u64),
-}
-
-/// Where the robot really is: the scene's start pose moved by the rig's ground-truth odometry,
-/// with the legs the joints really hold.
-fn true_pose_collides(sample: &TrueSample, start: Isometry2<f32>, obstacles: &ObstacleSet) -> bool {
-    let pose = start * sample.pose;
-    let legs = sample.legs;
-    // FK of real joint positions can leave the command limits by motor noise; the body is
-    // where it is, so clamp only for the IK inside RobotParts.
-    let [c0, c1] = WHEELLEG.clearance_range_m;
-    let [t0, t1] = WHEELLEG.track_range_m;
-    let legs = LegConfig {
-        clearance_m: legs.clearance_m.clamp(c0, c1),
-        track_m: legs.track_m.clamp(t0, t1),
-    };
-    let position = Point2::new(pose.translation.x, pose.translation.y);
-    let parts = RobotParts::new(&WHEELLEG, position, pose.rotation.angle(), legs).unwrap();
-    obstacles.collides(&parts)
-}
-
-/// Figures of the whole soak, printed at the end (docs/robustness.md quotes them).
-#[derive(Debug, Default)]
-struct Figures {
-    episodes: u32,
-    steps: u32,
-    succeeded: u32,
-    safe_stops_silent: u32,
-    safe_stops_error: u32,
-    off_tolerance: u32,
-    frames_sent: u64,
-    dropped: u64,
-    delayed: u64,
-    duplicated: u64,
-    worst_silence_detection_us: u64,
-    watchdog_trips: u32,
-    worst_watchdog_us: u64,
-    best_watchdog_us: u64,
-    true_pose_checks: u32,
-    worst_true_drift_m: f32,
-    /// Episodes whose true pose touched an obstacle at any control tick (asserted empty).
-    contacts: Vec<u64>,
-    /// Stops in the middle of a step (silent node, or a watchdog trip the lossy bus caused).
-    mid_step_stops: u32,
-    /// Silent nodes that still heard commands / that dropped off the bus.
-    silent_hearing: u32,
-    silent_disconnected: u32,
-    /// Per injected fault (silent node still hearing, node off the bus, controller hung,
-    /// none: a watchdog trip the lossy bus caused): longest time from the stop decision until
-    /// the true pose stopped moving (< 10 µm and 10 µrad per control tick), and the largest
-    /// distance of the stopped robot's true rest pose from the path of the step it stopped in
-    /// (nearest of the path's poses at every 1 % of progress): position, heading, clearance
-    /// and track.
-    stops: [StopFigures; 4],
-}
-
-/// Figures of the stops of one kind of fault.
-#[derive(Debug, Default)]
-struct StopFigures {
-    kind: &'static str,
-    stops: u32,
-    worst_stop_to_rest_us: u64,
-    worst_off_path_m: f32,
-    worst_off_path_rad: f32,
-    worst_off_path_legs_m: f32,
-}
-
-/// One pose of the straight path from `from` to `to` at fraction `t`, as `Env::check_swept`
-/// and the controller's step motion see it.
-fn path_pose(from: &RobotState, to: &RobotState, t: f32) -> (Isometry2<f32>, LegConfig) {
-    let yaw_delta = (to.yaw_steps - from.yaw_steps + 1).rem_euclid(YAW_STEPS_PER_TURN) - 1;
-    let yaw = from.yaw_rad() + t * (yaw_delta as f32 * YAW_STEP_DEG).to_radians();
-    let p = from.position + t * (to.position - from.position);
-    let (l0, l1) = (from.leg_config(&WHEELLEG), to.leg_config(&WHEELLEG));
-    let legs = LegConfig {
-        clearance_m: l0.clearance_m + t * (l1.clearance_m - l0.clearance_m),
-        track_m: l0.track_m + t * (l1.track_m - l0.track_m),
-    };
-    (Isometry2::new(Vector2::new(p.x, p.y), yaw), legs)
-}
-
-/// How far the true pose is from the nearest pose of the path (position, heading, legs at
-/// the nearest position).
-fn off_path(
-    from: &RobotState,
-    to: &RobotState,
-    truth: Isometry2<f32>,
-    legs: LegConfig,
-) -> (f32, f32, f32) {
-    (0..=100)
-        .map(|i| {
-            let (pose, path_legs) = path_pose(from, to, i as f32 / 100.0);
-            let d = pose.inverse() * truth;
-            (
-                d.translation.vector.norm(),
-                d.rotation.angle().abs(),
-                (legs.clearance_m - path_legs.clearance_m)
-                    .abs()
-                    .max((legs.track_m - path_legs.track_m).abs()),
-            )
-        })
-        .min_by(|a, b| a.0.total_cmp(&b.0))
-        .unwrap()
 }
 
 fn run_episode(planned: &Planned, episode: u64, figures: &mut Figures) {
@@ -478,41 +314,6 @@ fn run_episode(planned: &Planned, episode: u64, figures: &mut Figures) {
     figures.dropped += counters.dropped;
     figures.delayed += counters.delayed;
     figures.duplicated += counters.duplicated;
-}
-
-/// How long after `stop_us` the true pose last moved (more than 10 µm or 10 µrad, or the legs
-/// more than 10 µm, between two control ticks).
-fn rest_time_us(log: &[TrueSample], stop_us: u64) -> u64 {
-    log.windows(2)
-        .filter(|w| w[1].at_us > stop_us)
-        .filter(|w| {
-            let d = w[0].pose.inverse() * w[1].pose;
-            d.translation.vector.norm() > 1e-5
-                || d.rotation.angle().abs() > 1e-5
-                || (w[0].legs.clearance_m - w[1].legs.clearance_m).abs() > 1e-5
-                || (w[0].legs.track_m - w[1].legs.track_m).abs() > 1e-5
-        })
-        .map(|w| w[1].at_us - stop_us)
-        .max()
-        .unwrap_or(0)
-}
-
-fn plan_states(planned: &Planned) -> Vec<wheelleg_sim::state::RobotState> {
-    let mut env = Env::new(&planned.scene, LoopConfig::default().env).unwrap();
-    let mut states = vec![*env.state()];
-    for &action in &planned.actions {
-        env.step(action).unwrap();
-        states.push(*env.state());
-    }
-    states
-}
-
-fn joint_positions(rig: &Rig) -> Vec<f32> {
-    Axis::ALL
-        .into_iter()
-        .filter(|a| a.kind() == AxisKind::Joint)
-        .map(|a| rig.firmware().axis(a).unwrap().pos_turns())
-        .collect()
 }
 
 #[test]
