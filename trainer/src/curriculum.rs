@@ -264,7 +264,10 @@ fn report_stage(name: &str, summary: &RunSummary) {
     }
 }
 
-/// The stored trajectories of every secondary policy, in behaviour order.
+/// The stored trajectories of every secondary policy, in behaviour order. Refused when a
+/// behaviour has none: the batch would then teach the primary nothing of it, and the primary
+/// forgets what it cannot replay (a primary on a batch without squeeze trajectories passed 0
+/// of 200 squeeze scenes; docs/results.md).
 pub fn stored_trajectories(config: &TrainConfig, out: &Path) -> Result<Vec<Trajectory>, String> {
     let mut all = Vec::new();
     for behaviour in behaviours(config)? {
@@ -272,6 +275,17 @@ pub fn stored_trajectories(config: &TrainConfig, out: &Path) -> Result<Vec<Traje
         let stored = TrajectoryBatch::load(&path).map_err(|e| {
             format!("{e} (train the secondary policies first: wheelleg train secondary)")
         })?;
+        if stored.is_empty() {
+            let name = behaviour.name();
+            return Err(format!(
+                "secondary {name} stored no successful, collision-free episode of the task as \
+                 specified ({} is empty; with a start-stage curriculum, its start stage never \
+                 reached 1): give it more env steps \
+                 (curriculum.secondary_env_steps_by_behaviour.{name}) and resume with \
+                 `wheelleg train secondary --resume`",
+                path.display()
+            ));
+        }
         all.extend((0..stored.len()).filter_map(|i| stored.trajectory(i)));
     }
     Ok(all)
@@ -384,13 +398,42 @@ mod tests {
             assert_eq!(stage.run.scene_kind, behaviour.name());
             assert_eq!(stage.run.composed_share, 0.0);
             assert_eq!(stage.ppo.learning_rate_final, None);
-            assert_eq!(
-                stage.run.total_env_steps,
-                config.curriculum.secondary_env_steps
-            );
+            // Squeeze's start stages need more steps to reach the task as specified.
+            let budget = match behaviour {
+                Behaviour::Squeeze => 1_500_000,
+                _ => config.curriculum.secondary_env_steps,
+            };
+            assert_eq!(stage.run.total_env_steps, budget);
             stage.validate().unwrap();
         }
     }
+    #[test]
+    fn a_behaviour_without_trajectories_stops_the_batch_naming_it() {
+        let out =
+            std::env::temp_dir().join(format!("wheelleg-no-trajectories-{}", std::process::id()));
+        let config = TrainConfig::default();
+        let behaviours = behaviours(&config).unwrap();
+        // Files as a secondary writes them when it stored no episode.
+        let empty = RandomizeConfig {
+            per_trajectory: 0,
+            include_original: true,
+            ..RandomizeConfig::default()
+        };
+        for &behaviour in &behaviours {
+            let dir = secondary_dir(&out, behaviour);
+            std::fs::create_dir_all(&dir).unwrap();
+            randomize_batch_with(&[], &empty, &dir.join(TRAJECTORIES_FILE), |_| {}).unwrap();
+        }
+        let e = stored_trajectories(&config, &out).unwrap_err();
+        let _ = std::fs::remove_dir_all(&out);
+        let first = behaviours[0].name();
+        assert!(e.contains(&format!("secondary {first} stored no")), "{e}");
+        assert!(
+            e.contains(&format!("secondary_env_steps_by_behaviour.{first}")),
+            "{e}"
+        );
+    }
+
     use crate::network::init_policy;
     use crate::network_f32::Architecture;
     use rand::SeedableRng;

@@ -35,7 +35,10 @@ fn tiny_config() -> TrainConfig {
 fn the_whole_pipeline_runs_and_resumes() {
     let out = std::env::temp_dir().join(format!("wheelleg-curriculum-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
-    let config = tiny_config();
+    // Straight alone: at this budget the other behaviours store no episode, and a batch
+    // without one of its behaviours is refused (`stored_trajectories`).
+    let mut config = tiny_config();
+    config.curriculum.behaviours = vec!["straight".into()];
     let opts = CurriculumOptions {
         out: out.clone(),
         seed: 5,
@@ -45,16 +48,14 @@ fn the_whole_pipeline_runs_and_resumes() {
     let summary = run_all(&config, &opts).unwrap();
     assert_eq!(summary.env_steps, 2000);
 
-    // Secondary policies ran their budgets and kept successful trajectories.
-    for behaviour in [Behaviour::Straight, Behaviour::LiftOver] {
-        let dir = secondary_dir(&out, behaviour);
-        let c = Checkpoint::load(&dir.join(CHECKPOINT_FILE)).unwrap();
-        assert_eq!(c.env_steps, 10_000, "{behaviour:?}");
-        assert!(!read_metrics(&dir).unwrap().is_empty());
-    }
+    // The secondary policy ran its budget and kept successful trajectories.
+    let dir = secondary_dir(&out, Behaviour::Straight);
+    let c = Checkpoint::load(&dir.join(CHECKPOINT_FILE)).unwrap();
+    assert_eq!(c.env_steps, 10_000);
+    assert!(!read_metrics(&dir).unwrap().is_empty());
     let sources = stored_trajectories(&config, &out).unwrap();
     assert!(
-        !sources.is_empty() && sources.len() <= 80,
+        !sources.is_empty() && sources.len() <= 40,
         "{}",
         sources.len()
     );
