@@ -43,7 +43,7 @@ fn shortest(env: &Env, config: &PlannerConfig) -> usize {
     }
 }
 
-/// Breadth-first search over full states (position at 0.1 mm, yaw, clearance, track) with the
+/// Breadth-first search over full states (exact position, yaw, clearance, track) with the
 /// simulator's transition check, the step limit and the give-up rule: the reference the
 /// planner must match. Exponential; only for tiny, restricted instances. States from which
 /// even straight-line travel at the longest step cannot reach the target within `depth` steps
@@ -54,10 +54,13 @@ fn brute_force(env: &Env, config: &PlannerConfig, depth: usize) -> Option<usize>
         .filter_map(Action::from_index)
         .filter(|a| *a != Action::IDLE)
         .collect();
+    // The exact position, not rounded: the same lattice point reached in another order may
+    // differ in the last bits, and where a step or the success radius is decided within them,
+    // a rounded key would keep only the first variant met.
     let key = |s: &RobotState| {
         (
-            (s.position.x * 1.0e4).round() as i32,
-            (s.position.y * 1.0e4).round() as i32,
+            s.position.x.to_bits(),
+            s.position.y.to_bits(),
             s.yaw_steps,
             s.clearance_steps,
             s.track_steps,

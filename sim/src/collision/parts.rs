@@ -114,12 +114,101 @@ impl Part {
         }
     }
 
-    pub(super) fn intersects(&self, obstacle_pose: &Isometry3<f32>, obstacle: &Cuboid) -> bool {
-        let (pose, shape) = self.placed();
-        // Every pair here is convex-convex, which parry always supports; an unsupported pair
-        // would be a programming error, and counting it as a collision is the safe side.
-        query::intersection_test(&pose, shape, obstacle_pose, obstacle).unwrap_or(true)
+    /// Whether the part touches or enters the obstacle box `obstacle` (parry's `pose` and
+    /// `shape` of it for the wheel): the link's and the body's distances are exact
+    /// ([`Part::distance_lower_bound_m`]), the wheel's comes from parry's intersection test.
+    /// parry's test misses a capsule reaching into a box now and then (6 of 2,626 overlapping
+    /// pairs in `parts_keep_every_point_s_distance`'s sampling), a cylinder none found.
+    pub(super) fn intersects(
+        &self,
+        obstacle: &Aabb,
+        obstacle_pose: &Isometry3<f32>,
+        shape: &Cuboid,
+    ) -> bool {
+        match self {
+            Part::Link(_) | Part::Body { .. } => self.distance_lower_bound_m(obstacle) <= 0.0,
+            Part::Wheel { .. } => {
+                let (pose, wheel) = self.placed();
+                // Convex-convex, which parry always supports; an unsupported pair would be a
+                // programming error, and counting it as a collision is the safe side.
+                query::intersection_test(&pose, wheel, obstacle_pose, shape).unwrap_or(true)
+            }
+        }
     }
+
+    /// The part's distance to the obstacle box `obstacle` (parry's `pose` and `shape` of it
+    /// for the wheel), never above the true distance, looked for up to `up_to_m`; `None` when
+    /// they may touch. The proof of the way there rests on this never being too high.
+    ///
+    /// The link's and the body's distances are exact. The wheel's is the best of its cheap
+    /// bound and the gap between the wheel's and the box's extents along two directions:
+    /// parry's contact normal and the way from the wheel's centre to the box. Any direction
+    /// gives a lower bound (two convex sets are at least as far apart as their shadows on a
+    /// line), and the right one gives the distance. parry's own distance is not used: its
+    /// contact query with a prediction distance overestimates capsule/box and cylinder/box
+    /// distances, by more than 1 mm for 7 % of the wheel pairs near a box, up to 9.6 mm, where
+    /// its normal still points nearly the right way.
+    pub(super) fn clearance_m(
+        &self,
+        obstacle: &Aabb,
+        obstacle_pose: &Isometry3<f32>,
+        shape: &Cuboid,
+        up_to_m: f32,
+    ) -> Option<f32> {
+        let cheap_m = self.distance_lower_bound_m(obstacle);
+        let distance_m = match self {
+            Part::Link(_) | Part::Body { .. } => cheap_m,
+            Part::Wheel { pose, shape: wheel } => {
+                let (placed, as_shape) = self.placed();
+                let normal = match query::contact(&placed, as_shape, obstacle_pose, shape, up_to_m)
+                {
+                    Ok(Some(contact)) if contact.dist <= 0.0 => return None,
+                    Err(_) => return None,
+                    Ok(contact) => contact.map(|c| c.normal1.into_inner()),
+                };
+                let centre = Point3::from(pose.translation.vector);
+                let nearest = Point3::from(
+                    centre
+                        .coords
+                        .sup(&obstacle.mins.coords)
+                        .inf(&obstacle.maxs.coords),
+                );
+                let towards = (nearest - centre).try_normalize(1.0e-9);
+                [normal, towards]
+                    .into_iter()
+                    .flatten()
+                    .map(|n| wheel_gap_along_m(pose, wheel, obstacle, &n))
+                    .fold(cheap_m, f32::max)
+            }
+        };
+        (distance_m > 0.0).then_some(distance_m)
+    }
+}
+
+/// The gap between the wheel (`pose`, `wheel`) and the box `obstacle` along the unit direction
+/// `n` (from the wheel towards the box): the box's least extent along `n` less the wheel's
+/// greatest. A lower bound on their distance for any `n`.
+fn wheel_gap_along_m(
+    pose: &Isometry3<f32>,
+    wheel: &Cylinder,
+    obstacle: &Aabb,
+    n: &Vector3<f32>,
+) -> f32 {
+    let axle = pose.rotation * Vector3::y();
+    let along_axle = axle.dot(n);
+    let wheel_m = pose.translation.vector.dot(n)
+        + wheel.half_height * along_axle.abs()
+        + wheel.radius * (1.0 - along_axle * along_axle).max(0.0).sqrt();
+    let box_m: f32 = (0..3)
+        .map(|k| {
+            n[k] * if n[k] >= 0.0 {
+                obstacle.mins[k]
+            } else {
+                obstacle.maxs[k]
+            }
+        })
+        .sum();
+    box_m - wheel_m
 }
 
 /// The robot's parts at one pose, with their bounding boxes.
