@@ -393,14 +393,19 @@ mod tests {
         let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/shipped.toml");
         let config = TrainConfig::load(std::path::Path::new(path)).unwrap();
         assert!(config.run.composed_share > 0.0 && config.ppo.learning_rate_final.is_some());
-        for (first, behaviour) in [(true, Behaviour::Straight), (false, Behaviour::Squeeze)] {
+        for (first, behaviour) in [
+            (true, Behaviour::Straight),
+            (false, Behaviour::LiftOver),
+            (false, Behaviour::Squeeze),
+        ] {
             let stage = secondary_stage(&config, behaviour, first);
             assert_eq!(stage.run.scene_kind, behaviour.name());
             assert_eq!(stage.run.composed_share, 0.0);
             assert_eq!(stage.ppo.learning_rate_final, None);
-            // Squeeze's start stages need more steps to reach the task as specified.
+            // Squeeze's start stages need more steps to reach the task as specified, and lift's
+            // secondary more to learn it well enough for the batch (configs/shipped.toml).
             let budget = match behaviour {
-                Behaviour::Squeeze => 1_500_000,
+                Behaviour::LiftOver | Behaviour::Squeeze => 1_500_000,
                 _ => config.curriculum.secondary_env_steps,
             };
             assert_eq!(stage.run.total_env_steps, budget);
