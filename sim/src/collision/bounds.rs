@@ -4,6 +4,11 @@
 use nalgebra::{Isometry3, Point3, Vector3};
 use parry3d::bounding_volume::Aabb;
 
+/// The point of the box `aabb` nearest to `p` (`p` itself inside).
+pub(super) fn nearest_in_box(p: &Point3<f32>, aabb: &Aabb) -> Point3<f32> {
+    Point3::from(p.coords.sup(&aabb.mins.coords).inf(&aabb.maxs.coords))
+}
+
 /// The distance between two boxes (0 when they overlap).
 pub(super) fn box_gap_m(a: &Aabb, b: &Aabb) -> f32 {
     let gap = |lo_a: f32, hi_a: f32, lo_b: f32, hi_b: f32| (lo_b - hi_a).max(lo_a - hi_b).max(0.0);

@@ -122,31 +122,15 @@ impl ObstacleSet {
         deepest_m
     }
 
-    /// Whether any robot part comes within `margin_m` of any obstacle (touching included):
-    /// [`ObstacleSet::collides`] with every obstacle grown by the margin, for motions whose
-    /// real pose may stray from the checked one by up to the margin.
+    /// Whether any robot part comes within `margin_m` of any obstacle (touching included), by
+    /// [`ObstacleSet::clearance_m`]: [`ObstacleSet::collides`] with every obstacle grown by the
+    /// margin, for motions whose real pose may stray from the checked one by up to the margin.
+    /// A wheel whose lower bound falls short of the margin counts as within it.
     pub fn within_margin(&self, robot: &RobotParts, margin_m: f32) -> bool {
-        let robot_aabb = robot.aabb.loosened(margin_m);
-        for (i, obstacle_aabb) in self.aabbs.iter().enumerate() {
-            if !obstacle_aabb.intersects(&robot_aabb) {
-                continue;
-            }
-            for (part, part_aabb) in robot.parts.iter().zip(&robot.aabbs) {
-                if !part_aabb.loosened(margin_m).intersects(obstacle_aabb) {
-                    continue;
-                }
-                let (pose, shape) = part.placed();
-                // A contact "predicted" within the margin is a pair closer than the margin
-                // (parry's contact query; its plain distance query misjudged box pairs here).
-                // Convex-convex, always supported; an error counts as too close (safe side).
-                let close = query::contact(&pose, shape, &self.poses[i], &self.shapes[i], margin_m)
-                    .map_or(true, |contact| contact.is_some());
-                if close {
-                    return true;
-                }
-            }
-        }
-        false
+        // The clearance is never above the true distance, so a pair it cannot show to be the
+        // margin apart counts as too close (the safe side).
+        self.clearance_m(robot, margin_m)
+            .is_none_or(|clearance_m| clearance_m < margin_m)
     }
 
     /// How far the robot is from the nearest obstacle, looked for up to `up_to_m`: `None` when
@@ -317,12 +301,10 @@ mod tests {
     /// their distances to the obstacle is at least the parts' true distance.
     fn points_of(part: &Part, obstacle: &Aabb) -> Vec<Point3<f32>> {
         let toward = |p: Point3<f32>, r: f32| {
-            let nearest = Point3::from(
-                p.coords
-                    .sup(&obstacle.mins.coords)
-                    .inf(&obstacle.maxs.coords),
-            );
-            p + (nearest - p).try_normalize(1.0e-9).unwrap_or_default() * r
+            p + (bounds::nearest_in_box(&p, obstacle) - p)
+                .try_normalize(1.0e-9)
+                .unwrap_or_default()
+                * r
         };
         let mut points = Vec::new();
         match part {
@@ -362,14 +344,15 @@ mod tests {
     }
 
     fn point_distance_m(p: &Point3<f32>, aabb: &Aabb) -> f32 {
-        (p.coords - p.coords.sup(&aabb.mins.coords).inf(&aabb.maxs.coords)).norm()
+        (p - bounds::nearest_in_box(p, aabb)).norm()
     }
 
     /// The proof of the way there (`Env::check_transition`) rests on the clearance never being
     /// above the true distance: robots placed at random near a block, each part's clearance
     /// against the least distance of points in it (an upper bound on its true distance), and
     /// a part with a point inside the block (shrunk by 0.1 mm) must collide. parry's own
-    /// distances failed this for capsules and cylinders (by up to millimetres).
+    /// distances fail this for capsules and cylinders; what they would have got wrong is
+    /// printed (`--nocapture`) for docs/simulator.md.
     #[test]
     fn parts_keep_every_point_s_distance() {
         use rand::{Rng, SeedableRng};
@@ -386,6 +369,11 @@ mod tests {
             block.maxs - Vector3::repeat(1.0e-4),
         );
         let (mut near, mut inside) = (0, 0);
+        // parry's contact distance above the sampled one (links, wheels: pairs, over 1 mm,
+        // worst), and its intersection test missing a part that enters.
+        let (mut over, mut over_1mm, mut pairs) = ([0; 2], [0; 2], [0; 2]);
+        let mut worst_m = [0.0f32; 2];
+        let (mut entering, mut missed) = ([0; 2], [0; 2]);
         for _ in 0..3000 {
             let legs = LegConfig {
                 clearance_m: rng.random_range(0.08..0.2),
@@ -404,6 +392,34 @@ mod tests {
                     .fold(f32::INFINITY, f32::min);
                 let enters = points.iter().any(|p| point_distance_m(p, &shrunk) == 0.0);
                 let clearance = part.clearance_m(&block, &set.poses[0], &set.shapes[0], 0.1);
+                let kind = match part {
+                    Part::Link(_) => Some(0),
+                    Part::Wheel { .. } => Some(1),
+                    Part::Body { .. } => None,
+                };
+                let (pose, shape) = part.placed();
+                if let (Some(k), true) = (kind, enters) {
+                    entering[k] += 1;
+                    if !query::intersection_test(&pose, shape, &set.poses[0], &set.shapes[0])
+                        .unwrap_or(true)
+                    {
+                        missed[k] += 1;
+                    }
+                } else if let (Some(k), true) = (kind, sampled_m < 0.05) {
+                    pairs[k] += 1;
+                    if let Ok(Some(contact)) =
+                        query::contact(&pose, shape, &set.poses[0], &set.shapes[0], 0.1)
+                    {
+                        let excess_m = contact.dist - sampled_m;
+                        if excess_m > 1.0e-6 {
+                            over[k] += 1;
+                        }
+                        if excess_m > 1.0e-3 {
+                            over_1mm[k] += 1;
+                        }
+                        worst_m[k] = worst_m[k].max(excess_m);
+                    }
+                }
                 if enters {
                     inside += 1;
                     assert!(
@@ -424,6 +440,18 @@ mod tests {
                     }
                 }
             }
+        }
+        for (k, kind) in ["capsule", "cylinder"].iter().enumerate() {
+            println!(
+                "parry, {kind}/box: contact distance above a point's in {} of {} near pairs \
+                 (over 1 mm: {}, worst {:.1} mm); intersection test missed {} of {} entering",
+                over[k],
+                pairs[k],
+                over_1mm[k],
+                worst_m[k] * 1.0e3,
+                missed[k],
+                entering[k],
+            );
         }
         assert!(near > 2000 && inside > 500, "{near} near, {inside} inside");
     }
