@@ -8,7 +8,11 @@ cd "$(dirname "${BASH_SOURCE[0]}")/.."
 # Property tests draw from a fixed seed, so that a run is reproducible and CI cannot flake; set
 # PROPTEST_RNG_SEED to explore other cases (failures are saved next to the test and replayed).
 export PROPTEST_RNG_SEED="${PROPTEST_RNG_SEED:-20261124}"
-cargo test --workspace --release
+# The SLCAN demo runs controller and motors in real time against a 2 mm tracking tolerance; the
+# other closed-loop tests beside it on a 2-core machine starve it past that, so it runs alone.
+realtime=demo_binary_runs_the_loop_through_an_slcan_adapter
+cargo test --workspace --release -- --skip "$realtime"
+cargo test --release -p wheelleg --test closed_loop "$realtime"
 
 bash runtime/nostd-check/check.sh
 
