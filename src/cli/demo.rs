@@ -25,7 +25,7 @@ use std::io::Write;
 use std::path::PathBuf;
 use wheelleg::closed_loop::{
     ClosedLoop, Driver, EpisodeReport, Fault, LoopConfig, LoopError, PlannerDriver, PolicyDriver,
-    BITRATE_BPS,
+    Tolerance, BITRATE_BPS,
 };
 use wheelleg_firmware_sim::candump::{CandumpWriter, DEFAULT_EPOCH_US};
 use wheelleg_firmware_sim::rig::RigError;
@@ -51,6 +51,12 @@ const MAX_SCENE_DRAWS: u32 = 20;
 /// Planner effort when choosing the default scene: solvable complex scenes plan in well under
 /// this, while proving one unsolvable can take minutes, so a draw that needs more is skipped.
 const SCENE_CHOICE_EXPANSIONS: usize = 5_000;
+
+/// `--tolerance-mm`'s default: [`Tolerance::default`]'s position tolerance.
+const DEFAULT_TOLERANCE_MM: f32 = 2.0;
+
+/// `--tolerance-deg`'s default: [`Tolerance::default`]'s heading tolerance.
+const DEFAULT_TOLERANCE_DEG: f32 = 0.2;
 
 /// Arguments of `demo`.
 #[derive(clap::Args)]
@@ -95,6 +101,14 @@ pub struct Args {
     /// Planner effort, in expanded states.
     #[arg(long, default_value_t = 200_000)]
     max_expansions: usize,
+    /// How far a step may end from its ideal pose before the loop holds the robot, in
+    /// millimetres. The 2 mm default is what the simulated motors keep on a clean bus; a real
+    /// time link through a host's scheduler (SocketCAN, SLCAN) can lag by more for a moment.
+    #[arg(long, value_name = "MM", default_value_t = DEFAULT_TOLERANCE_MM)]
+    tolerance_mm: f32,
+    /// The same for the heading, in degrees (default 0.2).
+    #[arg(long, value_name = "DEG", default_value_t = DEFAULT_TOLERANCE_DEG)]
+    tolerance_deg: f32,
     /// Fault injection (in-process bus only): this CAN node id goes silent...
     #[arg(long, requires = "silent_at_step")]
     silent_node: Option<u8>,
@@ -173,9 +187,37 @@ fn weights(args: &Args) -> Result<Option<Weights>, String> {
     }
 }
 
+/// The tolerance of `--tolerance-mm` and `--tolerance-deg` (legs as by default).
+fn tolerance(args: &Args) -> Result<Tolerance, String> {
+    for (flag, value, most) in [
+        ("--tolerance-mm", args.tolerance_mm, 25.0),
+        ("--tolerance-deg", args.tolerance_deg, 2.5),
+    ] {
+        // Half the lattice step (50 mm, 5 degrees): beyond it the world could snap a step to
+        // the wrong lattice state.
+        if !(value > 0.0 && value < most) {
+            return Err(format!(
+                "{flag} {value}: must be above 0 and below {most} (half a lattice step)"
+            ));
+        }
+    }
+    Ok(Tolerance {
+        position_m: 1e-3 * args.tolerance_mm,
+        yaw_rad: args.tolerance_deg.to_radians(),
+        ..Tolerance::default()
+    })
+}
+
 /// The loop on the chosen bus, not started.
-fn closed_loop(args: &Args, scenario: &Scenario) -> Result<ClosedLoop, String> {
-    let config = LoopConfig::default();
+fn closed_loop(
+    args: &Args,
+    scenario: &Scenario,
+    tolerance: Tolerance,
+) -> Result<ClosedLoop, String> {
+    let config = LoopConfig {
+        tolerance,
+        ..LoopConfig::default()
+    };
     let Some(iface) = &args.can else {
         return ClosedLoop::in_process(scenario, config).map_err(|e| e.to_string());
     };
@@ -200,6 +242,7 @@ pub fn run(args: Args) -> CliResult {
         ..PlannerConfig::default()
     };
     let weights = weights(&args)?;
+    let tolerance = tolerance(&args)?;
     if let Some(node) = args.silent_node {
         if !Axis::ALL.iter().any(|a| a.node_id().get() == node) {
             return Err(format!("--silent-node {node}: the robot's nodes are 1 to 16").into());
@@ -207,9 +250,17 @@ pub fn run(args: Args) -> CliResult {
     }
     let (scenario, origin) = scene(&args, &planner)?;
     if args.controller == "qemu" {
+        if args.tolerance_mm != DEFAULT_TOLERANCE_MM || args.tolerance_deg != DEFAULT_TOLERANCE_DEG
+        {
+            return Err(
+                "--tolerance-mm and --tolerance-deg apply to --controller host (the \
+                        firmware in the loop keeps the default tolerances)"
+                    .into(),
+            );
+        }
         return run_qemu(&args, &scenario, &origin);
     }
-    let mut closed_loop = closed_loop(&args, &scenario)?;
+    let mut closed_loop = closed_loop(&args, &scenario, tolerance)?;
 
     // Both drivers decide from the world as it is at the start of the episode.
     let mut driver: Box<dyn Driver + '_> = match &weights {
@@ -290,7 +341,7 @@ pub fn run(args: Args) -> CliResult {
         .save_png(&png)
         .map_err(|e| format!("cannot write {}: {e}", png.display()))?;
 
-    print_report(&report, wall_clock.elapsed().as_secs_f64());
+    print_report(&report, wall_clock.elapsed().as_secs_f64(), &tolerance);
     outln!(
         "wrote:     {} and {} ({} frames)",
         png.display(),
@@ -316,7 +367,12 @@ fn inject_silence(closed_loop: &mut ClosedLoop, node: u8) {
     }
 }
 
-fn print_report(report: &EpisodeReport, wall_s: f64) {
+/// `value` to the thousandth, so that a tolerance prints as given (2, not 2.0000002).
+fn thousandths(value: f32) -> f32 {
+    (value * 1e3).round() / 1e3
+}
+
+fn print_report(report: &EpisodeReport, wall_s: f64, tolerance: &Tolerance) {
     let result = match (report.status, report.fault) {
         (_, Some(Fault::SafeStop { .. } | Fault::Controller { .. })) => {
             "stopped safely (fault below)".to_owned()
@@ -339,11 +395,14 @@ fn print_report(report: &EpisodeReport, wall_s: f64) {
         report.collisions
     );
     outln!(
-        "tracking:  worst step vs ideal {:.4} mm, {:.4}°, legs {:.4} mm (tolerance 2 mm, 0.2°, \
-         0.5 mm); odometry drift {:.3} mm, {:.4}° over the episode",
+        "tracking:  worst step vs ideal {:.4} mm, {:.4}°, legs {:.4} mm (tolerance {} mm, {}°, \
+         {} mm); odometry drift {:.3} mm, {:.4}° over the episode",
         1e3 * t.max_error.position_m,
         t.max_error.yaw_rad.to_degrees(),
         1e3 * t.max_error.legs_m,
+        thousandths(1e3 * tolerance.position_m),
+        thousandths(tolerance.yaw_rad.to_degrees()),
+        thousandths(1e3 * tolerance.legs_m),
         1e3 * report.odometry_drift_m,
         report.odometry_drift_rad.to_degrees()
     );

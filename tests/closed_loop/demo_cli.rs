@@ -106,7 +106,7 @@ fn demo_binary_reports_a_silent_node_with_a_non_zero_exit() {
 #[test]
 fn demo_binary_refuses_bad_input_with_a_clear_message() {
     let dir = scratch_dir("bad-input");
-    let cases: [(&[&str], &[&str]); 5] = [
+    let cases: [(&[&str], &[&str]); 7] = [
         // No vcan here: a clear error naming the interface and what to run, never a panic.
         // (Where a vcan exists but no firmware_sim runs, the message names firmware_sim too.)
         (
@@ -124,6 +124,12 @@ fn demo_binary_refuses_bad_input_with_a_clear_message() {
             &["--stack", "policy", "--guard-margin", "0.01"],
             &["--guard-margin", "no collision guard"],
         ),
+        // A tolerance that could snap a step to the wrong lattice state, or none at all.
+        (
+            &["--tolerance-mm", "30"],
+            &["--tolerance-mm 30", "half a lattice step"],
+        ),
+        (&["--tolerance-deg=-1"], &["--tolerance-deg -1", "above 0"]),
     ];
     for (args, needles) in cases {
         let out = demo(&dir, args);
@@ -228,15 +234,23 @@ fn demo_binary_runs_the_loop_through_an_slcan_adapter() {
                 "--planner",
                 "--can",
                 &format!("slcan:{place}"),
+                "--tolerance-mm",
+                "5",
+                "--tolerance-deg",
+                "0.5",
             ],
         );
         stop.store(true, Ordering::Relaxed);
         let (firmware, slcan) = motors.join().unwrap();
         (place, dir, out, firmware, slcan)
     };
-    // Controller and motors both run in real time here, on a machine that runs the other tests
-    // beside them: a step that a starved scheduler lets drift past its 2 mm tolerance is held
-    // safely (and reported), and the run is tried once more. Every other outcome counts.
+    // Controller and motors both run in real time here, through the host's scheduler: a
+    // moment's lag of either thread ends a step off its ideal pose by about the robot's speed
+    // times the lag (0.1 m/s: 2 mm for 20 ms), which the 2 mm the simulated motors keep on a
+    // clean bus leaves no room for (2.1-2.3 mm seen, the machine otherwise idle). So the run
+    // allows 5 mm and 0.5 degrees, still a tenth of a lattice step, as a user would on such a
+    // link; a step that still drifts past them is held safely (and reported), and the run is
+    // tried once more. Every other outcome counts.
     let (mut place, mut dir, mut out, mut firmware, mut slcan) = attempt();
     if !out.status.success() && text(&out.stdout).contains("ended off its ideal") {
         eprintln!("retrying once: {}", text(&out.stdout));
@@ -251,6 +265,10 @@ fn demo_binary_runs_the_loop_through_an_slcan_adapter() {
         "{stdout}"
     );
     assert!(stdout.contains("result:    SUCCESS"), "{stdout}");
+    assert!(
+        stdout.contains("(tolerance 5 mm, 0.5°, 0.5 mm)"),
+        "{stdout}"
+    );
     let log = std::fs::read_to_string(dir.join("o/bus.log")).unwrap();
     assert!(log.lines().count() > 1000 && log.contains(" slcan0 "));
     assert!(parse_log(&log).is_ok());

@@ -3,7 +3,7 @@
 
 use super::{print_report, Args, LogFile};
 use crate::cli::CliResult;
-use wheelleg::closed_loop::LoopConfig;
+use wheelleg::closed_loop::{LoopConfig, Tolerance};
 use wheelleg_firmware_sim::candump::{CandumpWriter, DEFAULT_EPOCH_US};
 use wheelleg_runtime::can::node_map::Axis;
 use wheelleg_runtime::robot::WHEELLEG;
@@ -82,7 +82,12 @@ pub(super) fn run_qemu(args: &Args, scenario: &Scenario, origin: &str) -> CliRes
     top_view(scenario, &WHEELLEG, &report.path, &report.collided_at)?
         .save_png(&png)
         .map_err(|e| format!("cannot write {}: {e}", png.display()))?;
-    print_report(report, wall_clock.elapsed().as_secs_f64());
+    // The firmware in the loop checks steps against the default tolerances.
+    print_report(
+        report,
+        wall_clock.elapsed().as_secs_f64(),
+        &Tolerance::default(),
+    );
     outln!(
         "wrote:     {} and {} ({} frames)",
         png.display(),
