@@ -370,3 +370,42 @@ fn every_kernel_gives_the_scalar_outputs_on_whole_networks() {
     // comparison sees the arithmetic.
     assert!(distinct.len() > 500, "{} distinct logits", distinct.len());
 }
+
+/// A host's buffers reused from observation to observation, and from one network to another
+/// (so they hold what a larger network left), give the outputs of fresh zeroed buffers.
+#[test]
+fn reused_buffers_give_the_outputs_of_fresh_ones() {
+    let mut rng = ChaCha8Rng::seed_from_u64(0xb0ff);
+    let mut files = vec![WeightsFile::shipped()];
+    files.extend((0..20).map(|_| {
+        let arch = random_architecture(&mut rng);
+        WeightsFile::synthetic(&mut rng, &arch)
+    }));
+    let mut scratch = Box::new(wheelleg_runtime::model::Scratch::<65_536, 8_192>::new());
+    let mut heights_mm = vec![0i16; 4096];
+    let mut decisions = 0;
+    for (index, file) in files.iter().enumerate() {
+        let arch = file.architecture();
+        let bytes = file.to_bytes();
+        let policy = Policy::<65_536, 8_192>::from_bytes(&bytes).unwrap();
+        for _ in 0..5 {
+            let (height, state) = random_inputs_mm(&mut rng, &arch);
+            let height_m: Vec<f32> = height.iter().map(|&mm| f32::from(mm) * 1e-3).collect();
+            let state_m: Vec<f32> = state.iter().map(|&mm| mm as f32 * 1e-3).collect();
+            let fresh = policy.evaluate_m(&height_m, &state_m).unwrap();
+            let reused = policy
+                .evaluate_m_with(&mut scratch, &mut heights_mm, &height_m, &state_m)
+                .unwrap();
+            assert_eq!(fresh, reused, "file {index} {arch:?}");
+            decisions += 1;
+        }
+    }
+    assert_eq!(decisions, 105);
+    // A buffer too short for the map is a typed error, not a panic.
+    let bytes = shipped_bytes();
+    let policy = DefaultPolicy::from_bytes(&bytes).unwrap();
+    let mut small = Box::new(wheelleg_runtime::model::Scratch::new());
+    assert!(policy
+        .evaluate_m_with(&mut small, &mut [0i16; 16], &[0.0; 1024], &[0.0; 4])
+        .is_err());
+}

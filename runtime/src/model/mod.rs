@@ -159,7 +159,21 @@ impl<'a, const ACT: usize, const ROW: usize> Policy<'a, ACT, ROW> {
     /// millimetres (saturating) and run through the integer path.
     pub fn evaluate_m(&self, height_m: &[f32], state_m: &[f32]) -> Result<Outputs, InferError> {
         let mut heights = [0i16; ACT];
-        let cells = heights
+        self.evaluate_m_with(&mut Scratch::new(), &mut heights, height_m, state_m)
+    }
+
+    /// [`Policy::evaluate_m`] in caller-owned buffers, for a host that evaluates many
+    /// observations: `scratch` for the forward pass and `heights_mm` (at least as long as
+    /// `height_m`) for the map in millimetres. [`Policy::evaluate_m`] zeroes both (over
+    /// 250 KiB for a host's buffers) at every call.
+    pub fn evaluate_m_with(
+        &self,
+        scratch: &mut Scratch<ACT, ROW>,
+        heights_mm: &mut [i16],
+        height_m: &[f32],
+        state_m: &[f32],
+    ) -> Result<Outputs, InferError> {
+        let cells = heights_mm
             .get_mut(..height_m.len())
             .ok_or(InferError::HeightMapShape {
                 expected: usize::from(self.model.input.rows) * usize::from(self.model.input.cols),
@@ -179,7 +193,7 @@ impl<'a, const ACT: usize, const ROW: usize> Policy<'a, ACT, ROW> {
         for (mm, &m) in values.iter_mut().zip(state_m) {
             *mm = libm::roundf(m * 1000.0) as i32;
         }
-        self.evaluate(cells, values)
+        self.evaluate_with(scratch, cells, values)
     }
 }
 
