@@ -53,10 +53,14 @@ const MAX_SCENE_DRAWS: u32 = 20;
 const SCENE_CHOICE_EXPANSIONS: usize = 5_000;
 
 /// `--tolerance-mm`'s default: [`Tolerance::default`]'s position tolerance.
-const DEFAULT_TOLERANCE_MM: f32 = 2.0;
+fn default_tolerance_mm() -> f32 {
+    thousandths(1e3 * Tolerance::default().position_m)
+}
 
 /// `--tolerance-deg`'s default: [`Tolerance::default`]'s heading tolerance.
-const DEFAULT_TOLERANCE_DEG: f32 = 0.2;
+fn default_tolerance_deg() -> f32 {
+    thousandths(Tolerance::default().yaw_rad.to_degrees())
+}
 
 /// Arguments of `demo`.
 #[derive(clap::Args)]
@@ -104,10 +108,10 @@ pub struct Args {
     /// How far a step may end from its ideal pose before the loop holds the robot, in
     /// millimetres. The 2 mm default is what the simulated motors keep on a clean bus; a real
     /// time link through a host's scheduler (SocketCAN, SLCAN) can lag by more for a moment.
-    #[arg(long, value_name = "MM", default_value_t = DEFAULT_TOLERANCE_MM)]
+    #[arg(long, value_name = "MM", default_value_t = default_tolerance_mm())]
     tolerance_mm: f32,
-    /// The same for the heading, in degrees (default 0.2).
-    #[arg(long, value_name = "DEG", default_value_t = DEFAULT_TOLERANCE_DEG)]
+    /// The same for the heading, in degrees.
+    #[arg(long, value_name = "DEG", default_value_t = default_tolerance_deg())]
     tolerance_deg: f32,
     /// Fault injection (in-process bus only): this CAN node id goes silent...
     #[arg(long, requires = "silent_at_step")]
@@ -243,6 +247,16 @@ pub fn run(args: Args) -> CliResult {
     };
     let weights = weights(&args)?;
     let tolerance = tolerance(&args)?;
+    if args.controller == "qemu"
+        && (args.tolerance_mm != default_tolerance_mm()
+            || args.tolerance_deg != default_tolerance_deg())
+    {
+        return Err(
+            "--tolerance-mm and --tolerance-deg apply to --controller host (the \
+                    firmware in the loop keeps the default tolerances)"
+                .into(),
+        );
+    }
     if let Some(node) = args.silent_node {
         if !Axis::ALL.iter().any(|a| a.node_id().get() == node) {
             return Err(format!("--silent-node {node}: the robot's nodes are 1 to 16").into());
@@ -250,14 +264,6 @@ pub fn run(args: Args) -> CliResult {
     }
     let (scenario, origin) = scene(&args, &planner)?;
     if args.controller == "qemu" {
-        if args.tolerance_mm != DEFAULT_TOLERANCE_MM || args.tolerance_deg != DEFAULT_TOLERANCE_DEG
-        {
-            return Err(
-                "--tolerance-mm and --tolerance-deg apply to --controller host (the \
-                        firmware in the loop keeps the default tolerances)"
-                    .into(),
-            );
-        }
         return run_qemu(&args, &scenario, &origin);
     }
     let mut closed_loop = closed_loop(&args, &scenario, tolerance)?;
