@@ -29,6 +29,7 @@ use wheelleg::closed_loop::{
 };
 use wheelleg_firmware_sim::candump::{CandumpWriter, DEFAULT_EPOCH_US};
 use wheelleg_firmware_sim::rig::RigError;
+use wheelleg_runtime::action::{MOVE_STEP_M, YAW_STEP_DEG};
 use wheelleg_runtime::can::node_map::Axis;
 use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::env::{Env, Status};
@@ -51,16 +52,6 @@ const MAX_SCENE_DRAWS: u32 = 20;
 /// Planner effort when choosing the default scene: solvable complex scenes plan in well under
 /// this, while proving one unsolvable can take minutes, so a draw that needs more is skipped.
 const SCENE_CHOICE_EXPANSIONS: usize = 5_000;
-
-/// `--tolerance-mm`'s default: [`Tolerance::default`]'s position tolerance.
-fn default_tolerance_mm() -> f32 {
-    thousandths(1e3 * Tolerance::default().position_m)
-}
-
-/// `--tolerance-deg`'s default: [`Tolerance::default`]'s heading tolerance.
-fn default_tolerance_deg() -> f32 {
-    thousandths(Tolerance::default().yaw_rad.to_degrees())
-}
 
 /// Arguments of `demo`.
 #[derive(clap::Args)]
@@ -106,13 +97,14 @@ pub struct Args {
     #[arg(long, default_value_t = 200_000)]
     max_expansions: usize,
     /// How far a step may end from its ideal pose before the loop holds the robot, in
-    /// millimetres. The 2 mm default is what the simulated motors keep on a clean bus; a real
-    /// time link through a host's scheduler (SocketCAN, SLCAN) can lag by more for a moment.
-    #[arg(long, value_name = "MM", default_value_t = default_tolerance_mm())]
-    tolerance_mm: f32,
-    /// The same for the heading, in degrees.
-    #[arg(long, value_name = "DEG", default_value_t = default_tolerance_deg())]
-    tolerance_deg: f32,
+    /// millimetres. Default: the loop's own, 2 mm, what the simulated motors keep on a clean
+    /// bus; a real-time link through a host's scheduler (SocketCAN, SLCAN) can lag by more for
+    /// a moment.
+    #[arg(long, value_name = "MM")]
+    tolerance_mm: Option<f32>,
+    /// The same for the heading, in degrees. Default: the loop's own, 0.2.
+    #[arg(long, value_name = "DEG")]
+    tolerance_deg: Option<f32>,
     /// Fault injection (in-process bus only): this CAN node id goes silent...
     #[arg(long, requires = "silent_at_step")]
     silent_node: Option<u8>,
@@ -191,24 +183,24 @@ fn weights(args: &Args) -> Result<Option<Weights>, String> {
     }
 }
 
-/// The tolerance of `--tolerance-mm` and `--tolerance-deg` (legs as by default).
+/// The loop's tolerance with `--tolerance-mm` and `--tolerance-deg` in place of its own.
 fn tolerance(args: &Args) -> Result<Tolerance, String> {
+    // Half a lattice step: beyond it the world could snap a step to the wrong lattice state.
     for (flag, value, most) in [
-        ("--tolerance-mm", args.tolerance_mm, 25.0),
-        ("--tolerance-deg", args.tolerance_deg, 2.5),
+        ("--tolerance-mm", args.tolerance_mm, 0.5e3 * MOVE_STEP_M),
+        ("--tolerance-deg", args.tolerance_deg, 0.5 * YAW_STEP_DEG),
     ] {
-        // Half the lattice step (50 mm, 5 degrees): beyond it the world could snap a step to
-        // the wrong lattice state.
-        if !(value > 0.0 && value < most) {
+        if let Some(value) = value.filter(|v| !(*v > 0.0 && *v < most)) {
             return Err(format!(
                 "{flag} {value}: must be above 0 and below {most} (half a lattice step)"
             ));
         }
     }
+    let own = Tolerance::default();
     Ok(Tolerance {
-        position_m: 1e-3 * args.tolerance_mm,
-        yaw_rad: args.tolerance_deg.to_radians(),
-        ..Tolerance::default()
+        position_m: args.tolerance_mm.map_or(own.position_m, |mm| 1e-3 * mm),
+        yaw_rad: args.tolerance_deg.map_or(own.yaw_rad, f32::to_radians),
+        ..own
     })
 }
 
@@ -247,16 +239,6 @@ pub fn run(args: Args) -> CliResult {
     };
     let weights = weights(&args)?;
     let tolerance = tolerance(&args)?;
-    if args.controller == "qemu"
-        && (args.tolerance_mm != default_tolerance_mm()
-            || args.tolerance_deg != default_tolerance_deg())
-    {
-        return Err(
-            "--tolerance-mm and --tolerance-deg apply to --controller host (the \
-                    firmware in the loop keeps the default tolerances)"
-                .into(),
-        );
-    }
     if let Some(node) = args.silent_node {
         if !Axis::ALL.iter().any(|a| a.node_id().get() == node) {
             return Err(format!("--silent-node {node}: the robot's nodes are 1 to 16").into());

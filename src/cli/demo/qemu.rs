@@ -30,6 +30,11 @@ pub(super) fn run_qemu(args: &Args, scenario: &Scenario, origin: &str) -> CliRes
             !args.stack.is_robot_default(),
             "a stack other than the default robot one",
         ),
+        (
+            args.tolerance_mm.is_some() || args.tolerance_deg.is_some(),
+            "--tolerance-mm or --tolerance-deg (the firmware in the loop runs in lockstep, \
+             against the loop's own tolerances)",
+        ),
     ];
     if let Some((_, what)) = refused.iter().find(|(given, _)| *given) {
         return Err(format!(
