@@ -329,16 +329,22 @@ fn simd_input_quantization_equals_scalar() {
     }
 }
 
+/// The shipped file, then `count` synthetic files of random architectures drawn from `rng`.
+fn shipped_and_random_files(rng: &mut ChaCha8Rng, count: usize) -> Vec<WeightsFile> {
+    let mut files = vec![WeightsFile::shipped()];
+    files.extend((0..count).map(|_| {
+        let arch = random_architecture(rng);
+        WeightsFile::synthetic(rng, &arch)
+    }));
+    files
+}
+
 /// Whole networks: every supported kernel gives the same logits and value as the scalar one, on
 /// the shipped file and on synthetic files of random architectures.
 #[test]
 fn every_kernel_gives_the_scalar_outputs_on_whole_networks() {
     let mut rng = ChaCha8Rng::seed_from_u64(0x5eed);
-    let mut files = vec![WeightsFile::shipped()];
-    files.extend((0..100).map(|_| {
-        let arch = random_architecture(&mut rng);
-        WeightsFile::synthetic(&mut rng, &arch)
-    }));
+    let files = shipped_and_random_files(&mut rng, 100);
     let mut decisions = 0;
     let mut distinct = std::collections::HashSet::new();
     for (index, file) in files.iter().enumerate() {
@@ -376,11 +382,7 @@ fn every_kernel_gives_the_scalar_outputs_on_whole_networks() {
 #[test]
 fn reused_buffers_give_the_outputs_of_fresh_ones() {
     let mut rng = ChaCha8Rng::seed_from_u64(0xb0ff);
-    let mut files = vec![WeightsFile::shipped()];
-    files.extend((0..20).map(|_| {
-        let arch = random_architecture(&mut rng);
-        WeightsFile::synthetic(&mut rng, &arch)
-    }));
+    let files = shipped_and_random_files(&mut rng, 20);
     let mut scratch = Box::new(wheelleg_runtime::model::Scratch::<65_536, 8_192>::new());
     let mut heights_mm = vec![0i16; 4096];
     let mut decisions = 0;
