@@ -30,7 +30,7 @@ impl BatchPolicy for Int8Policy<'_> {
         let state_len = states.len() / n.max(1);
         let mut log_probs = Vec::with_capacity(n * LOG_PROBS);
         // One set of buffers for the batch: zeroing them per observation (over 250 KiB) took
-        // about 5 % of the look-ahead's rollouts.
+        // about 6 % of the look-ahead's rollouts (docs/model.md).
         let mut scratch = Box::new(Scratch::new());
         let mut heights_mm = vec![0i16; cells];
         for i in 0..n {
