@@ -36,9 +36,12 @@ pub(super) struct Parts {
     link_radius_m: f32,
     wheel_radius_m: f32,
     wheel_half_width_m: f32,
-    /// Half the extent of the whole robot along its x and y: a column beyond cannot touch it.
-    half_extent_m: (f32, f32),
 }
+
+/// How far beyond a leg's intervals a column must be for the leg's distances to be skipped:
+/// well above their rounding, so that a skipped leg's overlap was surely negative and the
+/// verdict (an overlap at or above 0) is the one the distances would give.
+const CULL_SLACK_M: f32 = 1.0e-5;
 
 impl Parts {
     pub(super) fn place(geometry: &RobotGeometry, legs: LegConfig) -> Option<Parts> {
@@ -49,16 +52,7 @@ impl Parts {
             let p = geometry.leg_points(leg, joints);
             *slot = [p.hip, p.knee, p.wheel].map(|q| Point3::new(q.x, q.y, q.z + centre_height_m));
         }
-        let mut half_extent_m = (0.5 * geometry.body_length_m, 0.5 * geometry.body_width_m);
-        for [hip, knee, wheel] in &points {
-            let reach_x_m = hip.x.abs() + geometry.wheel_radius_m.max(geometry.link_radius_m);
-            let reach_y_m = (wheel.y.abs() + 0.5 * geometry.wheel_width_m)
-                .max(knee.y.abs().max(hip.y.abs()) + geometry.link_radius_m);
-            half_extent_m.0 = half_extent_m.0.max(reach_x_m);
-            half_extent_m.1 = half_extent_m.1.max(reach_y_m);
-        }
         Some(Parts {
-            half_extent_m,
             clearance_m: legs.clearance_m,
             body_half_x_m: 0.5 * geometry.body_length_m,
             body_half_y_m: 0.5 * geometry.body_width_m,
@@ -69,42 +63,64 @@ impl Parts {
         })
     }
 
-    /// Whether `column` is within the robot's extent at all (if not, it overlaps nothing).
-    pub(super) fn may_touch(&self, column: &Column) -> bool {
-        column.x_m.abs() - column.half_m <= self.half_extent_m.0
-            && column.y_m.abs() - column.half_m <= self.half_extent_m.1
-    }
-
     /// How deep the deepest part reaches into `column` (0: touching, as the simulator counts
-    /// it; negative: apart). For the body box it is the least of its overlaps along x, y and z;
-    /// for the round parts, radius minus distance.
+    /// it; negative: apart, and then not exact, as the legs the column is apart from
+    /// ([`Self::leg_is_apart`]) are skipped). For the body box it is the least of its overlaps
+    /// along x, y and z; for the round parts, radius minus distance.
     pub(super) fn overlap_m(&self, column: &Column) -> f32 {
         let half_m = column.half_m;
         let body_m = (self.body_half_x_m + half_m - column.x_m.abs())
             .min(self.body_half_y_m + half_m - column.y_m.abs())
             .min(column.height_m - self.clearance_m);
+        // Most columns near the robot are near one leg at most: the others' thirteen distances
+        // would only say they are apart.
+        (0..self.legs.len())
+            .filter(|&leg| !self.leg_is_apart(leg, column))
+            .map(|leg| self.leg_overlap_m(leg, column))
+            .fold(body_m, f32::max)
+    }
+
+    /// Whether `column`'s square lies outside leg `leg`'s box (its points' y interval and the
+    /// hip's x, each widened by the larger of a link's and the wheel's reach, and by
+    /// [`CULL_SLACK_M`]), so that [`Self::leg_overlap_m`] is surely negative.
+    pub(super) fn leg_is_apart(&self, leg: usize, column: &Column) -> bool {
+        let Some([hip, knee, wheel]) = self.legs.get(leg) else {
+            return true;
+        };
+        let half_m = column.half_m;
+        // Every point of a leg is in its leg plane, at the hip's x.
+        let reach_x_m = self.wheel_radius_m.max(self.link_radius_m) + CULL_SLACK_M;
+        let reach_y_m = self.link_radius_m.max(self.wheel_half_width_m) + CULL_SLACK_M;
+        (column.x_m - hip.x).abs() - half_m > reach_x_m
+            || column.y_m + half_m < hip.y.min(knee.y).min(wheel.y) - reach_y_m
+            || column.y_m - half_m > hip.y.max(knee.y).max(wheel.y) + reach_y_m
+    }
+
+    /// How deep leg `leg`'s thigh, shank and wheel reach into `column` (see
+    /// [`Self::overlap_m`]).
+    pub(super) fn leg_overlap_m(&self, leg: usize, column: &Column) -> f32 {
+        let Some([hip, knee, wheel]) = self.legs.get(leg) else {
+            return f32::NEG_INFINITY;
+        };
+        let half_m = column.half_m;
         let (link_reach_m, wheel_reach_m) = (self.link_radius_m, self.wheel_radius_m);
-        let mut deepest_m = body_m;
-        for [hip, knee, wheel] in &self.legs {
-            // Every point of a leg is in its leg plane, at the hip's x.
-            let dx_m = ((column.x_m - hip.x).abs() - half_m).max(0.0);
-            for (a, b) in [(hip, knee), (knee, wheel)] {
-                let d_yz_m = segment_rect_distance_m(
-                    (a.y, a.z),
-                    (b.y, b.z),
-                    (column.y_m - half_m, 0.0),
-                    (column.y_m + half_m, column.height_m),
-                );
-                deepest_m = deepest_m.max(link_reach_m - crate::trig::hypot(dx_m, d_yz_m));
-            }
-            // Wheel: a disc in the x-z plane, as wide as the wheel along y.
-            let dy_m = (column.y_m - wheel.y).abs() - half_m;
-            let side_m = self.wheel_half_width_m - dy_m;
-            let dx_m = ((column.x_m - wheel.x).abs() - half_m).max(0.0);
-            let dz_m = (wheel.z - column.height_m).max(0.0);
-            deepest_m = deepest_m.max(side_m.min(wheel_reach_m - crate::trig::hypot(dx_m, dz_m)));
+        let dx_m = ((column.x_m - hip.x).abs() - half_m).max(0.0);
+        let mut deepest_m = f32::NEG_INFINITY;
+        for (a, b) in [(hip, knee), (knee, wheel)] {
+            let d_yz_m = segment_rect_distance_m(
+                (a.y, a.z),
+                (b.y, b.z),
+                (column.y_m - half_m, 0.0),
+                (column.y_m + half_m, column.height_m),
+            );
+            deepest_m = deepest_m.max(link_reach_m - crate::trig::hypot(dx_m, d_yz_m));
         }
-        deepest_m
+        // Wheel: a disc in the x-z plane, as wide as the wheel along y.
+        let dy_m = (column.y_m - wheel.y).abs() - half_m;
+        let side_m = self.wheel_half_width_m - dy_m;
+        let dx_m = ((column.x_m - wheel.x).abs() - half_m).max(0.0);
+        let dz_m = (wheel.z - column.height_m).max(0.0);
+        deepest_m.max(side_m.min(wheel_reach_m - crate::trig::hypot(dx_m, dz_m)))
     }
 }
 

@@ -28,8 +28,9 @@
 //! - the cell squares are not turned with the robot: over one step the robot turns at most 5
 //!   degrees, which moves a square's corner by under 3 mm.
 //!
-//! Cost: for each pose, the occupied cells within the robot's reach times 13 parts, a few
-//! multiplications each; no allocation.
+//! Cost: for each pose, the occupied cells within the robot's reach, each tested against the
+//! body and each leg's box, and against the 3 parts of the legs whose box it meets (most cells
+//! near the robot meet one leg's at most); a few multiplications each; no allocation.
 
 mod geometry;
 mod map;
@@ -314,15 +315,10 @@ impl CollisionGuard {
                         half_m: (0.5 * heights.cell_m() + self.margin_m).max(0.0),
                         height_m,
                     };
-                    if !parts.may_touch(&column) {
-                        continue;
-                    }
                     let mut overlap_m = parts.overlap_m(&column);
                     if let Some(here) = here {
                         let now = Column { x_m, y_m, ..column };
-                        if here.may_touch(&now) {
-                            overlap_m -= here.overlap_m(&now).max(0.0);
-                        }
+                        overlap_m -= here.overlap_m(&now).max(0.0);
                     }
                     deepest_m = deepest_m.max(overlap_m);
                     if stop_m.is_some_and(|stop_m| deepest_m >= stop_m) {

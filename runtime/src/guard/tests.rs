@@ -435,3 +435,43 @@ fn fine_window_keeps_the_whole_maps_verdicts() {
     // Not a vacuous comparison: many actions meet a block.
     assert!(refused > checked / 20, "{refused} of {checked}");
 }
+
+#[test]
+fn a_leg_skipped_as_apart_from_a_column_overlaps_it_nowhere() {
+    use super::geometry::{Column, Parts};
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    let (mut apart, mut near, mut touching) = (0, 0, 0);
+    for _ in 0..200 {
+        let legs = LegConfig {
+            clearance_m: rng.random_range(0.04..0.24),
+            track_m: rng.random_range(0.16..0.56),
+        };
+        let Some(parts) = Parts::place(&WHEELLEG, legs) else {
+            continue;
+        };
+        for _ in 0..500 {
+            let column = Column {
+                x_m: rng.random_range(-0.5..0.5),
+                y_m: rng.random_range(-0.5..0.5),
+                half_m: rng.random_range(0.0..0.03),
+                height_m: rng.random_range(0.0..0.4),
+            };
+            for leg in 0..4 {
+                let overlap_m = parts.leg_overlap_m(leg, &column);
+                if parts.leg_is_apart(leg, &column) {
+                    apart += 1;
+                    assert!(overlap_m < 0.0, "leg {leg} skipped at {overlap_m} m");
+                } else {
+                    near += 1;
+                    touching += usize::from(overlap_m >= 0.0);
+                }
+            }
+        }
+    }
+    // Both sides of the cull, and contacts among the legs kept, were met.
+    assert!(
+        apart > 1000 && near > 1000 && touching > 100,
+        "{apart} {near} {touching}"
+    );
+}
