@@ -227,7 +227,20 @@ impl Lookahead {
             .iter()
             .map(|p| replay_incumbent(p, &mut *allows))
             .collect();
-        let mut found = self.costs_of(policy, &pending, 0..first, arrival, success_radius_m)?;
+        // A kept way stands against any rollout no shorter, so rollouts stop once they cannot
+        // come in under it.
+        let to_beat: Vec<Option<u32>> = incumbents
+            .iter()
+            .map(|i| i.as_ref().map(|i| i.cost as u32))
+            .collect();
+        let mut found = self.costs_of(
+            policy,
+            &pending,
+            &to_beat,
+            0..first,
+            arrival,
+            success_radius_m,
+        )?;
         let lost: Vec<usize> = (0..pending.len())
             .filter(|&p| {
                 incumbents[p].is_none() && !found[p].iter().any(|f| arrives(f.cost, horizon))
@@ -236,7 +249,16 @@ impl Lookahead {
         let wider = first..self.config.stuck_candidates.max(first);
         if !lost.is_empty() && !wider.is_empty() {
             let lost_pending: Vec<Pending> = lost.iter().map(|&p| pending[p].clone()).collect();
-            let more = self.costs_of(policy, &lost_pending, wider, arrival, success_radius_m)?;
+            // Lost decisions have no kept way.
+            let none = vec![None; lost_pending.len()];
+            let more = self.costs_of(
+                policy,
+                &lost_pending,
+                &none,
+                wider,
+                arrival,
+                success_radius_m,
+            )?;
             for (&p, more) in lost.iter().zip(more) {
                 found[p].extend(more);
             }
@@ -330,6 +352,7 @@ impl Lookahead {
         &self,
         policy: &dyn BatchPolicy,
         pending: &[Pending],
+        to_beat: &[Option<u32>],
         range: std::ops::Range<usize>,
         arrival: bool,
         success_radius_m: f32,
@@ -351,6 +374,7 @@ impl Lookahead {
             policy,
             &mut rollouts,
             &groups,
+            to_beat,
             self.config.horizon_steps,
             arrival,
             success_radius_m,

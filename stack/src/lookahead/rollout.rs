@@ -148,11 +148,14 @@ pub fn arrives(cost: f32, horizon_steps: u32) -> bool {
 /// the longest step, [`steps_still_needed`]) is stopped there, and costs that bound: it can
 /// no longer be chosen ([`best_candidate`] takes the least cost, ties to the first), and the
 /// group has a rollout that arrives, so what is chosen is the same as had it run on. Most of
-/// the steps of the rollouts that do not arrive are spared that way.
+/// the steps of the rollouts that do not arrive are spared that way. Likewise where
+/// `to_beat[g]` holds a cost that group `g`'s rollouts matter only under (a kept way's, which
+/// stands against any rollout no shorter): a rollout whose bound reaches it is stopped there.
 pub fn rollout_costs(
     policy: &dyn BatchPolicy,
     rollouts: &mut [Rollout],
     groups: &[usize],
+    to_beat: &[Option<u32>],
     horizon_steps: u32,
     arrival: bool,
     success_radius_m: f32,
@@ -170,6 +173,15 @@ pub fn rollout_costs(
     let group_count = groups.iter().max().map_or(0, |&g| g + 1);
     // By group, the fewest steps a rollout of it arrived in so far.
     let mut best_arrived: Vec<Option<u32>> = vec![None; group_count];
+    // By group, the least bound that stops a rollout: one more than an arrival (a tie may
+    // still be chosen, by preference), or the cost to beat (a tie loses to the kept way).
+    let bar = |best_arrived: &[Option<u32>], g: usize| {
+        let arrived = best_arrived[g].map(|best| best + 1);
+        match (arrived, to_beat.get(g).copied().flatten()) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
+    };
     // By rollout, the bound it was stopped at.
     let mut stopped: Vec<Option<u32>> = vec![None; rollouts.len()];
     loop {
@@ -185,7 +197,7 @@ pub fn rollout_costs(
                 continue;
             }
             let at_least = counted(r) + steps_still_needed(&r.env);
-            if best_arrived[groups[i]].is_some_and(|best| at_least > best) {
+            if bar(&best_arrived, groups[i]).is_some_and(|bar| at_least >= bar) {
                 stopped[i] = Some(at_least);
             }
         }
@@ -276,6 +288,79 @@ mod tests {
         assert!(arrived < near && near < far, "{arrived} {near} {far}");
         assert!(rollout_cost(Status::TooFar, 3, 40, f32::NAN).is_finite());
         assert!(arrives(arrived, 40) && !arrives(near, 40) && !arrives(far, 40));
+    }
+
+    /// Rollouts of the rule's first 6 candidates far from the target on open ground, with a
+    /// policy that drives forward: their costs, and the steps they took in all.
+    fn far_rollouts(to_beat: Option<u32>) -> (Vec<f32>, u32) {
+        use crate::policy::Fixated;
+        use crate::rule::candidates;
+        use nalgebra::Point2;
+        use wheelleg_sim::env::EnvConfig;
+        use wheelleg_sim::scenario::Scenario;
+        use wheelleg_sim::state::RobotState;
+        let scenario = Scenario {
+            name: "far-ahead".into(),
+            start: RobotState::new(Point2::new(0.0, 0.125), 0),
+            target: Point2::new(0.9, 0.125),
+            obstacles: vec![],
+        };
+        let env = Env::new(&scenario, EnvConfig::default()).unwrap();
+        let inputs = PolicyInputs::of(std::iter::once(&env));
+        let log_probs = Fixated
+            .log_probs(&inputs.heights, &inputs.states, 1)
+            .unwrap();
+        let logits = inputs.logits(&log_probs, 0).unwrap();
+        let decider = Decider::new();
+        let found = candidates(&decider, 6, |d| {
+            rule_action(d, inputs.keys[0], logits, inputs.state(0), false, 0.0)
+        });
+        let mut rollouts: Vec<Rollout> = found
+            .iter()
+            .map(|&action| {
+                let mut rollout = Rollout::new(env.clone(), decider.clone());
+                rollout.take_candidate(inputs.keys[0], action).unwrap();
+                rollout
+            })
+            .collect();
+        let groups = vec![0; rollouts.len()];
+        let radius_m = EnvConfig::default().success_radius_m;
+        let costs = rollout_costs(
+            &Fixated,
+            &mut rollouts,
+            &groups,
+            &[to_beat],
+            40,
+            false,
+            radius_m,
+        )
+        .unwrap();
+        (costs, rollouts.iter().map(|r| r.env.steps()).sum())
+    }
+
+    #[test]
+    fn rollouts_stop_once_they_cannot_come_in_under_the_cost_to_beat() {
+        let (free, free_steps) = far_rollouts(None);
+        let least = free.iter().copied().fold(f32::INFINITY, f32::min);
+        assert!(arrives(least, 40), "{free:?}");
+        // A kept way one step longer than the best rollout: that rollout is still found, at
+        // its cost, and so is every other under the bar; the rest stop at the bar or beyond.
+        for bar in [least as u32 + 1, least as u32 + 3] {
+            let (beaten, steps) = far_rollouts(Some(bar));
+            for (&free, &beaten) in free.iter().zip(&beaten) {
+                if free < bar as f32 {
+                    assert_eq!(free, beaten, "{bar}");
+                } else {
+                    assert!(beaten >= bar as f32, "{bar}: {beaten} for {free}");
+                }
+            }
+            assert_eq!(best_candidate(&free), best_candidate(&beaten));
+            assert!(steps <= free_steps, "{steps} > {free_steps}");
+        }
+        // A kept way as short as the best rollout stops every one of them early.
+        let (beaten, steps) = far_rollouts(Some(least as u32));
+        assert!(beaten.iter().all(|&c| c >= least), "{beaten:?}");
+        assert!(steps < free_steps, "{steps} vs {free_steps}");
     }
 
     #[test]
