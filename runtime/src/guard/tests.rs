@@ -437,11 +437,12 @@ fn fine_window_keeps_the_whole_maps_verdicts() {
 }
 
 #[test]
-fn a_leg_skipped_as_apart_from_a_column_overlaps_it_nowhere() {
+fn a_leg_or_part_skipped_as_apart_from_a_column_overlaps_it_nowhere() {
     use super::geometry::{Column, Parts};
     use rand::{Rng, SeedableRng};
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
-    let (mut apart, mut near, mut touching) = (0, 0, 0);
+    // Skipped and kept legs, then parts of kept legs, and contacts among the kept parts.
+    let (mut legs_apart, mut parts_apart, mut parts_near, mut touching) = (0, 0, 0, 0);
     for _ in 0..200 {
         let legs = LegConfig {
             clearance_m: rng.random_range(0.04..0.24),
@@ -458,20 +459,46 @@ fn a_leg_skipped_as_apart_from_a_column_overlaps_it_nowhere() {
                 height_m: rng.random_range(0.0..0.4),
             };
             for leg in 0..4 {
-                let overlap_m = parts.leg_overlap_m(leg, &column);
+                let [hip, knee, wheel] = parts.leg_points(leg);
+                let dx_m = ((column.x_m - hip.x).abs() - column.half_m).max(0.0);
+                let links_apart = parts.links_are_apart(dx_m);
+                let each = [
+                    (
+                        links_apart,
+                        parts.link_overlap_m(&hip, &knee, dx_m, &column),
+                    ),
+                    (
+                        links_apart,
+                        parts.link_overlap_m(&knee, &wheel, dx_m, &column),
+                    ),
+                    (
+                        parts.wheel_is_apart(&wheel, &column),
+                        parts.wheel_overlap_m(&wheel, &column),
+                    ),
+                ];
+                let whole_m = each.iter().map(|e| e.1).fold(f32::NEG_INFINITY, f32::max);
                 if parts.leg_is_apart(leg, &column) {
-                    apart += 1;
-                    assert!(overlap_m < 0.0, "leg {leg} skipped at {overlap_m} m");
-                } else {
-                    near += 1;
-                    touching += usize::from(overlap_m >= 0.0);
+                    legs_apart += 1;
+                    assert!(whole_m < 0.0, "leg {leg} skipped at {whole_m} m");
+                    continue;
                 }
+                for (part, (apart, overlap_m)) in each.into_iter().enumerate() {
+                    if apart {
+                        parts_apart += 1;
+                        assert!(overlap_m < 0.0, "part {part} skipped at {overlap_m} m");
+                    } else {
+                        parts_near += 1;
+                        touching += usize::from(overlap_m >= 0.0);
+                    }
+                }
+                // What the check uses: the kept parts' deepest, exact where it is not negative.
+                let kept_m = parts.leg_overlap_m(leg, &column);
+                assert!(kept_m == whole_m || (kept_m < 0.0 && whole_m < 0.0));
             }
         }
     }
-    // Both sides of the cull, and contacts among the legs kept, were met.
     assert!(
-        apart > 1000 && near > 1000 && touching > 100,
-        "{apart} {near} {touching}"
+        legs_apart > 1000 && parts_apart > 1000 && parts_near > 1000 && touching > 100,
+        "{legs_apart} {parts_apart} {parts_near} {touching}"
     );
 }
