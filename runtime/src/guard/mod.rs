@@ -28,9 +28,10 @@
 //! - the cell squares are not turned with the robot: over one step the robot turns at most 5
 //!   degrees, which moves a square's corner by under 3 mm.
 //!
-//! Cost: for each pose, the occupied cells within the robot's reach, each tested against the
-//! body and each leg's box, and against the 3 parts of the legs whose box it meets (most cells
-//! near the robot meet one leg's at most); a few multiplications each; no allocation.
+//! Cost: for each pose, the occupied cells within a step's reach; those within the robot's
+//! extent are tested against the body and each leg's box, and against the 3 parts of the legs
+//! whose box they meet (most cells near the robot meet one leg's at most); a few
+//! multiplications each; no allocation.
 
 mod geometry;
 mod map;
@@ -48,6 +49,16 @@ use crate::motion::{target_config, BaseDisplacement};
 use crate::observation::HEIGHT_MAP_CELL_M;
 use crate::robot::RobotGeometry;
 use nalgebra::{Isometry2, Point2};
+
+/// The robot's half-extent along its own x and y, for any leg configuration: the body, the
+/// wheels at the widest track, and the links (all in the hip's leg plane).
+fn half_extent_m(g: &RobotGeometry) -> (f32, f32) {
+    let half_x_m = (0.5 * g.body_length_m).max(g.hip_x_m + g.wheel_radius_m.max(g.link_radius_m));
+    let half_y_m = (0.5 * g.body_width_m)
+        .max(0.5 * g.track_range_m[1] + 0.5 * g.wheel_width_m)
+        .max(g.hip_y_m + g.thigh_m + g.link_radius_m);
+    (half_x_m, half_y_m)
+}
 
 /// Where along the step (0 = start, 1 = end) the robot's pose is checked.
 pub const POSE_FRACTIONS: [f32; 4] = [0.25, 0.5, 0.75, 1.0];
@@ -77,6 +88,11 @@ pub struct CollisionGuard {
     /// Cells farther than this from the robot's centre (along x or y) cannot touch it anywhere
     /// along a step.
     reach_m: f32,
+    /// Half the robot's extent along its own x and y for any leg configuration: a column whose
+    /// square lies beyond at a checked pose touches nothing (two comparisons, where most
+    /// columns within `reach_m` are). Per leg configuration it would be tighter across, but
+    /// its code did not fit the controller's flash.
+    half_extent_m: (f32, f32),
 }
 
 impl CollisionGuard {
@@ -104,6 +120,7 @@ impl CollisionGuard {
             geometry,
             margin_m,
             reach_m,
+            half_extent_m: half_extent_m(&geometry),
         }
     }
 
@@ -117,14 +134,7 @@ impl CollisionGuard {
     /// and the margin; then one cell more, as in [`Self::check`], for the column's own
     /// half-side.
     pub fn fine_window(&self, side: usize, cell_m: f32) -> WindowBounds {
-        let g = &self.geometry;
-        // The robot's half-extent along its own x and y, for any leg configuration: the
-        // body, the wheels at the widest track, and the links (all in the hip's leg plane).
-        let half_x_m =
-            (0.5 * g.body_length_m).max(g.hip_x_m + g.wheel_radius_m.max(g.link_radius_m));
-        let half_y_m = (0.5 * g.body_width_m)
-            .max(0.5 * g.track_range_m[1] + 0.5 * g.wheel_width_m)
-            .max(g.hip_y_m + g.thigh_m + g.link_radius_m);
+        let (half_x_m, half_y_m) = self.half_extent_m;
         let turn_rad = crate::action::YAW_STEP_DEG.to_radians();
         let (sin, cos) = (crate::trig::sin(turn_rad), crate::trig::cos(turn_rad));
         let travel_m = crate::action::MOVE_STEP_M + self.margin_m.max(0.0);
@@ -315,6 +325,9 @@ impl CollisionGuard {
                         half_m: (0.5 * heights.cell_m() + self.margin_m).max(0.0),
                         height_m,
                     };
+                    if !self.may_touch(&column) {
+                        continue;
+                    }
                     let mut overlap_m = parts.overlap_m(&column);
                     if let Some(here) = here {
                         let now = Column { x_m, y_m, ..column };
@@ -328,6 +341,15 @@ impl CollisionGuard {
             }
         }
         Ok(deepest_m)
+    }
+
+    /// Whether `column` (in the robot's frame) is within its extent at all: if not, it
+    /// overlaps nothing.
+    fn may_touch(&self, column: &Column) -> bool {
+        // The slack is well above the parts' rounding, as the legs' tests' is.
+        let slack_m = 1.0e-4;
+        column.x_m.abs() - column.half_m <= self.half_extent_m.0 + slack_m
+            && column.y_m.abs() - column.half_m <= self.half_extent_m.1 + slack_m
     }
 
     /// The rows (or columns: the map is square and centred) whose cells lie within the
