@@ -32,7 +32,7 @@ pub(super) struct Parts {
     body_half_x_m: f32,
     body_half_y_m: f32,
     /// Per leg: hip, knee and wheel centre.
-    legs: [[Point3<f32>; 3]; 4],
+    legs: [Leg; 4],
     link_radius_m: f32,
     wheel_radius_m: f32,
     wheel_half_width_m: f32,
@@ -78,19 +78,17 @@ impl Parts {
             .min(column.height_m - self.clearance_m);
         // Most columns near the robot are near one leg at most: the others' thirteen distances
         // would only say they are apart.
-        (0..self.legs.len())
-            .filter(|&leg| !self.leg_is_apart(leg, column))
+        self.legs
+            .iter()
+            .filter(|leg| !self.leg_is_apart(leg, column))
             .map(|leg| self.leg_overlap_m(leg, column))
             .fold(body_m, f32::max)
     }
 
-    /// Whether `column`'s square lies outside leg `leg`'s box (its points' y interval and the
+    /// Whether `column`'s square lies outside `leg`'s box (its points' y interval and the
     /// hip's x, each widened by the larger of a link's and the wheel's reach, and by
     /// [`CULL_SLACK_M`]), so that [`Self::leg_overlap_m`] is surely negative.
-    pub(super) fn leg_is_apart(&self, leg: usize, column: &Column) -> bool {
-        let Some([hip, knee, wheel]) = self.legs.get(leg) else {
-            return true;
-        };
+    pub(super) fn leg_is_apart(&self, [hip, knee, wheel]: &Leg, column: &Column) -> bool {
         let half_m = column.half_m;
         // Every point of a leg is in its leg plane, at the hip's x.
         let reach_x_m = self.wheel_radius_m.max(self.link_radius_m) + CULL_SLACK_M;
@@ -100,36 +98,34 @@ impl Parts {
             || column.y_m - half_m > hip.y.max(knee.y).max(wheel.y) + reach_y_m
     }
 
-    /// Leg `leg`'s hip, knee and wheel centre (the origin for a leg there is not).
+    /// The legs' hip, knee and wheel centre.
     #[cfg(test)]
-    pub(super) fn leg_points(&self, leg: usize) -> [Point3<f32>; 3] {
-        self.legs.get(leg).copied().unwrap_or([Point3::origin(); 3])
+    pub(super) fn legs(&self) -> &[Leg; 4] {
+        &self.legs
     }
 
-    /// How deep leg `leg`'s thigh, shank and wheel reach into `column` (see
-    /// [`Self::overlap_m`]; negative and then not exact where each part is surely apart).
-    pub(super) fn leg_overlap_m(&self, leg: usize, column: &Column) -> f32 {
-        let Some([hip, knee, wheel]) = self.legs.get(leg) else {
-            return f32::NEG_INFINITY;
-        };
+    /// How deep `leg`'s thigh, shank and wheel reach into `column` (see [`Self::overlap_m`];
+    /// negative and then not exact where each part is surely apart).
+    pub(super) fn leg_overlap_m(&self, [hip, knee, wheel]: &Leg, column: &Column) -> f32 {
         // A link's distance costs six `hypotf`s and the wheel's one, in double precision (in
         // software on the controller): the links are first tested across the leg plane and
         // the wheel in its own plane, and most columns near a leg are apart from most of it.
-        let dx_m = ((column.x_m - hip.x).abs() - column.half_m).max(0.0);
+        let dx_m = across_m(hip, column);
         let mut deepest_m = f32::NEG_INFINITY;
         if !self.links_are_apart(dx_m) {
             for (a, b) in [(hip, knee), (knee, wheel)] {
                 deepest_m = deepest_m.max(self.link_overlap_m(a, b, dx_m, column));
             }
         }
-        if !self.wheel_is_apart(wheel, column) {
-            deepest_m = deepest_m.max(self.wheel_overlap_m(wheel, column));
+        let gaps = self.wheel_gaps(wheel, column);
+        if !self.wheel_is_apart(&gaps) {
+            deepest_m = deepest_m.max(self.wheel_overlap_m(&gaps));
         }
         deepest_m
     }
 
     /// How deep the link from `a` to `b` (a capsule in the leg plane, `dx_m` from the column's
-    /// square across it) reaches into `column`: its radius less its distance.
+    /// square across it: [`across_m`]) reaches into `column`: its radius less its distance.
     pub(super) fn link_overlap_m(
         &self,
         a: &Point3<f32>,
@@ -153,29 +149,45 @@ impl Parts {
         dx_m > self.link_radius_m * (1.0 + SKIP_SLACK)
     }
 
-    /// How deep the wheel (a disc in the x-z plane, as wide as the wheel along y) centred at
-    /// `wheel` reaches into `column`.
-    pub(super) fn wheel_overlap_m(&self, wheel: &Point3<f32>, column: &Column) -> f32 {
-        let (side_m, dx_m, dz_m) = self.wheel_gaps_m(wheel, column);
-        side_m.min(self.wheel_radius_m - crate::trig::hypot(dx_m, dz_m))
-    }
-
-    /// Whether the wheel is apart from `column` along its axle, or farther from it than its
-    /// radius by more than the rounding in the x-z plane.
-    pub(super) fn wheel_is_apart(&self, wheel: &Point3<f32>, column: &Column) -> bool {
-        let (side_m, dx_m, dz_m) = self.wheel_gaps_m(wheel, column);
-        let reach_m = self.wheel_radius_m * (1.0 + SKIP_SLACK);
-        side_m < 0.0 || dx_m * dx_m + dz_m * dz_m > reach_m * reach_m
-    }
-
-    /// The wheel's overlap with `column` along its axle, and the column's gaps from its
-    /// centre along x and down z.
-    fn wheel_gaps_m(&self, wheel: &Point3<f32>, column: &Column) -> (f32, f32, f32) {
+    /// The gaps between `column` and the wheel (a disc in the x-z plane, as wide as the wheel
+    /// along y) centred at `wheel`.
+    pub(super) fn wheel_gaps(&self, wheel: &Point3<f32>, column: &Column) -> WheelGaps {
         let dy_m = (column.y_m - wheel.y).abs() - column.half_m;
-        let dx_m = ((column.x_m - wheel.x).abs() - column.half_m).max(0.0);
-        let dz_m = (wheel.z - column.height_m).max(0.0);
-        (self.wheel_half_width_m - dy_m, dx_m, dz_m)
+        WheelGaps {
+            side_m: self.wheel_half_width_m - dy_m,
+            dx_m: ((column.x_m - wheel.x).abs() - column.half_m).max(0.0),
+            dz_m: (wheel.z - column.height_m).max(0.0),
+        }
     }
+
+    /// How deep the wheel reaches into the column of `gaps`.
+    pub(super) fn wheel_overlap_m(&self, gaps: &WheelGaps) -> f32 {
+        gaps.side_m
+            .min(self.wheel_radius_m - crate::trig::hypot(gaps.dx_m, gaps.dz_m))
+    }
+
+    /// Whether the wheel is apart from the column of `gaps` along its axle, or farther from it
+    /// than its radius by more than the rounding in the x-z plane.
+    pub(super) fn wheel_is_apart(&self, gaps: &WheelGaps) -> bool {
+        let reach_m = self.wheel_radius_m * (1.0 + SKIP_SLACK);
+        gaps.side_m < 0.0 || gaps.dx_m * gaps.dx_m + gaps.dz_m * gaps.dz_m > reach_m * reach_m
+    }
+}
+
+/// A leg's hip, knee and wheel centre.
+pub(super) type Leg = [Point3<f32>; 3];
+
+/// Where a column is from a wheel: its overlap along the axle, and its gaps from the centre
+/// along x and down z.
+pub(super) struct WheelGaps {
+    side_m: f32,
+    dx_m: f32,
+    dz_m: f32,
+}
+
+/// How far `column`'s square is across from the leg plane through `hip` (0 where it meets it).
+pub(super) fn across_m(hip: &Point3<f32>, column: &Column) -> f32 {
+    ((column.x_m - hip.x).abs() - column.half_m).max(0.0)
 }
 
 /// Distance in a plane from the segment `a`-`b` to the axis-aligned rectangle `lo`-`hi` (0 when

@@ -60,6 +60,11 @@ fn half_extent_m(g: &RobotGeometry) -> (f32, f32) {
     (half_x_m, half_y_m)
 }
 
+/// How far past [`half_extent_m`] a column must be to be skipped: the legs take a track up to
+/// 1e-5 m past its range (the IK's tolerance), and the parts' positions round; this is well
+/// above both.
+const EXTENT_SLACK_M: f32 = 1.0e-4;
+
 /// Where along the step (0 = start, 1 = end) the robot's pose is checked.
 pub const POSE_FRACTIONS: [f32; 4] = [0.25, 0.5, 0.75, 1.0];
 
@@ -346,10 +351,8 @@ impl CollisionGuard {
     /// Whether `column` (in the robot's frame) is within its extent at all: if not, it
     /// overlaps nothing.
     fn may_touch(&self, column: &Column) -> bool {
-        // The slack is well above the parts' rounding, as the legs' tests' is.
-        let slack_m = 1.0e-4;
-        column.x_m.abs() - column.half_m <= self.half_extent_m.0 + slack_m
-            && column.y_m.abs() - column.half_m <= self.half_extent_m.1 + slack_m
+        column.x_m.abs() - column.half_m <= self.half_extent_m.0 + EXTENT_SLACK_M
+            && column.y_m.abs() - column.half_m <= self.half_extent_m.1 + EXTENT_SLACK_M
     }
 
     /// The rows (or columns: the map is square and centred) whose cells lie within the

@@ -438,7 +438,7 @@ fn fine_window_keeps_the_whole_maps_verdicts() {
 
 #[test]
 fn a_leg_or_part_skipped_as_apart_from_a_column_overlaps_it_nowhere() {
-    use super::geometry::{Column, Parts};
+    use super::geometry::{across_m, Column, Parts};
     use rand::{Rng, SeedableRng};
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
     // Skipped and kept legs, then parts of kept legs, and contacts among the kept parts.
@@ -458,26 +458,21 @@ fn a_leg_or_part_skipped_as_apart_from_a_column_overlaps_it_nowhere() {
                 half_m: rng.random_range(0.0..0.03),
                 height_m: rng.random_range(0.0..0.4),
             };
-            for leg in 0..4 {
-                let [hip, knee, wheel] = parts.leg_points(leg);
-                let dx_m = ((column.x_m - hip.x).abs() - column.half_m).max(0.0);
+            for (leg, points) in parts.legs().iter().enumerate() {
+                let [hip, knee, wheel] = points;
+                let dx_m = across_m(hip, &column);
                 let links_apart = parts.links_are_apart(dx_m);
+                let gaps = parts.wheel_gaps(wheel, &column);
                 let each = [
+                    (links_apart, parts.link_overlap_m(hip, knee, dx_m, &column)),
                     (
                         links_apart,
-                        parts.link_overlap_m(&hip, &knee, dx_m, &column),
+                        parts.link_overlap_m(knee, wheel, dx_m, &column),
                     ),
-                    (
-                        links_apart,
-                        parts.link_overlap_m(&knee, &wheel, dx_m, &column),
-                    ),
-                    (
-                        parts.wheel_is_apart(&wheel, &column),
-                        parts.wheel_overlap_m(&wheel, &column),
-                    ),
+                    (parts.wheel_is_apart(&gaps), parts.wheel_overlap_m(&gaps)),
                 ];
                 let whole_m = each.iter().map(|e| e.1).fold(f32::NEG_INFINITY, f32::max);
-                if parts.leg_is_apart(leg, &column) {
+                if parts.leg_is_apart(points, &column) {
                     legs_apart += 1;
                     assert!(whole_m < 0.0, "leg {leg} skipped at {whole_m} m");
                     continue;
@@ -492,7 +487,7 @@ fn a_leg_or_part_skipped_as_apart_from_a_column_overlaps_it_nowhere() {
                     }
                 }
                 // What the check uses: the kept parts' deepest, exact where it is not negative.
-                let kept_m = parts.leg_overlap_m(leg, &column);
+                let kept_m = parts.leg_overlap_m(points, &column);
                 assert!(kept_m == whole_m || (kept_m < 0.0 && whole_m < 0.0));
             }
         }
