@@ -6,7 +6,7 @@
 #     loop's outcomes with the same on-board stack, and their bus logs decode with ODrive's DBC;
 #   - a silent axis, lost CAN frames, a dead CAN link, a stalled and a corrupt observation link
 #     each end in the documented safe stop within the documented timeout;
-#   - the firmware's RAM in use (statics and the stack painted by QEMU's loader) fits 32 KiB,
+#   - the firmware's RAM in use (statics and the stack painted by QEMU's loader) fits 128 KiB (the budget's STM32G474-class part),
 #     and its busiest control period fits 10 ms at 170 MHz.
 # Installs the embedded toolchain and QEMU if needed (scripts/embedded-toolchain.sh).
 #

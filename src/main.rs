@@ -41,6 +41,8 @@ enum Command {
     Plot(cli::plot::Args),
     /// Relevance of each obstacle to a policy's trajectory (remove it, re-roll, compare) as a PNG.
     Relevance(cli::relevance::Args),
+    /// Robot descriptions: check one, import a URDF, write one as URDF.
+    Robot(cli::robot::Args),
     /// Run the closed loop on one scene: world -> policy (or planner) -> CAN -> simulated
     /// motors -> measured motion -> world; writes path.png and bus.log (candump -L).
     Demo(cli::demo::Args),
@@ -59,6 +61,7 @@ fn main() -> ExitCode {
         Command::Plot(args) => cli::plot::run(args),
         Command::Relevance(args) => cli::relevance::run(args),
         Command::Demo(args) => cli::demo::run(args),
+        Command::Robot(args) => cli::robot::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

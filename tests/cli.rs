@@ -1,5 +1,5 @@
-//! The command line as a user meets it: generate → plan → render, inspect, and clear refusals of
-//! bad input with a non-zero exit status.
+//! The command line as a user meets it: generate → plan → render, inspect, robot descriptions,
+//! and clear refusals of bad input with a non-zero exit status.
 
 use rand::SeedableRng;
 use std::path::{Path, PathBuf};
@@ -368,4 +368,103 @@ fn a_reader_that_goes_away_ends_the_output_quietly() {
     let stderr = text(&out.stderr);
     assert!(!stderr.contains("panicked"), "{stderr}");
     assert_eq!(out.status.code(), Some(141), "{stderr}");
+}
+
+const SHIPPED: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/robots/wheelleg.toml");
+const STRIDER: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/robots/strider.toml");
+
+#[test]
+fn robot_check_reports_what_each_robot_allows() {
+    let out = wheelleg(&["robot", "check", SHIPPED]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let report = text(&out.stdout);
+    assert!(report.contains("robot:           wheelleg"), "{report}");
+    assert!(report.contains("squeeze   yes"), "{report}");
+
+    let out = wheelleg(&["robot", "check", STRIDER, "--json"]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(json["robot"], "strider");
+    let behaviours = json["behaviours"].as_array().unwrap();
+    assert_eq!(behaviours.len(), 5);
+    // The larger robot lifts over taller bars than the shipped one can.
+    assert!(json["lift"]["height_m"].as_f64().unwrap() > 0.25, "{json}");
+}
+
+#[test]
+fn robot_urdf_written_and_imported_gives_the_same_description() {
+    let dir = scratch("robot-urdf");
+    for (name, file) in [("wheelleg", SHIPPED), ("strider", STRIDER)] {
+        let urdf = dir.join(format!("{name}.urdf"));
+        let out = wheelleg(&["robot", "urdf", file, "--out", urdf.to_str().unwrap()]);
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        let back = dir.join(format!("{name}.toml"));
+        let out = wheelleg(&[
+            "robot",
+            "import-urdf",
+            urdf.to_str().unwrap(),
+            "--out",
+            back.to_str().unwrap(),
+        ]);
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        // The same robot: the reports of both files are identical.
+        let a = wheelleg(&["robot", "check", file, "--json"]);
+        let b = wheelleg(&["robot", "check", back.to_str().unwrap(), "--json"]);
+        assert_eq!(text(&a.stdout), text(&b.stdout));
+        // An existing file is never overwritten.
+        let again = wheelleg(&[
+            "robot",
+            "import-urdf",
+            urdf.to_str().unwrap(),
+            "--out",
+            back.to_str().unwrap(),
+        ]);
+        assert!(!again.status.success());
+        assert!(
+            text(&again.stderr).contains("exists"),
+            "{}",
+            text(&again.stderr)
+        );
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn robot_refuses_bad_descriptions_and_urdfs_by_name() {
+    let dir = scratch("robot-bad");
+    let bad = dir.join("bad.toml");
+    let shipped = std::fs::read_to_string(SHIPPED).unwrap();
+    std::fs::write(&bad, shipped.replacen("shank_m = 0.16", "shank_m = 0.0", 1)).unwrap();
+    let out = wheelleg(&["robot", "check", bad.to_str().unwrap()]);
+    assert!(!out.status.success());
+    let err = text(&out.stderr);
+    assert!(
+        err.contains("legs.shank_m") && err.contains("bad.toml"),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+
+    let urdf = dir.join("arm.urdf");
+    std::fs::write(
+        &urdf,
+        "<robot name=\"arm\"><link name=\"base\"/><link name=\"a\"/>\
+         <joint name=\"j\" type=\"revolute\"><parent link=\"base\"/><child link=\"a\"/>\
+         <axis xyz=\"0 0 1\"/><limit lower=\"-1\" upper=\"1\" effort=\"1\" velocity=\"1\"/></joint></robot>",
+    )
+    .unwrap();
+    let out = wheelleg(&[
+        "robot",
+        "import-urdf",
+        urdf.to_str().unwrap(),
+        "--out",
+        dir.join("arm.toml").to_str().unwrap(),
+    ]);
+    assert!(!out.status.success());
+    let err = text(&out.stderr);
+    assert!(
+        err.contains("link 'base'") && err.contains("collision box"),
+        "{err}"
+    );
+    assert!(!dir.join("arm.toml").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -1,12 +1,26 @@
 #!/usr/bin/env python3
-"""Generate docs/wheelleg.dbc: ODrive CANSimple messages for every node of the robot's node map.
+"""Generate a robot's DBC: ODrive CANSimple messages for every node of its node map.
 
-The node map is runtime/src/can/node_map.rs (node 1 + index in Axis::ALL); payload layouts are
-ODrive's (third_party/odrive/odrive-cansimple.dbc), with the same signal names so tools/check_dbc.py can
-compare the two decodings. Run: python3 tools/gen_dbc.py > docs/wheelleg.dbc
+The node map is the robot description's [can.axes] (robots/NAME.toml; the shipped robot's is
+runtime/src/can/node_map.rs's nominal map, nodes 1 to 16 in Axis::ALL order); payload layouts
+are ODrive's (third_party/odrive/odrive-cansimple.dbc), with the same signal names so
+tools/check_dbc.py can compare the two decodings.
+
+    python3 tools/gen_dbc.py > docs/wheelleg.dbc                        # the shipped robot
+    python3 tools/gen_dbc.py --robot robots/NAME.toml > NAME.dbc        # another robot
 """
 
+import argparse
+import os
+import sys
+import tomllib
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 LEGS = ["FL", "FR", "RL", "RR"]
+# The description's key of each axis, in the order of AXES.
+LEG_KEYS = ["front_left", "front_right", "rear_left", "rear_right"]
+JOINT_KEYS = ["hip", "knee", "wheel_mount"]
+AXIS_KEYS = [f"{leg}_{j}" for leg in LEG_KEYS for j in JOINT_KEYS] + [f"{leg}_wheel" for leg in LEG_KEYS]
 JOINTS = ["Hip", "Knee", "WheelMount"]
 AXES = [f"{leg}_{j}" for leg in LEGS for j in JOINTS] + [f"{leg}_Wheel" for leg in LEGS]
 HOST = "Host"
@@ -35,12 +49,27 @@ STATES = {0: "UNDEFINED", 1: "IDLE", 2: "STARTUP_SEQUENCE", 3: "FULL_CALIBRATION
           12: "ENCODER_HALL_POLARITY_CALIBRATION", 13: "ENCODER_HALL_PHASE_CALIBRATION"}
 
 
+def node_ids(path):
+    """Each axis's node id from a robot description, in the order of AXES."""
+    with open(path, "rb") as f:
+        axes = tomllib.load(f)["can"]["axes"]
+    return [axes[key]["node_id"] for key in AXIS_KEYS]
+
+
 def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--robot", default=os.path.join(ROOT, "robots", "wheelleg.toml"),
+                        help="robot description (default: the shipped robot)")
+    args = parser.parse_args()
+    try:
+        nodes = node_ids(args.robot)
+    except (OSError, KeyError, tomllib.TOMLDecodeError) as e:
+        sys.exit(f"gen_dbc: cannot read the node map of {args.robot}: {e!r}")
     out = ['VERSION "wheelleg 1"', "", "", "NS_ :", "", "BS_:", "",
            "BU_: " + " ".join([HOST] + AXES), "", ""]
     floats, values, comments = [], [], []
     for index, axis in enumerate(AXES):
-        node = index + 1
+        node = nodes[index]
         messages = COMMON + [VEL if axis.endswith("_Wheel") else POS]
         for cmd, name, dlc, from_axis, signals in sorted(messages):
             frame_id = node << 5 | cmd

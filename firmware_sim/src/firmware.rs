@@ -24,15 +24,18 @@ pub struct FirmwareStats {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Firmware {
     axes: Vec<SimAxis>,
+    /// Which node is which robot axis.
+    map: NodeMap,
     stats: FirmwareStats,
     outbox: Vec<CanFrame>,
 }
 
 impl Firmware {
-    /// Any set of axes.
-    pub fn new(axes: Vec<SimAxis>) -> Firmware {
+    /// Any set of axes; `map` says which of them is which robot axis.
+    pub fn new(axes: Vec<SimAxis>, map: NodeMap) -> Firmware {
         Firmware {
             axes,
+            map,
             stats: FirmwareStats::default(),
             outbox: Vec::new(),
         }
@@ -61,10 +64,10 @@ impl Firmware {
                     AxisKind::Joint => map.get(axis).to_motor_turns(angle_rad),
                     AxisKind::Wheel => 0.0,
                 };
-                SimAxis::new(axis.node_id(), config, pos_turns)
+                SimAxis::new(map.node_id(axis), config, pos_turns)
             })
             .collect();
-        Ok(Firmware::new(axes))
+        Ok(Firmware::new(axes, *map))
     }
 
     /// Traffic counters.
@@ -89,7 +92,7 @@ impl Firmware {
 
     /// The simulated motor of a robot axis.
     pub fn axis(&self, axis: Axis) -> Option<&SimAxis> {
-        self.node(axis.node_id())
+        self.node(self.map.node_id(axis))
     }
 
     /// The legs as the simulated joints really are: forward kinematics of their true
@@ -130,7 +133,7 @@ impl Firmware {
 
     /// The simulated motor of a robot axis, mutable (for fault injection).
     pub fn axis_mut(&mut self, axis: Axis) -> Option<&mut SimAxis> {
-        self.node_mut(axis.node_id())
+        self.node_mut(self.map.node_id(axis))
     }
 
     /// Hands one received frame to its axis.

@@ -1,6 +1,6 @@
 //! docs/wheelleg.dbc must describe exactly the node map and message set the runtime uses.
 
-use wheelleg_runtime::can::node_map::{Axis, AxisKind};
+use wheelleg_runtime::can::node_map::{Axis, AxisKind, NodeMap};
 use wheelleg_runtime::can::protocol::{frame_id, CmdId};
 
 #[test]
@@ -27,7 +27,9 @@ fn project_dbc_has_every_message_of_every_node() {
             setpoint,
             CmdId::ClearErrors,
         ] {
-            expected.push(u32::from(frame_id(axis.node_id(), cmd).as_raw()));
+            expected.push(u32::from(
+                frame_id(NodeMap::NOMINAL.node_id(axis), cmd).as_raw(),
+            ));
         }
     }
     let mut got = ids.clone();

@@ -11,6 +11,29 @@ pub const YAW_STEP_DEG: f32 = 5.0;
 pub const CLEARANCE_STEP_M: f32 = 0.02;
 /// Wheel track change per step.
 pub const TRACK_STEP_M: f32 = 0.02;
+/// The action lattice: how far one step of each dimension moves the robot.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ActionLattice {
+    /// Translation per step along the robot's own x or y axis.
+    pub move_step_m: f32,
+    /// Rotation per step about the vertical axis, in degrees.
+    pub yaw_step_deg: f32,
+    /// Body clearance change per step.
+    pub clearance_step_m: f32,
+    /// Wheel track change per step.
+    pub track_step_m: f32,
+}
+
+impl ActionLattice {
+    /// The paper's lattice: 0.05 m, 5 degrees, 0.02 m, 0.02 m.
+    pub const PAPER: ActionLattice = ActionLattice {
+        move_step_m: MOVE_STEP_M,
+        yaw_step_deg: YAW_STEP_DEG,
+        clearance_step_m: CLEARANCE_STEP_M,
+        track_step_m: TRACK_STEP_M,
+    };
+}
+
 /// Number of action dimensions (policy heads).
 pub const DIMS: usize = 5;
 /// Number of choices per dimension.

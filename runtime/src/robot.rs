@@ -5,7 +5,31 @@
 //! leg rotates about an axis parallel to the body x axis, so a leg moves only sideways and up/down.
 //! That is what makes height and track one coupled pair: all four legs act symmetrically.
 
+use crate::action::ActionLattice;
+use crate::can::NodeMap;
 use nalgebra::Vector3;
+
+/// A robot as the runtime drives it: its shape, its action lattice and its CAN wiring.
+///
+/// Host tools read it from a robot description (`robots/NAME.toml`, crate `wheelleg-robot`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Robot {
+    /// Body, legs, wheels and the pose ranges.
+    pub geometry: RobotGeometry,
+    /// How far one step of each action dimension moves.
+    pub actions: ActionLattice,
+    /// Node id and calibration of each of the 16 axes.
+    pub can: NodeMap,
+}
+
+impl Robot {
+    /// The robot this project ships (`robots/wheelleg.toml`).
+    pub const WHEELLEG: Robot = Robot {
+        geometry: WHEELLEG,
+        actions: ActionLattice::PAPER,
+        can: NodeMap::NOMINAL,
+    };
+}
 
 /// Which of the four legs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]

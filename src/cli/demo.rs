@@ -30,7 +30,7 @@ use wheelleg::closed_loop::{
 use wheelleg_firmware_sim::candump::{CandumpWriter, DEFAULT_EPOCH_US};
 use wheelleg_firmware_sim::rig::RigError;
 use wheelleg_runtime::action::{MOVE_STEP_M, YAW_STEP_DEG};
-use wheelleg_runtime::can::node_map::Axis;
+use wheelleg_runtime::can::node_map::{Axis, NodeMap};
 use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::env::{Env, Status};
 use wheelleg_sim::generate::{generate, SceneKind};
@@ -240,7 +240,10 @@ pub fn run(args: Args) -> CliResult {
     let weights = weights(&args)?;
     let tolerance = tolerance(&args)?;
     if let Some(node) = args.silent_node {
-        if !Axis::ALL.iter().any(|a| a.node_id().get() == node) {
+        if !Axis::ALL
+            .iter()
+            .any(|&a| NodeMap::NOMINAL.node_id(a).get() == node)
+        {
             return Err(format!("--silent-node {node}: the robot's nodes are 1 to 16").into());
         }
     }
@@ -347,7 +350,10 @@ pub fn run(args: Args) -> CliResult {
 
 fn inject_silence(closed_loop: &mut ClosedLoop, node: u8) {
     let step = closed_loop.env().steps() + 1;
-    if let Some(axis) = Axis::ALL.into_iter().find(|a| a.node_id().get() == node) {
+    if let Some(axis) = Axis::ALL
+        .into_iter()
+        .find(|&a| NodeMap::NOMINAL.node_id(a).get() == node)
+    {
         if let Some(sim) = closed_loop.rig_mut().firmware_mut().axis_mut(axis) {
             outln!("inject:    node {node} ({axis:?}) goes silent before step {step}");
             sim.set_silent(true);

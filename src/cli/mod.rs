@@ -20,6 +20,7 @@ pub mod plan;
 pub mod plot;
 pub mod relevance;
 pub mod render;
+pub mod robot;
 pub mod stack_args;
 pub mod train;
 

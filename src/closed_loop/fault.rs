@@ -6,7 +6,7 @@ use std::fmt;
 use wheelleg_firmware_sim::rig::{RigError, StepReport, StopReason};
 use wheelleg_runtime::action::Action;
 use wheelleg_runtime::can::host::AxisSet;
-use wheelleg_runtime::can::node_map::Axis;
+use wheelleg_runtime::can::node_map::{Axis, NodeMap};
 use wheelleg_runtime::motion::MotionError;
 use wheelleg_sim::env::EpisodeOver;
 use wheelleg_sim::scenario::ScenarioError;
@@ -86,7 +86,7 @@ pub enum Fault {
 
 fn describe_axes(set: AxisSet) -> String {
     set.iter()
-        .map(|axis: Axis| format!("node {} ({axis:?})", axis.node_id().get()))
+        .map(|axis: Axis| format!("node {} ({axis:?})", NodeMap::NOMINAL.node_id(axis).get()))
         .collect::<Vec<_>>()
         .join(", ")
 }

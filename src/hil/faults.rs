@@ -1,6 +1,7 @@
 //! What the host injects into an episode in the loop, and why the firmware says it stopped.
 
 use wheelleg_runtime::can::host::AxisSet;
+use wheelleg_runtime::can::node_map::NodeMap;
 
 use super::plant::PlantFault;
 use super::wire::stop_reason;
@@ -40,7 +41,7 @@ impl std::fmt::Display for ControllerStop {
         let axes = || {
             self.axes
                 .iter()
-                .map(|axis| format!("node {} ({axis:?})", axis.node_id().get()))
+                .map(|axis| format!("node {} ({axis:?})", NodeMap::NOMINAL.node_id(axis).get()))
                 .collect::<Vec<_>>()
                 .join(", ")
         };

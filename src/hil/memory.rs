@@ -106,7 +106,7 @@ pub struct RamUse {
 }
 
 impl RamUse {
-    /// Everything: what the budget's 32 KiB must hold.
+    /// Everything: what the budget's RAM (128 KiB) must hold.
     pub fn total_bytes(&self) -> u32 {
         self.statics_bytes + self.peak_stack_bytes
     }

@@ -61,7 +61,7 @@ use wire::{FromController, ToController};
 /// some seconds).
 pub const ANSWER_TIMEOUT: Duration = Duration::from_secs(60);
 
-/// A control period's budget on the target part: 10 ms at 170 MHz (an STM32G431-class
+/// A control period's budget on the target part: 10 ms at 170 MHz (an STM32G474-class
 /// Cortex-M4F), in cycles.
 pub const PERIOD_BUDGET_CYCLES: u64 = 1_700_000;
 

@@ -147,7 +147,7 @@ impl Rig {
             commander: Commander::new(config.map),
             tracker: FeedbackTracker::new(config.map),
             tx: TxQueue::new(),
-            firmware: Firmware::new(Vec::new()),
+            firmware: Firmware::new(Vec::new(), config.map),
             bus: InProcessBus::new(Faults::NONE),
             host,
             firmware_port: None,

@@ -108,7 +108,7 @@ impl Commander {
     }
 
     fn frame<F: Frame>(&self, axis: Axis, message: Message) -> Result<F, CanError> {
-        Ok(encode(axis.node_id(), &message)?)
+        Ok(encode(self.map.node_id(axis), &message)?)
     }
 
     /// Queues one tick's setpoint: a Set_Input_Pos (with velocity feed-forward) for each of the
@@ -388,7 +388,7 @@ impl FeedbackTracker {
                 return Received::Malformed(e);
             }
         };
-        let slot = Axis::from_node_id(node).and_then(|axis| {
+        let slot = self.map.axis_on(node).and_then(|axis| {
             let slot = self.axes.get_mut(axis.index())?;
             Some((axis, slot))
         });

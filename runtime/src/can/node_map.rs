@@ -1,6 +1,8 @@
 //! Which motor is which CAN node, and how joint angles become ODrive turns.
 //!
-//! Sixteen axes, one ODrive node each (docs/can-protocol.md has the same table):
+//! Sixteen axes, one ODrive node each. A robot's description sets each axis's node id (1 to 63,
+//! no two alike) and calibration; the shipped robot's map is [`NodeMap::NOMINAL`]
+//! (`robots/wheelleg.toml`; docs/can-protocol.md has the same table):
 //!
 //! | node | axis                  | node | axis                  |
 //! |------|-----------------------|------|-----------------------|
@@ -40,7 +42,7 @@ use core::f32::consts::TAU;
 pub const AXIS_COUNT: usize = 16;
 /// Number of leg joint axes.
 pub const JOINT_AXIS_COUNT: usize = 12;
-/// Node id of the first axis; the rest follow in [`Axis::ALL`] order.
+/// Node id of the first axis of the nominal map; the rest follow in [`Axis::ALL`] order.
 pub const FIRST_NODE_ID: u8 = 1;
 
 /// One of a leg's three joints.
@@ -116,18 +118,6 @@ impl Axis {
         Axis::ALL.get(index).copied()
     }
 
-    /// The axis's CAN node id.
-    pub fn node_id(self) -> NodeId {
-        // At most FIRST_NODE_ID + 15 = 16 <= 63.
-        NodeId::new(FIRST_NODE_ID + self.index() as u8).unwrap_or(NodeId::MIN)
-    }
-
-    /// The axis on node `node`, if any.
-    pub fn from_node_id(node: NodeId) -> Option<Axis> {
-        let index = node.get().checked_sub(FIRST_NODE_ID)?;
-        Axis::from_index(usize::from(index))
-    }
-
     /// Position or velocity controlled.
     pub const fn kind(self) -> AxisKind {
         match self {
@@ -175,9 +165,26 @@ pub const JOINT_GEAR_RATIO: f32 = 9.0;
 /// Gear ratio of the wheel hub motors.
 pub const WHEEL_GEAR_RATIO: f32 = 1.0;
 
-/// Calibration of every axis, indexed like [`Axis::ALL`].
+/// Why a node map was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NodeMapError {
+    /// Two axes on one node id: the second axis, in [`Axis::ALL`] order, and the id.
+    SharedNodeId(Axis, NodeId),
+    /// An axis on node 0, where a factory-fresh ODrive answers.
+    FactoryNodeId(Axis),
+    /// A gear ratio that is not finite and positive.
+    BadGearRatio(Axis),
+    /// A direction other than +1 or -1.
+    BadDirection(Axis),
+    /// A zero offset that is not finite.
+    BadZeroOffset(Axis),
+}
+
+/// Node id and calibration of every axis, indexed like [`Axis::ALL`]: the robot's CAN wiring.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct NodeMap {
+    /// One node id per axis, no two alike.
+    node_ids: [NodeId; AXIS_COUNT],
     /// One entry per axis.
     pub calibration: [AxisCalibration; AXIS_COUNT],
 }
@@ -202,8 +209,67 @@ impl NodeMap {
             };
             leg += 1;
         }
-        NodeMap { calibration }
+        let mut node_ids = [NodeId::MIN; AXIS_COUNT];
+        let mut index = 0;
+        while index < AXIS_COUNT {
+            // FIRST_NODE_ID + 15 = 16 is below MAX_NODE_ID.
+            node_ids[index] = match NodeId::new(FIRST_NODE_ID + index as u8) {
+                Some(id) => id,
+                None => NodeId::MIN,
+            };
+            index += 1;
+        }
+        NodeMap {
+            node_ids,
+            calibration,
+        }
     };
+
+    /// A map from each axis's node id and calibration (indexed like [`Axis::ALL`]), refused
+    /// when two axes share an id, an axis sits on the factory id 0, or a calibration cannot
+    /// convert (zero or non-finite ratio, direction not ±1).
+    pub fn new(
+        node_ids: [NodeId; AXIS_COUNT],
+        calibration: [AxisCalibration; AXIS_COUNT],
+    ) -> Result<NodeMap, NodeMapError> {
+        for (index, (&id, cal)) in node_ids.iter().zip(calibration.iter()).enumerate() {
+            let axis = Axis::from_index(index).unwrap_or(Axis::Wheel(LegId::FrontLeft));
+            if id == NodeId::MIN {
+                return Err(NodeMapError::FactoryNodeId(axis));
+            }
+            if node_ids.iter().take(index).any(|&earlier| earlier == id) {
+                return Err(NodeMapError::SharedNodeId(axis, id));
+            }
+            if !(cal.gear_ratio.is_finite() && cal.gear_ratio > 0.0) {
+                return Err(NodeMapError::BadGearRatio(axis));
+            }
+            if cal.direction != 1.0 && cal.direction != -1.0 {
+                return Err(NodeMapError::BadDirection(axis));
+            }
+            if !cal.zero_offset_turns.is_finite() {
+                return Err(NodeMapError::BadZeroOffset(axis));
+            }
+        }
+        Ok(NodeMap {
+            node_ids,
+            calibration,
+        })
+    }
+
+    /// The CAN node id of `axis`.
+    pub fn node_id(&self, axis: Axis) -> NodeId {
+        // index() < AXIS_COUNT by construction; the fallback is never taken.
+        self.node_ids
+            .get(axis.index())
+            .copied()
+            .unwrap_or(NodeId::MIN)
+    }
+
+    /// The axis on node `node`, if any.
+    pub fn axis_on(&self, node: NodeId) -> Option<Axis> {
+        let index = self.node_ids.iter().position(|&id| id == node)?;
+        Axis::from_index(index)
+    }
 
     /// Calibration of one axis.
     pub fn get(&self, axis: Axis) -> AxisCalibration {
@@ -231,25 +297,59 @@ mod tests {
 
     #[test]
     fn node_ids_follow_the_documented_table() {
-        assert_eq!(Axis::Joint(LegId::FrontLeft, Joint::Hip).node_id().get(), 1);
-        assert_eq!(
-            Axis::Joint(LegId::FrontRight, Joint::WheelMount)
-                .node_id()
-                .get(),
-            6
-        );
-        assert_eq!(
-            Axis::Joint(LegId::RearRight, Joint::Knee).node_id().get(),
-            11
-        );
-        assert_eq!(Axis::Wheel(LegId::FrontLeft).node_id().get(), 13);
-        assert_eq!(Axis::Wheel(LegId::RearRight).node_id().get(), 16);
+        let map = NodeMap::NOMINAL;
+        let id = |axis| map.node_id(axis).get();
+        assert_eq!(id(Axis::Joint(LegId::FrontLeft, Joint::Hip)), 1);
+        assert_eq!(id(Axis::Joint(LegId::FrontRight, Joint::WheelMount)), 6);
+        assert_eq!(id(Axis::Joint(LegId::RearRight, Joint::Knee)), 11);
+        assert_eq!(id(Axis::Wheel(LegId::FrontLeft)), 13);
+        assert_eq!(id(Axis::Wheel(LegId::RearRight)), 16);
         for (i, axis) in Axis::ALL.into_iter().enumerate() {
             assert_eq!(axis.index(), i);
-            assert_eq!(Axis::from_node_id(axis.node_id()), Some(axis));
+            assert_eq!(map.axis_on(map.node_id(axis)), Some(axis));
         }
-        assert_eq!(Axis::from_node_id(NodeId::new(0).unwrap()), None);
-        assert_eq!(Axis::from_node_id(NodeId::new(17).unwrap()), None);
+        assert_eq!(map.axis_on(NodeId::new(0).unwrap()), None);
+        assert_eq!(map.axis_on(NodeId::new(17).unwrap()), None);
+    }
+
+    #[test]
+    fn a_map_of_any_ids_is_kept_and_a_bad_one_refused() {
+        let calibration = NodeMap::NOMINAL.calibration;
+        let ids: [NodeId; AXIS_COUNT] =
+            core::array::from_fn(|i| NodeId::new(40 - i as u8).unwrap());
+        let map = NodeMap::new(ids, calibration).unwrap();
+        let knee = Axis::Joint(LegId::FrontLeft, Joint::Knee);
+        assert_eq!(map.node_id(knee).get(), 39);
+        assert_eq!(map.axis_on(NodeId::new(39).unwrap()), Some(knee));
+        assert_eq!(map.axis_on(NodeId::new(1).unwrap()), None);
+
+        let mut shared = ids;
+        shared[5] = shared[2];
+        assert_eq!(
+            NodeMap::new(shared, calibration),
+            Err(NodeMapError::SharedNodeId(
+                Axis::Joint(LegId::FrontRight, Joint::WheelMount),
+                shared[2]
+            ))
+        );
+        let mut factory = ids;
+        factory[0] = NodeId::MIN;
+        assert!(matches!(
+            NodeMap::new(factory, calibration),
+            Err(NodeMapError::FactoryNodeId(_))
+        ));
+        let mut ratio = calibration;
+        ratio[3].gear_ratio = 0.0;
+        assert!(matches!(
+            NodeMap::new(ids, ratio),
+            Err(NodeMapError::BadGearRatio(_))
+        ));
+        let mut direction = calibration;
+        direction[12].direction = 0.5;
+        assert!(matches!(
+            NodeMap::new(ids, direction),
+            Err(NodeMapError::BadDirection(_))
+        ));
     }
 
     #[test]

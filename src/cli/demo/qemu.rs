@@ -5,7 +5,7 @@ use super::{print_report, Args, LogFile};
 use crate::cli::CliResult;
 use wheelleg::closed_loop::{LoopConfig, Tolerance};
 use wheelleg_firmware_sim::candump::{CandumpWriter, DEFAULT_EPOCH_US};
-use wheelleg_runtime::can::node_map::Axis;
+use wheelleg_runtime::can::node_map::{Axis, NodeMap};
 use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::env::Env;
 use wheelleg_sim::render::top_view;
@@ -48,7 +48,10 @@ pub(super) fn run_qemu(args: &Args, scenario: &Scenario, origin: &str) -> CliRes
     let legs = env.state().leg_config(env.geometry());
     let mut faults = Faults::default();
     if let (Some(node), Some(at)) = (args.silent_node, args.silent_at_step) {
-        if let Some(axis) = Axis::ALL.into_iter().find(|a| a.node_id().get() == node) {
+        if let Some(axis) = Axis::ALL
+            .into_iter()
+            .find(|&a| NodeMap::NOMINAL.node_id(a).get() == node)
+        {
             outln!("inject:    node {node} ({axis:?}) goes silent during step {at}");
             faults.plant.push((at, PlantFault::SilentAxis(axis)));
         }

@@ -5,7 +5,7 @@ use crate::robot::WHEELLEG;
 
 fn estimate(axis: Axis, pos_turns: f32, vel_turns_per_s: f32) -> CanFrame {
     encode(
-        axis.node_id(),
+        NodeMap::NOMINAL.node_id(axis),
         &Message::EncoderEstimates {
             pos_turns,
             vel_turns_per_s,
@@ -56,7 +56,7 @@ fn feedback_round_trips_through_the_node_map() {
     // Echo every command back as if the axis had reached it exactly.
     while let Some(f) = q.pop() {
         let (node, msg) = decode(&f).unwrap();
-        let axis = Axis::from_node_id(node).unwrap();
+        let axis = NodeMap::NOMINAL.axis_on(node).unwrap();
         let echo = match msg {
             Message::SetInputPos { pos_turns, .. } => estimate(axis, pos_turns, 0.0),
             Message::SetInputVel {
@@ -101,7 +101,7 @@ fn health_reports_silent_and_errored_axes() {
     let mut tracker = FeedbackTracker::new(NodeMap::NOMINAL);
     for axis in Axis::ALL {
         let hb: CanFrame = encode(
-            axis.node_id(),
+            NodeMap::NOMINAL.node_id(axis),
             &Message::Heartbeat {
                 axis_error: 0,
                 axis_state: AxisState::ClosedLoopControl,
@@ -113,7 +113,7 @@ fn health_reports_silent_and_errored_axes() {
     assert!(tracker.health(50_000, 100_000).is_ok());
     let knee = Axis::Joint(LegId::RearLeft, Joint::Knee);
     let bad: CanFrame = encode(
-        knee.node_id(),
+        NodeMap::NOMINAL.node_id(knee),
         &Message::Heartbeat {
             axis_error: axis_error::WATCHDOG_TIMER_EXPIRED,
             axis_state: AxisState::Idle,
