@@ -324,4 +324,27 @@ fn main() {
     scenario_seeds(&out);
     checkpoint_seeds(&out);
     can_seeds(&out);
+    robot_seeds(&out);
+}
+
+/// The shipped and the second robot's descriptions as committed, and each as the URDF that
+/// `wheelleg robot urdf` writes.
+fn robot_seeds(out: &Path) {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    for name in ["wheelleg", "strider"] {
+        let file = root.join("robots").join(format!("{name}.toml"));
+        let description = wheelleg_robot::RobotDescription::load(&file).expect("a committed robot");
+        write(
+            out,
+            "robot_description",
+            &format!("{name}.toml"),
+            &std::fs::read(&file).expect("readable"),
+        );
+        write(
+            out,
+            "robot_urdf",
+            &format!("{name}.urdf"),
+            wheelleg_robot::urdf::export(&description).as_bytes(),
+        );
+    }
 }

@@ -468,3 +468,86 @@ fn robot_refuses_bad_descriptions_and_urdfs_by_name() {
     assert!(!dir.join("arm.toml").exists());
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// The shipped policy's tensors in a version 3 file trained for `robot`.
+fn weights_for(robot: &wheelleg_robot::RobotDescription) -> Vec<u8> {
+    use wheelleg_runtime::model::format::FORMAT_VERSION;
+    use wheelleg_runtime::model::load::{open_envelope, record_of};
+    let shipped =
+        std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/weights/policy.wlw")).unwrap();
+    let (_, payload) = open_envelope(&shipped).unwrap();
+    let mut payload = payload.to_vec();
+    let record = record_of(&robot.name, &robot.robot, robot.bit_rate_bps);
+    payload.extend(postcard::to_allocvec(&record).unwrap());
+    wheelleg_trainer::quantize::file_bytes::envelope_bytes(FORMAT_VERSION, &payload).unwrap()
+}
+
+#[test]
+fn a_policy_is_refused_for_a_robot_it_was_not_trained_for() {
+    let dir = scratch("robot-weights");
+    let scenes = dir.join("straight.json");
+    let out = wheelleg(&[
+        "generate",
+        "--kind",
+        "straight",
+        "--count",
+        "2",
+        "--seed",
+        "3",
+        "--out",
+        scenes.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let eval = |weights: &std::path::Path| {
+        wheelleg(&[
+            "eval",
+            "--policy",
+            weights.to_str().unwrap(),
+            "--scenarios",
+            scenes.to_str().unwrap(),
+            "--planner-expansions",
+            "0",
+            "--json",
+        ])
+    };
+    // The shipped robot's record: the same tensors, the same episodes as the version 2 file.
+    let shipped = dir.join("shipped-v3.wlw");
+    std::fs::write(
+        &shipped,
+        weights_for(&wheelleg_robot::RobotDescription::shipped()),
+    )
+    .unwrap();
+    let v3 = eval(&shipped);
+    assert!(v3.status.success(), "{}", text(&v3.stderr));
+    let v2 = eval(std::path::Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/weights/policy.wlw"
+    )));
+    let episodes = |out: &Output| {
+        serde_json::from_slice::<serde_json::Value>(&out.stdout).unwrap()["scenarios"].clone()
+    };
+    assert_eq!(episodes(&v3), episodes(&v2));
+
+    // Another robot's: refused by eval and by the demo, naming both robots.
+    let strider = wheelleg_robot::RobotDescription::load(std::path::Path::new(STRIDER)).unwrap();
+    let other = dir.join("strider.wlw");
+    std::fs::write(&other, weights_for(&strider)).unwrap();
+    let out = eval(&other);
+    assert!(!out.status.success());
+    let err = text(&out.stderr);
+    assert!(
+        err.contains("trained for robot 'strider'") && err.contains("robot 'wheelleg'"),
+        "{err}"
+    );
+    let out = wheelleg(&[
+        "demo",
+        "--weights",
+        other.to_str().unwrap(),
+        "--out",
+        dir.join("demo").to_str().unwrap(),
+    ]);
+    assert!(!out.status.success());
+    let err = text(&out.stderr);
+    assert!(err.contains("trained for robot 'strider'"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

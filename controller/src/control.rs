@@ -8,11 +8,11 @@ use wheelleg_runtime::action::Action;
 use wheelleg_runtime::base::{MecanumBase, Odometry};
 
 use wheelleg_runtime::can::host::{AxisSet, CanError, Commander, FeedbackTracker, TxQueue};
-use wheelleg_runtime::can::node_map::{Axis, NodeMap};
+use wheelleg_runtime::can::node_map::Axis;
 use wheelleg_runtime::can::protocol::AxisState;
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::motion::{BaseDisplacement, MotionConfig, MotionError, Setpoint, StepMotion};
-use wheelleg_runtime::robot::RobotGeometry;
+use wheelleg_runtime::robot::{Robot, RobotGeometry};
 
 /// Transmit queue capacity: the start-up sequence (two frames per axis) and one setpoint, the
 /// most one period queues (the host's rig keeps 64; 320 bytes of RAM less here).
@@ -119,13 +119,14 @@ pub struct Control<F: Frame> {
 }
 
 impl<F: Frame> Control<F> {
-    /// The loop for `geometry` with the legs at `start`, motors idle.
-    pub fn new(geometry: RobotGeometry, start: LegConfig) -> Control<F> {
+    /// The loop for `robot` (its geometry and CAN node map) with the legs at `start`, motors
+    /// idle.
+    pub fn new(robot: &Robot, start: LegConfig) -> Control<F> {
         Control {
-            geometry,
+            geometry: robot.geometry,
             motion: MotionConfig::default(),
-            commander: Commander::new(NodeMap::NOMINAL),
-            tracker: FeedbackTracker::new(NodeMap::NOMINAL),
+            commander: Commander::new(robot.can),
+            tracker: FeedbackTracker::new(robot.can),
             tx: TxQueue::new(),
             odometry: Odometry::default(),
             legs: start,

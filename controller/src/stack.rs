@@ -17,7 +17,7 @@ use wheelleg_runtime::model::{
     InferError, Kernel, LoadError, Outputs, Policy, UnsupportedKernel, ACTION_LOGITS,
 };
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
-use wheelleg_runtime::robot::WHEELLEG;
+use wheelleg_runtime::robot::Robot;
 
 /// Cells per side of the robot-centred fine map the window is cut from (the host's
 /// `MapGrid::GUARD_FINE`).
@@ -157,14 +157,17 @@ pub struct Stack<'w, 'd, const STATES: usize = CONTROLLER_STATES> {
     decider: &'d mut Decider<STATES>,
     guard: CollisionGuard,
     window: WindowBounds,
+    robot: Robot,
 }
 
 impl<'w, 'd, const STATES: usize> Stack<'w, 'd, STATES> {
-    /// Checks the weights file (the boot check) and sets up the guard with its default margin;
-    /// the decision rule starts afresh in `decider`.
+    /// Checks the weights file (the boot check), takes the robot it was trained for from it and
+    /// sets up the guard for that robot with its default margin; the decision rule starts
+    /// afresh in `decider`.
     pub fn new(weights: &'w [u8], decider: &'d mut Decider<STATES>) -> Result<Self, StackError> {
         let policy = ControllerPolicy::from_bytes(weights).map_err(StackError::Load)?;
-        let guard = CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M);
+        let robot = policy.model().trained_for.robot;
+        let guard = CollisionGuard::new(robot.geometry, DEFAULT_MARGIN_M);
         let window = guard.fine_window(FINE_SIDE, FINE_CELL_M);
         if window.cells() > WINDOW_CELLS {
             return Err(StackError::Window);
@@ -175,7 +178,13 @@ impl<'w, 'd, const STATES: usize> Stack<'w, 'd, STATES> {
             decider,
             guard,
             window,
+            robot,
         })
+    }
+
+    /// The robot the weights were trained for: what the control loop drives.
+    pub fn robot(&self) -> Robot {
+        self.robot
     }
 
     /// The part of the fine map the guard reads.

@@ -382,3 +382,39 @@ pub fn check_trajectory_batch(data: &[u8]) {
     }
     let _ = batch.counts_by_behaviour();
 }
+
+/// Robot description TOML: refused with an error naming a key, or accepted as a robot the
+/// runtime can drive (its default pose has a leg solution, its node map is the map it stores)
+/// whose written file reads back to the same description.
+pub fn check_robot_description(bytes: &[u8]) {
+    let Ok(text) = std::str::from_utf8(bytes) else {
+        return;
+    };
+    let description = match wheelleg_robot::RobotDescription::from_toml(text) {
+        Ok(description) => description,
+        Err(error) => {
+            assert!(!error.to_string().is_empty());
+            return;
+        }
+    };
+    assert_eq!(description.robot.geometry.check(), Ok(()));
+    let written = description.to_toml();
+    let reread = wheelleg_robot::RobotDescription::from_toml(&written)
+        .unwrap_or_else(|e| panic!("a written description does not read back: {e}\n{written}"));
+    assert_eq!(reread, description);
+}
+
+/// URDF text: refused with an error, or imported as a checked description whose exported
+/// URDF imports again to the same description.
+pub fn check_robot_urdf(bytes: &[u8]) {
+    let Ok(text) = std::str::from_utf8(bytes) else {
+        return;
+    };
+    let Ok(description) = wheelleg_robot::urdf::import(text) else {
+        return;
+    };
+    let exported = wheelleg_robot::urdf::export(&description);
+    let again = wheelleg_robot::urdf::import(&exported)
+        .unwrap_or_else(|e| panic!("an exported URDF does not import: {e}\n{exported}"));
+    assert_eq!(again, description);
+}

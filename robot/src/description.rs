@@ -7,9 +7,9 @@
 use crate::validate::{validate, DescriptionError};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
-use wheelleg_runtime::action::ActionLattice;
-use wheelleg_runtime::can::node_map::{Axis, AxisCalibration, Joint, AXIS_COUNT};
-use wheelleg_runtime::can::{NodeId, NodeMap};
+use wheelleg_runtime::can::node_map::{Axis, Joint, AXIS_COUNT};
+use wheelleg_runtime::model::format::RobotRecord;
+use wheelleg_runtime::model::load::{trained_for, TrainedFor};
 use wheelleg_runtime::robot::{LegId, Robot, RobotGeometry};
 
 /// The shipped robot's description, `robots/wheelleg.toml`, as compiled into the tools.
@@ -58,6 +58,36 @@ impl RobotDescription {
             .map_err(|e| format!("cannot read robot description {}: {e}", path.display()))?;
         RobotDescription::from_toml(&text)
             .map_err(|e| format!("robot description {}: {e}", path.display()))
+    }
+
+    /// Whether a policy trained for `trained` (a weights file's robot) may drive this robot:
+    /// the same name, geometry, action lattice, CAN wiring and bit rate. The error names both
+    /// robots and what differs; `what` names the file for the message.
+    pub fn accepts(&self, trained: &TrainedFor<'_>, what: &str) -> Result<(), String> {
+        if trained.name != self.name {
+            return Err(format!(
+                "{what} was trained for robot '{}', and this run drives robot '{}': a policy \
+                 drives only the robot it was trained for",
+                trained.name, self.name
+            ));
+        }
+        let differs = if trained.robot.geometry != self.robot.geometry {
+            Some("geometry")
+        } else if trained.robot.actions != self.robot.actions {
+            Some("action lattice")
+        } else if trained.robot.can != self.robot.can || trained.bit_rate_bps != self.bit_rate_bps {
+            Some("CAN wiring")
+        } else {
+            None
+        };
+        match differs {
+            Some(part) => Err(format!(
+                "{what} was trained for a robot '{}' whose {part} differs from this run's robot \
+                 '{}': a policy drives only the robot it was trained for",
+                trained.name, self.name
+            )),
+            None => Ok(()),
+        }
     }
 
     /// The description as a file's TOML text, which [`RobotDescription::from_toml`] reads back
@@ -255,46 +285,29 @@ fn narrow(range: [f64; 2]) -> [f32; 2] {
 impl DescriptionFile {
     /// The runtime's view of a checked file.
     fn into_description(self) -> Result<RobotDescription, DescriptionError> {
-        let geometry = self.geometry();
-        let actions = ActionLattice {
-            move_step_m: self.actions.move_step_m as f32,
-            yaw_step_deg: self.actions.yaw_step_deg as f32,
-            clearance_step_m: self.actions.clearance_step_m as f32,
-            track_step_m: self.actions.track_step_m as f32,
-        };
         let entries = self.can.axes.entries();
-        let mut node_ids = [NodeId::MIN; AXIS_COUNT];
-        let mut calibration = [AxisCalibration {
-            gear_ratio: 1.0,
-            direction: 1.0,
-            zero_offset_turns: 0.0,
-        }; AXIS_COUNT];
-        for (i, (_, key, entry)) in entries.iter().enumerate() {
-            let id = NodeId::new(entry.node_id).ok_or_else(|| {
-                DescriptionError::new(
-                    format!("can.axes.{key}.node_id"),
-                    "above ODrive's highest node id, 63".into(),
-                )
-            })?;
-            if let (Some(slot), Some(cal)) = (node_ids.get_mut(i), calibration.get_mut(i)) {
-                *slot = id;
-                *cal = AxisCalibration {
-                    gear_ratio: entry.gear_ratio as f32,
-                    direction: f32::from(entry.direction),
-                    zero_offset_turns: 0.0,
-                };
-            }
-        }
-        let can = NodeMap::new(node_ids, calibration).map_err(|e| {
-            DescriptionError::new("can.axes".into(), format!("the node map is refused: {e:?}"))
-        })?;
+        // The runtime's own reading of a weights file's robot record: a description and the
+        // weights trained on it become the same `Robot`.
+        let record = RobotRecord {
+            name: &self.name,
+            geometry: self.geometry().to_array(),
+            actions: [
+                self.actions.move_step_m as f32,
+                self.actions.yaw_step_deg as f32,
+                self.actions.clearance_step_m as f32,
+                self.actions.track_step_m as f32,
+            ],
+            node_ids: entries.map(|(_, _, e)| e.node_id),
+            directions: entries.map(|(_, _, e)| e.direction),
+            gear_ratios: entries.map(|(_, _, e)| e.gear_ratio as f32),
+            bit_rate_bps: self.can.bit_rate_bps,
+        };
+        let robot = trained_for(record)
+            .map_err(|e| DescriptionError::new(String::new(), format!("{e}")))?
+            .robot;
         Ok(RobotDescription {
-            name: self.name,
-            robot: Robot {
-                geometry,
-                actions,
-                can,
-            },
+            name: self.name.clone(),
+            robot,
             bit_rate_bps: self.can.bit_rate_bps,
         })
     }

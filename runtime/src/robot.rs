@@ -139,7 +139,113 @@ pub const WHEELLEG: RobotGeometry = RobotGeometry {
     default_clearance_m: 0.12,
 };
 
+/// Number of fields of [`RobotGeometry`] ([`RobotGeometry::to_array`]).
+pub const GEOMETRY_FIELDS: usize = 20;
+
+/// Why a geometry cannot be driven (a robot record's check; host tools name the description's
+/// key instead).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GeometryError {
+    /// A length that is not finite and positive, or a hip y below 0.
+    BadLength,
+    /// A range that is not finite or not ordered.
+    BadRange,
+    /// The default pose has no leg solution.
+    DefaultUnreachable,
+}
+
 impl RobotGeometry {
+    /// The fields in declaration order, as a weights file's robot record stores them.
+    pub fn to_array(&self) -> [f32; GEOMETRY_FIELDS] {
+        [
+            self.body_length_m,
+            self.body_width_m,
+            self.body_thickness_m,
+            self.hip_x_m,
+            self.hip_y_m,
+            self.thigh_m,
+            self.shank_m,
+            self.link_radius_m,
+            self.wheel_radius_m,
+            self.wheel_width_m,
+            self.hip_range_rad[0],
+            self.hip_range_rad[1],
+            self.knee_range_rad[0],
+            self.knee_range_rad[1],
+            self.track_range_m[0],
+            self.track_range_m[1],
+            self.clearance_range_m[0],
+            self.clearance_range_m[1],
+            self.default_track_m,
+            self.default_clearance_m,
+        ]
+    }
+
+    /// The geometry of [`RobotGeometry::to_array`]'s order, unchecked ([`RobotGeometry::check`]).
+    pub fn from_array(a: [f32; GEOMETRY_FIELDS]) -> RobotGeometry {
+        let [body_length_m, body_width_m, body_thickness_m, hip_x_m, hip_y_m, thigh_m, shank_m, link_radius_m, wheel_radius_m, wheel_width_m, hip_min, hip_max, knee_min, knee_max, track_min, track_max, clearance_min, clearance_max, default_track_m, default_clearance_m] =
+            a;
+        RobotGeometry {
+            body_length_m,
+            body_width_m,
+            body_thickness_m,
+            hip_x_m,
+            hip_y_m,
+            thigh_m,
+            shank_m,
+            link_radius_m,
+            wheel_radius_m,
+            wheel_width_m,
+            hip_range_rad: [hip_min, hip_max],
+            knee_range_rad: [knee_min, knee_max],
+            track_range_m: [track_min, track_max],
+            clearance_range_m: [clearance_min, clearance_max],
+            default_track_m,
+            default_clearance_m,
+        }
+    }
+
+    /// Whether the runtime can drive this geometry: finite positive lengths, ordered finite
+    /// ranges, a default pose with a leg solution. (A robot description is checked more
+    /// closely on the host, each rule naming its key.)
+    pub fn check(&self) -> Result<(), GeometryError> {
+        let positive = [
+            self.body_length_m,
+            self.body_width_m,
+            self.body_thickness_m,
+            self.hip_x_m,
+            self.thigh_m,
+            self.shank_m,
+            self.link_radius_m,
+            self.wheel_radius_m,
+            self.wheel_width_m,
+        ];
+        let lengths_ok = positive.iter().all(|v| v.is_finite() && *v > 0.0);
+        if !(lengths_ok && self.hip_y_m.is_finite() && self.hip_y_m >= 0.0) {
+            return Err(GeometryError::BadLength);
+        }
+        let ranges = [
+            self.hip_range_rad,
+            self.knee_range_rad,
+            self.track_range_m,
+            self.clearance_range_m,
+        ];
+        if !ranges
+            .iter()
+            .all(|r| r[0].is_finite() && r[1].is_finite() && r[0] < r[1])
+        {
+            return Err(GeometryError::BadRange);
+        }
+        let default = crate::leg::LegConfig {
+            clearance_m: self.default_clearance_m,
+            track_m: self.default_track_m,
+        };
+        if self.leg_ik(default).is_err() {
+            return Err(GeometryError::DefaultUnreachable);
+        }
+        Ok(())
+    }
+
     /// Height of the body centre above the ground at a given clearance.
     pub fn body_centre_height_m(&self, clearance_m: f32) -> f32 {
         clearance_m + 0.5 * self.body_thickness_m

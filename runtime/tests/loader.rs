@@ -7,9 +7,12 @@ mod common;
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use wheelleg_runtime::can::node_map::AXIS_COUNT;
+use wheelleg_runtime::can::{NodeId, NodeMap};
 use wheelleg_runtime::model::format::{FORMAT_VERSION, MAGIC, OLDEST_FORMAT_VERSION};
-use wheelleg_runtime::model::load::{Model, MAX_CONV_LAYERS};
+use wheelleg_runtime::model::load::{record_of, Model, TrainedFor, MAX_CONV_LAYERS};
 use wheelleg_runtime::model::{Capacity, DefaultPolicy, LayerRef, LoadError, Policy};
+use wheelleg_runtime::robot::Robot;
 
 use common::*;
 
@@ -24,7 +27,8 @@ fn the_tests_writer_reproduces_the_shipped_file() {
     let bytes = default_bytes();
     let file = WeightsFile::parse(&bytes);
     assert_eq!(file.to_bytes(), bytes);
-    assert_eq!(file.version, FORMAT_VERSION);
+    // The shipped file predates the robot record: version 2, trained for the shipped robot.
+    assert_eq!(file.version, 2);
     assert_eq!(
         file.architecture().convs.len(),
         3,
@@ -77,7 +81,7 @@ fn magic_version_checksum_and_trailing_bytes_are_checked() {
             })
         );
     }
-    assert_eq!((OLDEST_FORMAT_VERSION, FORMAT_VERSION), (1, 2));
+    assert_eq!((OLDEST_FORMAT_VERSION, FORMAT_VERSION), (1, 3));
     // A validly written file of another version is refused the same way.
     let future = envelope_bytes(FORMAT_VERSION + 1, b"anything");
     assert!(matches!(
@@ -373,4 +377,109 @@ fn random_mutations_never_panic() {
     }
     // Mutations of tensor bytes keep a file valid: some must load and run.
     assert!(loaded > 100, "only {loaded} mutated files loaded");
+}
+
+/// A change to a robot record.
+type RecordEdit = fn(&mut wheelleg_runtime::model::format::RobotRecord<'_>);
+
+/// A robot other than the shipped one: other lengths, nodes 21 to 36.
+fn other_robot() -> TrainedRobot {
+    let mut robot = Robot::WHEELLEG;
+    robot.geometry.thigh_m = 0.10;
+    robot.geometry.shank_m = 0.20;
+    robot.geometry.hip_x_m = 0.24;
+    let ids: [NodeId; AXIS_COUNT] = core::array::from_fn(|i| NodeId::new(21 + i as u8).unwrap());
+    robot.can = NodeMap::new(ids, robot.can.calibration).unwrap();
+    TrainedRobot {
+        name: "strider".into(),
+        robot,
+        bit_rate_bps: 500_000,
+    }
+}
+
+#[test]
+fn a_file_names_the_robot_it_was_trained_for() {
+    // Before the robot record: the shipped robot.
+    let shipped_bytes = default_bytes();
+    let shipped = Model::parse(&shipped_bytes).unwrap();
+    assert_eq!(shipped.trained_for, TrainedFor::SHIPPED);
+
+    let mut file = WeightsFile::shipped();
+    file.version = FORMAT_VERSION;
+    file.robot = other_robot();
+    let bytes = file.to_bytes();
+    let model = Model::parse(&bytes).unwrap();
+    assert_eq!(model.trained_for.name, "strider");
+    assert_eq!(model.trained_for.robot, other_robot().robot);
+    assert_eq!(model.trained_for.bit_rate_bps, 500_000);
+    assert_eq!(WeightsFile::parse(&bytes), file);
+    // The tensors are the same as version 2's: the same decisions.
+    let a = DefaultPolicy::from_bytes(&shipped_bytes).unwrap();
+    let b = DefaultPolicy::from_bytes(&bytes).unwrap();
+    assert_eq!(a.model().tensor_bytes(), b.model().tensor_bytes());
+}
+
+#[test]
+fn a_robot_the_runtime_cannot_drive_is_refused_by_what_is_wrong() {
+    let mut cases: Vec<(TrainedRobot, &str)> = Vec::new();
+    let mut bad = other_robot();
+    bad.name = String::new();
+    cases.push((bad, "name"));
+    let mut bad = other_robot();
+    bad.name = "a robot".into();
+    cases.push((bad, "name"));
+    let mut bad = other_robot();
+    bad.name = "r".repeat(33);
+    cases.push((bad, "name"));
+    let mut bad = other_robot();
+    bad.robot.geometry.shank_m = f32::NAN;
+    cases.push((bad, "geometry: a length"));
+    let mut bad = other_robot();
+    bad.robot.geometry.knee_range_rad = [2.8, 0.0];
+    cases.push((bad, "geometry: a range"));
+    let mut bad = other_robot();
+    bad.robot.geometry.default_clearance_m = 0.9;
+    bad.robot.geometry.clearance_range_m = [0.04, 1.0];
+    cases.push((bad, "geometry: the default pose"));
+    let mut bad = other_robot();
+    bad.robot.actions.yaw_step_deg = 0.0;
+    cases.push((bad, "action lattice"));
+    let mut bad = other_robot();
+    bad.bit_rate_bps = 0;
+    cases.push((bad, "bit rate"));
+    for (robot, what) in cases {
+        let mut file = WeightsFile::shipped();
+        file.version = FORMAT_VERSION;
+        file.robot = robot;
+        assert_eq!(
+            Model::parse(&file.to_bytes()).err(),
+            Some(LoadError::InvalidRobot { what }),
+        );
+    }
+    // The node map: a record with two axes on one node, one on node 0, a direction of 0.
+    let mut file = WeightsFile::shipped();
+    file.version = FORMAT_VERSION;
+    let payload = file.payload_bytes();
+    let record = record_of("wheelleg", &Robot::WHEELLEG, 1_000_000);
+    let mut encoded = Vec::new();
+    push(&mut encoded, &record);
+    let record_len = encoded.len();
+    let head = &payload[..payload.len() - record_len];
+    let edits: [(&str, RecordEdit); 3] = [
+        ("node ids: two axes share one", |r| {
+            r.node_ids[3] = r.node_ids[0]
+        }),
+        ("node ids: an axis on node 0", |r| r.node_ids[7] = 0),
+        ("motor direction", |r| r.directions[12] = 0),
+    ];
+    for (what, edit) in edits {
+        let mut record = record;
+        edit(&mut record);
+        let mut bytes = head.to_vec();
+        push(&mut bytes, &record);
+        assert_eq!(
+            Model::parse(&envelope_bytes(FORMAT_VERSION, &bytes)).err(),
+            Some(LoadError::InvalidRobot { what }),
+        );
+    }
 }

@@ -7,6 +7,7 @@ use super::CliResult;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use std::path::PathBuf;
+use wheelleg_robot::RobotDescription;
 use wheelleg_runtime::model::format::MAGIC;
 use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::generate::generate_many;
@@ -110,6 +111,11 @@ pub fn run(args: Args) -> CliResult {
     let report = if bytes.starts_with(&MAGIC) {
         let policy = Int8Policy::from_bytes(&bytes)
             .map_err(|e| format!("{}: {e}", args.policy.display()))?;
+        // The simulator runs the shipped robot (robots/wheelleg.toml).
+        RobotDescription::shipped().accepts(
+            &policy.model().trained_for,
+            &args.policy.display().to_string(),
+        )?;
         evaluate(&policy, &scenarios, &options, &mut rng)?
     } else {
         let net = wheelleg_trainer::checkpoint::Checkpoint::from_bytes(&bytes)

@@ -3,6 +3,8 @@
 
 use super::CliResult;
 use std::path::PathBuf;
+use wheelleg_runtime::can::Axis;
+use wheelleg_runtime::model::format::ROBOT_RECORD_VERSION;
 use wheelleg_runtime::model::load::Model;
 
 /// Arguments of `inspect`.
@@ -21,6 +23,27 @@ pub fn run(args: Args) -> CliResult {
         args.file.display(),
         bytes.len(),
         model.version
+    );
+    let trained = &model.trained_for;
+    let g = &trained.robot.geometry;
+    outln!(
+        "robot     '{}'{}: thigh {} m, shank {} m, hips at x {} m, y {} m, wheels {} m; CAN nodes {}",
+        trained.name,
+        if model.version < ROBOT_RECORD_VERSION {
+            " (files before format version 3 were all trained for the shipped robot)"
+        } else {
+            ""
+        },
+        g.thigh_m,
+        g.shank_m,
+        g.hip_x_m,
+        g.hip_y_m,
+        g.wheel_radius_m,
+        Axis::ALL
+            .iter()
+            .map(|&axis| trained.robot.can.node_id(axis).get().to_string())
+            .collect::<Vec<_>>()
+            .join(" ")
     );
     let input = &model.input;
     outln!(

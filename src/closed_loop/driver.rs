@@ -148,6 +148,10 @@ impl<'a> PolicyDriver<'a> {
             )));
         }
         let policy = DefaultPolicy::from_bytes(bytes).map_err(|e| unusable(&e))?;
+        // The closed loop runs the shipped robot (robots/wheelleg.toml).
+        wheelleg_robot::RobotDescription::shipped()
+            .accepts(&policy.model().trained_for, label)
+            .map_err(DriverError)?;
         let lookahead = match stack.lookahead {
             Some(config) => Some((
                 Lookahead::new(config),

@@ -25,7 +25,6 @@ use wheelleg_controller::stack::{
 use wheelleg_runtime::can::CanFrame;
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::model::Kernel;
-use wheelleg_runtime::robot::WHEELLEG;
 
 use qemu::{tag, Clock, ReplayBoard, ReplayCan, Uart};
 use semihosting::{exit, File, Mode};
@@ -300,7 +299,7 @@ fn run_episode(
     let mut board = ReplayBoard {
         can: ReplayCan::new(input, frames),
     };
-    let mut control: Control<CanFrame> = Control::new(WHEELLEG, start);
+    let mut control: Control<CanFrame> = Control::new(&stack.robot(), start);
     loop {
         let Some(entry) = board.can.next_tag() else {
             return Err(b"episode.bin truncated");

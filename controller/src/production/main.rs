@@ -30,7 +30,6 @@ use wheelleg_controller::stack::{
 use wheelleg_controller::wire::{self, stop_reason, FromController, ToController, WireError};
 use wheelleg_runtime::can::CanFrame;
 use wheelleg_runtime::model::Outputs;
-use wheelleg_runtime::robot::WHEELLEG;
 
 use board::{SlcanBoard, Uart};
 use observation_link::{Link, Received};
@@ -258,7 +257,7 @@ fn main() -> ! {
                 let control = match &mut control {
                     Some(control) => control,
                     empty => {
-                        let started = empty.insert(Control::new(WHEELLEG, observation.legs()));
+                        let started = empty.insert(Control::new(&stack.robot(), observation.legs()));
                         if started.start_up(&mut board).is_err() {
                             started.stop(StopReason::StartupFailed);
                         }

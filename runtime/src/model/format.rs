@@ -9,7 +9,8 @@
 //! 3. a sequence of [`ConvRecord`] (the conv stack, first layer first);
 //! 4. a sequence of [`DenseRecord`] (the hidden dense stack);
 //! 5. one [`DenseRecord`] (the action head);
-//! 6. an `Option<DenseRecord>` (the value head).
+//! 6. an `Option<DenseRecord>` (the value head);
+//! 7. from version 3 on, a [`RobotRecord`]: the robot the policy was trained for.
 //!
 //! A writer with an allocator serializes a struct with these six fields (sequences as `Vec`s,
 //! as the trainer does), which gives exactly those bytes; the runtime reads the six parts one after another
@@ -39,8 +40,14 @@ use serde::{Deserialize, Serialize};
 /// First four bytes of every weights file.
 pub const MAGIC: [u8; 4] = *b"WLWM";
 /// The format version the trainer writes and the newest this runtime reads (int16 action
-/// logits; see the module docs).
-pub const FORMAT_VERSION: u16 = 2;
+/// logits, the robot record; see the module docs).
+pub const FORMAT_VERSION: u16 = 3;
+/// The first version whose payload ends with a [`RobotRecord`]. Files of earlier versions were
+/// all trained for the shipped robot ([`crate::robot::Robot::WHEELLEG`]), which the loader
+/// takes for them.
+pub const ROBOT_RECORD_VERSION: u16 = 3;
+/// Longest robot name a file may carry, in bytes.
+pub const MAX_ROBOT_NAME_BYTES: usize = 32;
 /// The oldest format version this runtime reads (int8 action logits and state).
 pub const OLDEST_FORMAT_VERSION: u16 = 1;
 /// Bits by which a version 2 state feature refines its int8 grid: the feature is an int16
@@ -166,4 +173,29 @@ pub struct DenseRecord<'a> {
     /// `out` i8 requantization shifts.
     #[serde(borrow)]
     pub shifts: &'a [u8],
+}
+
+/// The robot a policy was trained for (version 3 on): its name, geometry, action lattice and
+/// CAN wiring, everything the runtime needs to drive it. The loader checks it as a robot
+/// description is checked (lengths, ranges, a default pose with a leg solution, the node map)
+/// and refuses a file whose robot cannot be driven.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RobotRecord<'a> {
+    /// The robot's name (letters, digits, `-`, `_`; at most [`MAX_ROBOT_NAME_BYTES`]).
+    #[serde(borrow)]
+    pub name: &'a str,
+    /// [`crate::robot::RobotGeometry`]'s fields in declaration order
+    /// ([`crate::robot::RobotGeometry::to_array`]).
+    pub geometry: [f32; crate::robot::GEOMETRY_FIELDS],
+    /// [`crate::action::ActionLattice`]: move step (m), yaw step (degrees), clearance step (m),
+    /// track step (m).
+    pub actions: [f32; 4],
+    /// Each axis's CAN node id, in [`crate::can::Axis::ALL`] order.
+    pub node_ids: [u8; crate::can::node_map::AXIS_COUNT],
+    /// Each axis's motor direction, +1 or -1.
+    pub directions: [i8; crate::can::node_map::AXIS_COUNT],
+    /// Each axis's gear ratio (motor turns per output turn).
+    pub gear_ratios: [f32; crate::can::node_map::AXIS_COUNT],
+    /// The bus's bit rate.
+    pub bit_rate_bps: u32,
 }

@@ -17,14 +17,16 @@ use wheelleg_runtime::model::format::{
     ActQuantRecord, ConvRecord, DenseRecord, Envelope, InputQuantRecord, InputRecord,
     FORMAT_VERSION, MAGIC,
 };
-use wheelleg_runtime::model::load::open_envelope;
+use wheelleg_runtime::model::format::{RobotRecord, ROBOT_RECORD_VERSION};
+use wheelleg_runtime::model::load::{open_envelope, record_of, trained_for};
+use wheelleg_runtime::robot::Robot;
 
 mod inputs;
 pub use inputs::raw_inputs_mm;
 
 /// The shipped weights file (`weights/policy.wlw`, in the repository): the default architecture,
 /// 3 convs 16-32-32 over the 32 x 32 map, 4 state features, one hidden layer of 128, the action
-/// head and a value head, format version 2.
+/// head and a value head, format version 2 (no robot record: trained for the shipped robot).
 pub fn shipped_bytes() -> Vec<u8> {
     std::fs::read(concat!(
         env!("CARGO_MANIFEST_DIR"),
@@ -92,6 +94,27 @@ pub struct WeightsFile {
     pub hidden: Vec<Dense>,
     pub action_head: Dense,
     pub value_head: Option<Dense>,
+    /// The robot record (written from version 3 on): name, robot, bit rate.
+    pub robot: TrainedRobot,
+}
+
+/// The robot a file was trained for, owned.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrainedRobot {
+    pub name: String,
+    pub robot: Robot,
+    pub bit_rate_bps: u32,
+}
+
+impl TrainedRobot {
+    /// The shipped robot, what files before the robot record were trained for.
+    pub fn shipped() -> TrainedRobot {
+        TrainedRobot {
+            name: "wheelleg".into(),
+            robot: Robot::WHEELLEG,
+            bit_rate_bps: 1_000_000,
+        }
+    }
 }
 
 /// An architecture for [`WeightsFile::synthetic`].
@@ -194,7 +217,7 @@ fn dense_from(record: &DenseRecord<'_>) -> Dense {
 }
 
 /// Appends the postcard encoding of `value`.
-fn push<T: Serialize>(out: &mut Vec<u8>, value: &T) {
+pub fn push<T: Serialize>(out: &mut Vec<u8>, value: &T) {
     let mut buffer = vec![0u8; 1 << 22];
     let used = postcard::to_slice(value, &mut buffer).unwrap().len();
     out.extend_from_slice(&buffer[..used]);
@@ -262,7 +285,18 @@ impl WeightsFile {
             .collect();
         let action_head = dense_from(&take::<DenseRecord<'_>>(&mut payload));
         let value_head = take::<Option<DenseRecord<'_>>>(&mut payload).map(|r| dense_from(&r));
-        assert!(payload.is_empty(), "bytes after the value head");
+        let robot = if version >= ROBOT_RECORD_VERSION {
+            let record: RobotRecord<'_> = take(&mut payload);
+            let found = trained_for(record).unwrap();
+            TrainedRobot {
+                name: found.name.into(),
+                robot: found.robot,
+                bit_rate_bps: found.bit_rate_bps,
+            }
+        } else {
+            TrainedRobot::shipped()
+        };
+        assert!(payload.is_empty(), "bytes after the last record");
         WeightsFile {
             version,
             input,
@@ -271,6 +305,7 @@ impl WeightsFile {
             hidden,
             action_head,
             value_head,
+            robot,
         }
     }
 
@@ -279,7 +314,8 @@ impl WeightsFile {
         WeightsFile::parse(&shipped_bytes())
     }
 
-    /// The payload: the six parts of the format, one after another.
+    /// The payload: the parts of the format, one after another (the robot record from
+    /// version 3 on).
     pub fn payload_bytes(&self) -> Vec<u8> {
         let mut out = Vec::new();
         push(&mut out, &self.input);
@@ -324,6 +360,12 @@ impl WeightsFile {
                 .as_ref()
                 .map(|(head, bytes)| dense_record(head, bytes)),
         );
+        if self.version >= ROBOT_RECORD_VERSION {
+            push(
+                &mut out,
+                &record_of(&self.robot.name, &self.robot.robot, self.robot.bit_rate_bps),
+            );
+        }
         out
     }
 
@@ -408,6 +450,7 @@ impl WeightsFile {
             hidden,
             action_head,
             value_head,
+            robot: TrainedRobot::shipped(),
         }
     }
 

@@ -2,6 +2,7 @@
 
 use std::fmt;
 
+use wheelleg_robot::RobotDescription;
 use wheelleg_runtime::model::format::{FORMAT_VERSION, OLDEST_FORMAT_VERSION, STATE_FRACTION_BITS};
 use wheelleg_runtime::model::load::MAX_BIAS_ABS;
 
@@ -118,8 +119,9 @@ pub struct QuantizedDense {
 /// The whole network in int8, ready to be written.
 #[derive(Clone, Debug, PartialEq)]
 pub struct QuantizedNetwork {
-    /// Weights format version this network is quantized for and written as: 2 (int16 action
-    /// logits, `action_head.layer.output` symmetric with zero point 0) or 1 (int8 logits).
+    /// Weights format version this network is quantized for and written as: 3 (the robot
+    /// record after the tensors), 2 (int16 action logits, `action_head.layer.output`
+    /// symmetric with zero point 0) or 1 (int8 logits).
     pub version: u16,
     /// Shape.
     pub arch: Architecture,
@@ -137,6 +139,9 @@ pub struct QuantizedNetwork {
     pub action_head: QuantizedDense,
     /// Value head.
     pub value_head: Option<QuantizedDense>,
+    /// The robot the network was trained for, written as the file's robot record (version 3
+    /// on). The trainer trains the shipped robot.
+    pub robot: RobotDescription,
 }
 
 fn act_quant(observer: &RangeObserver, method: RangeMethod) -> ActQuant {
@@ -395,5 +400,6 @@ pub fn quantize_for_version(
         hidden,
         action_head,
         value_head,
+        robot: RobotDescription::shipped(),
     })
 }

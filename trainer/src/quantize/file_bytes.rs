@@ -5,8 +5,9 @@ use serde::Serialize;
 use wheelleg_runtime::model::crc32::crc32;
 use wheelleg_runtime::model::format::{
     ActQuantRecord, ConvRecord, DenseRecord, Envelope, InputQuantRecord, InputRecord,
-    FORMAT_VERSION, MAGIC, OLDEST_FORMAT_VERSION,
+    FORMAT_VERSION, MAGIC, OLDEST_FORMAT_VERSION, ROBOT_RECORD_VERSION,
 };
+use wheelleg_runtime::model::load::record_of;
 
 use super::params::ActQuant;
 
@@ -161,11 +162,23 @@ impl QuantizedNetwork {
                 _ => None,
             },
         };
-        postcard::to_allocvec(&payload).map_err(|e| QuantizeError::Encode(e.to_string()))
+        let mut bytes =
+            postcard::to_allocvec(&payload).map_err(|e| QuantizeError::Encode(e.to_string()))?;
+        if self.version >= ROBOT_RECORD_VERSION {
+            // The seventh part: postcard lays out a struct as its fields one after another, so
+            // appending the record is the payload with the record as a last field.
+            let robot = &self.robot;
+            let record = record_of(&robot.name, &robot.robot, robot.bit_rate_bps);
+            bytes.extend(
+                postcard::to_allocvec(&record).map_err(|e| QuantizeError::Encode(e.to_string()))?,
+            );
+        }
+        Ok(bytes)
     }
 
     /// The complete `.wlw` file, of format version [`QuantizedNetwork::version`] (the payload
-    /// bytes are laid out the same in versions 1 and 2; only the head's meaning differs).
+    /// bytes are laid out the same in versions 1 and 2, only the head's meaning differs;
+    /// version 3 adds the robot record).
     pub fn to_bytes(&self) -> Result<Vec<u8>, QuantizeError> {
         if !(OLDEST_FORMAT_VERSION..=FORMAT_VERSION).contains(&self.version) {
             return Err(QuantizeError::Version(self.version));

@@ -91,6 +91,11 @@ pub enum LoadError {
         /// Which parameter.
         what: &'static str,
     },
+    /// The robot record (version 3 on) describes a robot the runtime cannot drive.
+    InvalidRobot {
+        /// What is wrong with it.
+        what: &'static str,
+    },
     /// The model needs more than a compile-time capacity.
     ExceedsCapacity {
         /// Which capacity.
@@ -136,6 +141,9 @@ impl fmt::Display for LoadError {
             ),
             LoadError::InvalidParameter { layer, what } => {
                 write!(f, "{layer:?}: invalid {what}")
+            }
+            LoadError::InvalidRobot { what } => {
+                write!(f, "the robot the policy was trained for: invalid {what}")
             }
             LoadError::ExceedsCapacity {
                 what,

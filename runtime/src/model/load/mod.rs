@@ -10,12 +10,16 @@
 
 use heapless::Vec;
 
-use super::format::{ActQuantRecord, ConvRecord, DenseRecord, InputQuantRecord, InputRecord};
+use super::format::{
+    ActQuantRecord, ConvRecord, DenseRecord, InputQuantRecord, InputRecord, RobotRecord,
+    ROBOT_RECORD_VERSION,
+};
 use crate::action::{CHOICES, DIMS};
 
 mod checks;
 mod error;
 mod layers;
+mod robot;
 
 use checks::{
     check_input_quant, check_linear, dense_layer, expect_len, layer_index, logit_head, take,
@@ -24,6 +28,7 @@ use checks::{
 pub use checks::{i32_at, open_envelope};
 pub use error::{Capacity, LayerRef, LoadError};
 pub use layers::{ConvLayer, DenseLayer, Linear, Requirements};
+pub use robot::{record_of, trained_for, TrainedFor};
 
 /// Most conv layers a model may have (sizes the layer table, not the activations).
 pub const MAX_CONV_LAYERS: usize = 8;
@@ -71,6 +76,9 @@ pub struct Model<'a> {
     pub features_quant: ActQuantRecord,
     /// Buffer sizes this model needs.
     pub requirements: Requirements,
+    /// The robot the policy was trained for: the file's robot record (version 3 on), the
+    /// shipped robot for older files.
+    pub trained_for: TrainedFor<'a>,
 }
 
 impl<'a> Model<'a> {
@@ -235,9 +243,16 @@ impl<'a> Model<'a> {
             }
             None => None,
         };
+        let (trained_for, rest) = if version >= ROBOT_RECORD_VERSION {
+            let (record, rest) =
+                take::<RobotRecord<'a>>(rest, corrupt("robot record"), "robot record")?;
+            (trained_for(record)?, rest)
+        } else {
+            (TrainedFor::SHIPPED, rest)
+        };
         if !rest.is_empty() {
             return Err(LoadError::Corrupt {
-                part: "bytes after the value head",
+                part: "bytes after the last record",
             });
         }
         Ok(Model {
@@ -256,6 +271,7 @@ impl<'a> Model<'a> {
                 activation_elements,
                 row_elements,
             },
+            trained_for,
         })
     }
 
