@@ -118,7 +118,7 @@ impl<'w> Robot<'w> {
         }
         Ok(Robot {
             driver,
-            guard: CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M),
+            guard: CollisionGuard::new(&wheelleg_runtime::robot::Robot::WHEELLEG, DEFAULT_MARGIN_M),
         })
     }
 

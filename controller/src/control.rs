@@ -104,7 +104,7 @@ impl From<MotionError> for ControlError {
 
 /// The robot's motion side: commanded legs, odometry, axis feedback and the frames out.
 pub struct Control<F: Frame> {
-    geometry: RobotGeometry,
+    robot: Robot,
     motion: MotionConfig,
     commander: Commander,
     tracker: FeedbackTracker,
@@ -123,7 +123,7 @@ impl<F: Frame> Control<F> {
     /// idle.
     pub fn new(robot: &Robot, start: LegConfig) -> Control<F> {
         Control {
-            geometry: robot.geometry,
+            robot: *robot,
             motion: MotionConfig::default(),
             commander: Commander::new(robot.can),
             tracker: FeedbackTracker::new(robot.can),
@@ -190,11 +190,11 @@ impl<F: Frame> Control<F> {
         }
         if let (Some(wheels), Some(legs)) = (
             self.tracker.wheel_speeds(),
-            self.tracker.leg_config(&self.geometry),
+            self.tracker.leg_config(&self.robot.geometry),
         ) {
             // A measured configuration the base cannot take is skipped, not fatal: the
             // health check below is what stops the robot.
-            if let Ok(base) = MecanumBase::at(&self.geometry, legs) {
+            if let Ok(base) = MecanumBase::at(&self.robot.geometry, legs) {
                 let _ = self.odometry.integrate_wheels(&base, wheels, self.tick_s());
             }
         }
@@ -238,14 +238,14 @@ impl<F: Frame> Control<F> {
 
     /// One supervised period holding the commanded legs, wheels stopped (or the safe stop).
     pub fn hold<B: Board<Frame = F>>(&mut self, board: &mut B) -> Result<(), ControlError> {
-        let hold = Setpoint::hold(&self.geometry, self.legs)?;
+        let hold = Setpoint::hold(&self.robot.geometry, self.legs)?;
         self.tick(board, &hold, true)
     }
 
     /// Arms every axis and holds the start pose until all report closed loop.
     pub fn start_up<B: Board<Frame = F>>(&mut self, board: &mut B) -> Result<(), ControlError> {
         self.commander.queue_startup(&mut self.tx)?;
-        let hold = Setpoint::hold(&self.geometry, self.legs)?;
+        let hold = Setpoint::hold(&self.robot.geometry, self.legs)?;
         for _ in 0..STARTUP_TICKS {
             self.tick(board, &hold, false)?;
         }
@@ -269,7 +269,7 @@ impl<F: Frame> Control<F> {
         board: &mut B,
         action: Action,
     ) -> Result<(), ControlError> {
-        let motion = StepMotion::plan(&self.geometry, &self.motion, self.legs, action)?;
+        let motion = StepMotion::plan(&self.robot, &self.motion, self.legs, action)?;
         self.drive(board, motion)
     }
 
@@ -286,7 +286,7 @@ impl<F: Frame> Control<F> {
             dyaw_rad: back.rotation.angle(),
         };
         let motion =
-            StepMotion::plan_between(&self.geometry, &self.motion, self.legs, start, back)?;
+            StepMotion::plan_between(&self.robot.geometry, &self.motion, self.legs, start, back)?;
         self.drive(board, motion)
     }
 
@@ -304,7 +304,7 @@ impl<F: Frame> Control<F> {
             }
         }
         self.legs = target;
-        let hold = Setpoint::hold(&self.geometry, self.legs)?;
+        let hold = Setpoint::hold(&self.robot.geometry, self.legs)?;
         let ticks = libm_round(SETTLE_S / self.tick_s());
         for _ in 0..ticks {
             self.tick(board, &hold, true)?;
@@ -314,7 +314,7 @@ impl<F: Frame> Control<F> {
 
     /// The measured legs, if every joint has reported.
     pub fn measured_legs(&self) -> Option<LegConfig> {
-        self.tracker.leg_config(&self.geometry)
+        self.tracker.leg_config(&self.robot.geometry)
     }
 }
 

@@ -167,7 +167,7 @@ impl<'w, 'd, const STATES: usize> Stack<'w, 'd, STATES> {
     pub fn new(weights: &'w [u8], decider: &'d mut Decider<STATES>) -> Result<Self, StackError> {
         let policy = ControllerPolicy::from_bytes(weights).map_err(StackError::Load)?;
         let robot = policy.model().trained_for.robot;
-        let guard = CollisionGuard::new(robot.geometry, DEFAULT_MARGIN_M);
+        let guard = CollisionGuard::new(&robot, DEFAULT_MARGIN_M);
         let window = guard.fine_window(FINE_SIDE, FINE_CELL_M);
         if window.cells() > WINDOW_CELLS {
             return Err(StackError::Window);
@@ -253,7 +253,8 @@ impl<'w, 'd, const STATES: usize> Stack<'w, 'd, STATES> {
     ) -> DecisionRecord {
         let legs = observation.legs();
         let key = ObservationKey::of_mm(&observation.height_mm, &observation.state_mm);
-        let arrival = Arrival::from_state_mm(&observation.state_mm, DEFAULT_RADIUS_M);
+        let arrival =
+            Arrival::from_state_mm(&observation.state_mm, DEFAULT_RADIUS_M, &self.robot.actions);
         let greedy = outputs.action();
         let greedy_verdict = match self.guard.check(map, legs, greedy) {
             Ok(()) => 0,

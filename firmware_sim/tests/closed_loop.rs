@@ -19,7 +19,7 @@ use wheelleg_runtime::can::protocol::{axis_error, AxisState};
 use wheelleg_runtime::can::NodeMap;
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::motion::{MotionConfig, StepMotion};
-use wheelleg_runtime::robot::{LegId, WHEELLEG};
+use wheelleg_runtime::robot::{LegId, Robot, WHEELLEG};
 
 const POSITION_TOLERANCE_M: f32 = 0.002;
 const YAW_TOLERANCE_RAD: f32 = 0.2 * std::f32::consts::PI / 180.0;
@@ -145,7 +145,13 @@ fn watchdog_stops_wheels_holds_legs_and_reports_the_error() {
         clearance: Step::Minus,
         ..Action::IDLE
     };
-    let motion = StepMotion::plan(&WHEELLEG, &MotionConfig::default(), rig.legs(), action).unwrap();
+    let motion = StepMotion::plan(
+        &Robot::WHEELLEG,
+        &MotionConfig::default(),
+        rig.legs(),
+        action,
+    )
+    .unwrap();
     let half = motion.len() / 2;
     for setpoint in motion.take(half) {
         rig.drive(&setpoint).unwrap();
@@ -341,7 +347,7 @@ fn a_stop_in_the_middle_of_a_step_rests_on_the_steps_path() {
             (legs.track_m - track_on_path_m).abs() < legs_tolerance_m,
             "{fault:?}: legs {legs:?} off the path at progress {s}"
         );
-        let on_path = BaseDisplacement::of_action(action).isometry_at(s);
+        let on_path = BaseDisplacement::of_action(action, &Robot::WHEELLEG.actions).isometry_at(s);
         let off = on_path.inverse() * rig.true_pose();
         assert!(
             off.translation.vector.norm() < pose_tolerance_m,

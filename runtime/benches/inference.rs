@@ -24,7 +24,7 @@ use wheelleg_runtime::guard::{CollisionGuard, GridMap, HeightMapRef, DEFAULT_MAR
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::model::{DefaultPolicy, Kernel, Scratch};
 use wheelleg_runtime::observation::HEIGHT_MAP_CELLS;
-use wheelleg_runtime::robot::WHEELLEG;
+use wheelleg_runtime::robot::{Robot, WHEELLEG};
 
 /// A few boxes on flat ground (millimetres), and a plausible state (clearance, track, target x,
 /// target y, millimetres).
@@ -83,7 +83,7 @@ fn bench_decision(c: &mut Criterion) {
     });
     // The collision guard's check of one action that passes (so every pose and column is
     // looked at: its full cost), beside a wall and a bar near the robot.
-    let guard = CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M);
+    let guard = CollisionGuard::new(&Robot::WHEELLEG, DEFAULT_MARGIN_M);
     let legs = LegConfig {
         clearance_m: WHEELLEG.default_clearance_m,
         track_m: WHEELLEG.default_track_m,

@@ -17,7 +17,7 @@
 //! a straight way) and added collisions where the guard's map misses an obstacle's edge
 //! (docs/results.md, "The last step").
 
-use crate::action::{Action, Step, CHOICES, DIMS};
+use crate::action::{Action, ActionLattice, Step, CHOICES, DIMS};
 use crate::decision::{Checked, Decider, ObservationKey};
 use crate::motion::BaseDisplacement;
 use nalgebra::Vector2;
@@ -30,35 +30,38 @@ pub const DEFAULT_RADIUS_M: f32 = 0.05;
 pub struct Arrival {
     target_m: Vector2<f32>,
     radius_m: f32,
+    lattice: ActionLattice,
 }
 
 impl Arrival {
     /// The target at `target_m` in the robot frame (x ahead, y left), reached once the body
-    /// centre is within `radius_m` of it. A non-finite target or radius arrives nowhere.
-    pub fn new(target_m: Vector2<f32>, radius_m: f32) -> Arrival {
+    /// centre is within `radius_m` of it by a step of `lattice`. A non-finite target or radius
+    /// arrives nowhere.
+    pub fn new(target_m: Vector2<f32>, radius_m: f32, lattice: &ActionLattice) -> Arrival {
         let finite = target_m.x.is_finite() && target_m.y.is_finite() && radius_m.is_finite();
         Arrival {
             target_m: if finite { target_m } else { Vector2::zeros() },
             radius_m: if finite { radius_m } else { -1.0 },
+            lattice: *lattice,
         }
     }
 
     /// The target as the policy's state vector holds it (millimetres, robot frame: entries 2
     /// and 3, [`crate::observation::STATE_LEN`]).
-    pub fn from_state_mm(state_mm: &[i32], radius_m: f32) -> Arrival {
+    pub fn from_state_mm(state_mm: &[i32], radius_m: f32, lattice: &ActionLattice) -> Arrival {
         let mm = |i: usize| state_mm.get(i).map_or(f32::NAN, |&v| v as f32 * 1.0e-3);
-        Arrival::new(Vector2::new(mm(2), mm(3)), radius_m)
+        Arrival::new(Vector2::new(mm(2), mm(3)), radius_m, lattice)
     }
 
     /// The target as a state vector in metres holds it (entries 2 and 3).
-    pub fn from_state_m(state_m: &[f32], radius_m: f32) -> Arrival {
+    pub fn from_state_m(state_m: &[f32], radius_m: f32, lattice: &ActionLattice) -> Arrival {
         let m = |i: usize| state_m.get(i).copied().unwrap_or(f32::NAN);
-        Arrival::new(Vector2::new(m(2), m(3)), radius_m)
+        Arrival::new(Vector2::new(m(2), m(3)), radius_m, lattice)
     }
 
     /// Whether taking `action` ends with the body centre within the radius of the target.
     pub fn reached_by(&self, action: Action) -> bool {
-        let step = BaseDisplacement::of_action(action);
+        let step = BaseDisplacement::of_action(action, &self.lattice);
         crate::trig::hypot(self.target_m.x - step.dx_m, self.target_m.y - step.dy_m)
             <= self.radius_m
     }
@@ -111,7 +114,11 @@ mod tests {
 
     #[test]
     fn a_target_behind_and_left_is_reached_by_moving_back_and_left() {
-        let arrival = Arrival::new(Vector2::new(-0.049, 0.034), DEFAULT_RADIUS_M);
+        let arrival = Arrival::new(
+            Vector2::new(-0.049, 0.034),
+            DEFAULT_RADIUS_M,
+            &ActionLattice::PAPER,
+        );
         assert!(arrival.within_one_step());
         let mut decider: Decider = Decider::new();
         let checked = arrival.choose(&mut decider, ObservationKey(1), &forward_logits());
@@ -125,7 +132,11 @@ mod tests {
 
     #[test]
     fn far_from_the_target_the_policy_decides_alone() {
-        let arrival = Arrival::new(Vector2::new(-0.5, 0.3), DEFAULT_RADIUS_M);
+        let arrival = Arrival::new(
+            Vector2::new(-0.5, 0.3),
+            DEFAULT_RADIUS_M,
+            &ActionLattice::PAPER,
+        );
         assert!(!arrival.within_one_step());
         let mut decider: Decider = Decider::new();
         let checked = arrival.choose(&mut decider, ObservationKey(1), &forward_logits());
@@ -135,7 +146,11 @@ mod tests {
 
     #[test]
     fn a_refused_arrival_is_not_retried_with_another_turn() {
-        let arrival = Arrival::new(Vector2::new(0.06, 0.0), DEFAULT_RADIUS_M);
+        let arrival = Arrival::new(
+            Vector2::new(0.06, 0.0),
+            DEFAULT_RADIUS_M,
+            &ActionLattice::PAPER,
+        );
         let mut decider: Decider = Decider::new();
         let key = ObservationKey(1);
         let first = arrival.choose(&mut decider, key, &forward_logits());
@@ -150,8 +165,16 @@ mod tests {
     #[test]
     fn reached_matches_the_step_geometry() {
         // 0.12 m ahead: a forward step leaves 0.07 m, outside 5 cm; at 0.09 m it leaves 0.04 m.
-        let far = Arrival::new(Vector2::new(0.12, 0.0), DEFAULT_RADIUS_M);
-        let near = Arrival::new(Vector2::new(0.09, 0.0), DEFAULT_RADIUS_M);
+        let far = Arrival::new(
+            Vector2::new(0.12, 0.0),
+            DEFAULT_RADIUS_M,
+            &ActionLattice::PAPER,
+        );
+        let near = Arrival::new(
+            Vector2::new(0.09, 0.0),
+            DEFAULT_RADIUS_M,
+            &ActionLattice::PAPER,
+        );
         let forward = Action {
             move_x: Step::Plus,
             ..Action::IDLE
@@ -163,9 +186,23 @@ mod tests {
 
     #[test]
     fn bad_data_arrives_nowhere() {
-        assert!(!Arrival::new(Vector2::new(f32::NAN, 0.0), DEFAULT_RADIUS_M).within_one_step());
-        assert!(!Arrival::new(Vector2::new(0.0, 0.0), f32::INFINITY).within_one_step());
-        assert!(!Arrival::from_state_mm(&[0, 0], DEFAULT_RADIUS_M).within_one_step());
-        assert!(Arrival::from_state_mm(&[0, 0, 30, 0], DEFAULT_RADIUS_M).within_one_step());
+        assert!(!Arrival::new(
+            Vector2::new(f32::NAN, 0.0),
+            DEFAULT_RADIUS_M,
+            &ActionLattice::PAPER
+        )
+        .within_one_step());
+        assert!(
+            !Arrival::new(Vector2::new(0.0, 0.0), f32::INFINITY, &ActionLattice::PAPER)
+                .within_one_step()
+        );
+        assert!(
+            !Arrival::from_state_mm(&[0, 0], DEFAULT_RADIUS_M, &ActionLattice::PAPER)
+                .within_one_step()
+        );
+        assert!(
+            Arrival::from_state_mm(&[0, 0, 30, 0], DEFAULT_RADIUS_M, &ActionLattice::PAPER)
+                .within_one_step()
+        );
     }
 }

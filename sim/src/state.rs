@@ -9,7 +9,7 @@ use nalgebra::{Isometry3, Point2, Translation3, UnitQuaternion, Vector2, Vector3
 use wheelleg_runtime::action::{Action, CLEARANCE_STEP_M, TRACK_STEP_M, YAW_STEP_DEG};
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::motion::BaseDisplacement;
-use wheelleg_runtime::robot::RobotGeometry;
+use wheelleg_runtime::robot::{Robot, RobotGeometry};
 
 /// Number of yaw steps in a full turn.
 pub const YAW_STEPS_PER_TURN: i32 = (360.0 / YAW_STEP_DEG) as i32;
@@ -65,7 +65,7 @@ impl RobotState {
         // The controller's definition of a step (runtime::motion), so both sides agree.
         let BaseDisplacement {
             dx_m: dx, dy_m: dy, ..
-        } = BaseDisplacement::of_action(action);
+        } = BaseDisplacement::of_action(action, &Robot::WHEELLEG.actions);
         RobotState {
             position: self.position + Vector2::new(cos * dx - sin * dy, sin * dx + cos * dy),
             yaw_steps: (self.yaw_steps + action.yaw.sign() as i32).rem_euclid(YAW_STEPS_PER_TURN),

@@ -12,7 +12,7 @@ use rand_chacha::ChaCha8Rng;
 use wheelleg_runtime::action::{Action, COUNT};
 use wheelleg_runtime::guard::{CollisionGuard, GridMap, HeightMapRef, Refusal, DEFAULT_MARGIN_M};
 use wheelleg_runtime::leg::LegConfig;
-use wheelleg_runtime::robot::WHEELLEG;
+use wheelleg_runtime::robot::Robot;
 use wheelleg_sim::env::{Env, EnvConfig, InvalidAction, Observation};
 use wheelleg_sim::generate::{generate, SceneKind};
 use wheelleg_sim::height_map::MapGrid;
@@ -43,7 +43,7 @@ fn compare(
     scenes_per_kind: usize,
     steps: usize,
 ) -> Tally {
-    let guard = CollisionGuard::new(WHEELLEG, margin_m);
+    let guard = CollisionGuard::new(&Robot::WHEELLEG, margin_m);
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut tally = Tally::default();
     let mut obs = Observation::default();

@@ -6,7 +6,7 @@ use rand::{Rng, SeedableRng};
 use wheelleg_runtime::action::{Action, Step};
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, HEIGHT_MAP_SIDE};
-use wheelleg_runtime::robot::WHEELLEG;
+use wheelleg_runtime::robot::{Robot, WHEELLEG};
 use wheelleg_sim::collision::{ObstacleSet, RobotParts};
 use wheelleg_sim::env::{Env, EnvConfig, InvalidAction, Observation, Status};
 use wheelleg_sim::height_map::{render, render_naive};
@@ -424,7 +424,8 @@ fn a_simulated_step_is_the_controllers_ideal_step() {
         let legs = start.leg_config(&WHEELLEG);
         for index in 0..wheelleg_runtime::action::COUNT {
             let action = Action::from_index(index).unwrap();
-            let (delta, end_legs) = wheelleg_runtime::motion::ideal_step(legs, action);
+            let (delta, end_legs) =
+                wheelleg_runtime::motion::ideal_step(legs, action, &Robot::WHEELLEG.actions);
             let want = start_pose * delta;
             let got = start.after(action);
             assert!((got.position.coords - want.translation.vector).norm() < 1e-6);

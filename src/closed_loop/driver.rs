@@ -14,7 +14,7 @@ use wheelleg_runtime::guard::{CollisionGuard, HeightMapRef};
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::model::DefaultPolicy;
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, HEIGHT_MAP_SIDE, STATE_LEN};
-use wheelleg_runtime::robot::WHEELLEG;
+use wheelleg_runtime::robot::Robot;
 use wheelleg_sim::env::{Env, GuardMap, Observation};
 use wheelleg_sim::local_plan::LastMetres;
 use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig};
@@ -166,7 +166,7 @@ impl<'a> PolicyDriver<'a> {
             decider: Decider::new(),
             guard: stack
                 .guard
-                .map(|g| CollisionGuard::new(WHEELLEG, g.margin_m)),
+                .map(|g| CollisionGuard::new(&Robot::WHEELLEG, g.margin_m)),
             guard_map: stack.guard.and_then(|g| g.grid).map(GuardMap::new),
             lookahead,
             last_metres: stack.last_metres.map(LastMetres::new),
@@ -261,10 +261,9 @@ impl Driver for PolicyDriver<'_> {
                     track_m: state_mm[1] as f32 * 1.0e-3,
                 },
             }),
-            arrival: self
-                .stack
-                .arrival
-                .then(|| Arrival::from_state_mm(&state_mm, success_radius_m)),
+            arrival: self.stack.arrival.then(|| {
+                Arrival::from_state_mm(&state_mm, success_radius_m, &Robot::WHEELLEG.actions)
+            }),
         };
         let logits = &outputs.action_logits;
         let Some((lookahead, policy)) = &mut self.lookahead else {

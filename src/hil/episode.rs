@@ -2,6 +2,7 @@
 //! in, the world moved as the in-process loop moves it, and the faults injected on the way.
 
 use super::*;
+use wheelleg_runtime::robot::Robot;
 
 impl Hil {
     /// Runs one episode of `env` with `faults`; the robot is left at rest (or in safe stop).
@@ -119,8 +120,8 @@ impl Hil {
             });
             let from = *env.state();
             let from_legs = from.leg_config(env.geometry());
-            let ideal = BaseDisplacement::of_action(action);
-            let ideal_legs = target_config(from_legs, action);
+            let ideal = BaseDisplacement::of_action(action, &Robot::WHEELLEG.actions);
+            let ideal_legs = target_config(from_legs, action, &Robot::WHEELLEG.actions);
             let index = env.steps();
             match self.answer(&mut rejected)? {
                 FromController::StepDone {

@@ -45,7 +45,7 @@ use wheelleg_runtime::can::host::{AxisSet, BusStats};
 use wheelleg_runtime::guard::{CollisionGuard, WindowBounds, DEFAULT_MARGIN_M};
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::motion::{target_config, BaseDisplacement};
-use wheelleg_runtime::robot::WHEELLEG;
+use wheelleg_runtime::robot::{Robot, WHEELLEG};
 use wheelleg_sim::env::{Env, InvalidAction, Observation as SimObservation};
 use wheelleg_sim::height_map::MapGrid;
 
@@ -223,7 +223,7 @@ impl Hil {
         let plant = Arc::new(Mutex::new(plant));
         let shared = Arc::clone(&plant);
         let can = std::thread::spawn(move || serve_can(can, shared));
-        let window = CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M)
+        let window = CollisionGuard::new(&Robot::WHEELLEG, DEFAULT_MARGIN_M)
             .fine_window(MapGrid::GUARD_FINE.side, MapGrid::GUARD_FINE.cell_m);
         let mut hil = Hil {
             qemu,

@@ -13,7 +13,7 @@ use wheelleg_runtime::decision::{Decider, ObservationKey};
 use wheelleg_runtime::guard::{CollisionGuard, HeightMapRef};
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
-use wheelleg_runtime::robot::WHEELLEG;
+use wheelleg_runtime::robot::Robot;
 use wheelleg_sim::env::{Env, EnvConfig, GuardMap, Observation};
 use wheelleg_sim::local_plan::LastMetres;
 use wheelleg_sim::scenario::Scenario;
@@ -74,7 +74,7 @@ pub fn run_episodes(
     let mut keys = vec![ObservationKey(0); envs.len()];
     let guard = stack
         .guard
-        .map(|layer| CollisionGuard::new(WHEELLEG, layer.margin_m));
+        .map(|layer| CollisionGuard::new(&Robot::WHEELLEG, layer.margin_m));
     let mut guard_map = stack.guard.and_then(|layer| layer.grid).map(GuardMap::new);
     let mut lookahead = Lookahead::new(stack.lookahead.unwrap_or_default());
     let mut lookahead_stats = vec![LookaheadStats::default(); envs.len()];
@@ -140,9 +140,9 @@ pub fn run_episodes(
                             cells,
                             state,
                         )?,
-                        arrival: stack
-                            .arrival
-                            .then(|| Arrival::from_state_m(state, success_radius_m)),
+                        arrival: stack.arrival.then(|| {
+                            Arrival::from_state_m(state, success_radius_m, &Robot::WHEELLEG.actions)
+                        }),
                     };
                     let key = keys[i];
                     if stack.lookahead.is_none() {

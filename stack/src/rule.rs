@@ -114,8 +114,16 @@ mod tests {
             move_x: Step::Plus,
             ..Action::IDLE
         };
-        let near = Arrival::new(nalgebra::Vector2::new(0.05, 0.0), 0.05);
-        let far = Arrival::new(nalgebra::Vector2::new(0.5, 0.0), 0.05);
+        let near = Arrival::new(
+            nalgebra::Vector2::new(0.05, 0.0),
+            0.05,
+            &wheelleg_runtime::robot::Robot::WHEELLEG.actions,
+        );
+        let far = Arrival::new(
+            nalgebra::Vector2::new(0.5, 0.0),
+            0.05,
+            &wheelleg_runtime::robot::Robot::WHEELLEG.actions,
+        );
         assert_eq!(settled(&[ahead], None), Some(ahead));
         assert_eq!(settled(&[ahead, Action::IDLE], Some(&near)), Some(ahead));
         assert_eq!(settled(&[ahead, Action::IDLE], Some(&far)), None);

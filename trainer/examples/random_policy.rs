@@ -19,7 +19,7 @@ use wheelleg_runtime::guard::{CollisionGuard, HeightMapRef, DEFAULT_MARGIN_M};
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::model::DefaultPolicy;
 use wheelleg_runtime::observation::HEIGHT_MAP_CELLS;
-use wheelleg_runtime::robot::WHEELLEG;
+use wheelleg_runtime::robot::{Robot, WHEELLEG};
 use wheelleg_sim::atomic_write;
 use wheelleg_trainer::network_f32::{Architecture, NetworkF32};
 use wheelleg_trainer::quantize::{observation_mm, quantize, Calibration, RangeMethod};
@@ -64,7 +64,7 @@ fn main() {
     // Refused: the same observation again.
     let second = decider.choose(key, &outputs.action_logits);
     // The third with the collision guard, at the default pose.
-    let guard = CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M);
+    let guard = CollisionGuard::new(&Robot::WHEELLEG, DEFAULT_MARGIN_M);
     let legs = LegConfig {
         clearance_m: WHEELLEG.default_clearance_m,
         track_m: WHEELLEG.default_track_m,
@@ -76,7 +76,11 @@ fn main() {
         &outputs.action_logits,
         HeightMapRef::Millimetres(map),
         legs,
-        Some(&Arrival::from_state_mm(&state_mm, DEFAULT_RADIUS_M)),
+        Some(&Arrival::from_state_mm(
+            &state_mm,
+            DEFAULT_RADIUS_M,
+            &Robot::WHEELLEG.actions,
+        )),
     );
     println!(
         "{} {} {} {:?}",

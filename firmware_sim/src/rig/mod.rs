@@ -38,7 +38,7 @@ use wheelleg_runtime::can::protocol::AxisState;
 use wheelleg_runtime::can::CanFrame;
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::motion::{ideal_step, MotionConfig, Setpoint, StepMotion, StopMotion};
-use wheelleg_runtime::robot::RobotGeometry;
+use wheelleg_runtime::robot::{Robot, RobotGeometry};
 
 mod config;
 mod faults;
@@ -387,10 +387,16 @@ impl Rig {
 
     /// Executes one decision: its setpoint stream, then `settle_s` of holding the target.
     pub fn step(&mut self, action: Action) -> Result<StepReport, RigError> {
-        let motion = StepMotion::plan(&self.geometry, &self.config.motion, self.legs, action)?;
+        // The host rig drives the shipped robot's lattice with its own geometry and node map.
+        let robot = Robot {
+            geometry: self.geometry,
+            actions: Robot::WHEELLEG.actions,
+            can: self.config.map,
+        };
+        let motion = StepMotion::plan(&robot, &self.config.motion, self.legs, action)?;
         debug_assert_eq!(
             (motion.displacement().isometry(), motion.target()),
-            ideal_step(self.legs, action)
+            ideal_step(self.legs, action, &robot.actions)
         );
         self.execute(motion)
     }

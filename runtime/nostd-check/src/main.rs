@@ -23,7 +23,7 @@ use wheelleg_runtime::guard::{CollisionGuard, HeightMapRef, DEFAULT_MARGIN_M};
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::model::DefaultPolicy;
 use wheelleg_runtime::observation::HEIGHT_MAP_CELLS;
-use wheelleg_runtime::robot::WHEELLEG;
+use wheelleg_runtime::robot::{Robot, WHEELLEG};
 
 static WEIGHTS: &[u8] = include_bytes!(env!("WHEELLEG_POLICY"));
 
@@ -124,7 +124,7 @@ extern "C" fn main(_argc: i32, _argv: *const *const u8) -> i32 {
             let first = decider.choose(key, &outputs.action_logits);
             let second = decider.choose(key, &outputs.action_logits);
             // The third with the collision guard, at the default pose.
-            let guard = CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M);
+            let guard = CollisionGuard::new(&Robot::WHEELLEG, DEFAULT_MARGIN_M);
             let legs = LegConfig {
                 clearance_m: WHEELLEG.default_clearance_m,
                 track_m: WHEELLEG.default_track_m,
@@ -139,7 +139,7 @@ extern "C" fn main(_argc: i32, _argv: *const *const u8) -> i32 {
                 &outputs.action_logits,
                 HeightMapRef::Millimetres(map),
                 legs,
-                Some(&Arrival::from_state_mm(&state_mm, DEFAULT_RADIUS_M)),
+                Some(&Arrival::from_state_mm(&state_mm, DEFAULT_RADIUS_M, &Robot::WHEELLEG.actions)),
             );
             let _ = writeln!(
                 Stdout,

@@ -41,13 +41,13 @@ mod tests;
 use geometry::{intersect, Column, Parts, OVERLAP_TOLERANCE_M};
 pub use map::{FineWindow, GridMap, GridMapError, HeightMapRef, WindowBounds, MAX_WINDOW_ROWS};
 
-use crate::action::{Action, CHOICES, DIMS};
+use crate::action::{Action, ActionLattice, CHOICES, DIMS};
 use crate::arrival::Arrival;
 use crate::decision::{Checked, Decider, ObservationKey};
 use crate::leg::LegConfig;
 use crate::motion::{target_config, BaseDisplacement};
 use crate::observation::HEIGHT_MAP_CELL_M;
-use crate::robot::RobotGeometry;
+use crate::robot::{Robot, RobotGeometry};
 use nalgebra::{Isometry2, Point2};
 
 /// The robot's half-extent along its own x and y, for any leg configuration: the body, the
@@ -89,6 +89,7 @@ pub enum Refusal {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CollisionGuard {
     geometry: RobotGeometry,
+    lattice: ActionLattice,
     margin_m: f32,
     /// Cells farther than this from the robot's centre (along x or y) cannot touch it anywhere
     /// along a step.
@@ -101,11 +102,13 @@ pub struct CollisionGuard {
 }
 
 impl CollisionGuard {
-    /// A guard for `geometry` that grows every column's square by `margin_m` on each side
-    /// (a square shrinks at most to its bare sample point; non-finite counts as 0).
-    /// Heights are not padded: they are measured
-    /// to the millimetre, not sampled.
-    pub fn new(geometry: RobotGeometry, margin_m: f32) -> CollisionGuard {
+    /// A guard for `robot` (its geometry and the steps of its action lattice) that grows every
+    /// column's square by `margin_m` on each side (a square shrinks at most to its bare sample
+    /// point; non-finite counts as 0). Heights are not padded: they are measured to the
+    /// millimetre, not sampled.
+    pub fn new(robot: &Robot, margin_m: f32) -> CollisionGuard {
+        let geometry = robot.geometry;
+        let lattice = robot.actions;
         // At least minus half the policy's cell: the bound of every earlier version. A finer
         // map's squares are floored at their sample point where they are used.
         let margin_m = if margin_m.is_finite() {
@@ -119,10 +122,11 @@ impl CollisionGuard {
         // The farthest any part gets from the centre, plus one step of travel and the growth.
         let reach_m =
             crate::trig::hypot(half_length_m, half_track_m.max(0.5 * geometry.body_width_m))
-                + crate::action::MOVE_STEP_M * core::f32::consts::SQRT_2
+                + lattice.move_step_m * core::f32::consts::SQRT_2
                 + margin_m.max(0.0);
         CollisionGuard {
             geometry,
+            lattice,
             margin_m,
             reach_m,
             half_extent_m: half_extent_m(&geometry),
@@ -140,9 +144,9 @@ impl CollisionGuard {
     /// half-side.
     pub fn fine_window(&self, side: usize, cell_m: f32) -> WindowBounds {
         let (half_x_m, half_y_m) = self.half_extent_m;
-        let turn_rad = crate::action::YAW_STEP_DEG.to_radians();
+        let turn_rad = self.lattice.yaw_step_deg.to_radians();
         let (sin, cos) = (crate::trig::sin(turn_rad), crate::trig::cos(turn_rad));
-        let travel_m = crate::action::MOVE_STEP_M + self.margin_m.max(0.0);
+        let travel_m = self.lattice.move_step_m + self.margin_m.max(0.0);
         let reach_x_m = half_x_m * cos + half_y_m * sin + travel_m;
         let reach_y_m = half_y_m * cos + half_x_m * sin + travel_m;
         let span = |reach_m: f32| {
@@ -299,11 +303,11 @@ impl CollisionGuard {
         here: Option<&Parts>,
         from: &Isometry2<f32>,
     ) -> Result<f32, Refusal> {
-        let target = target_config(legs, action);
+        let target = target_config(legs, action, &self.lattice);
         if !self.geometry.is_reachable(target) {
             return Err(Refusal::Unreachable);
         }
-        let base = BaseDisplacement::of_action(action);
+        let base = BaseDisplacement::of_action(action, &self.lattice);
         let mut deepest_m = f32::NEG_INFINITY;
         for t in POSE_FRACTIONS {
             let legs_t = LegConfig {

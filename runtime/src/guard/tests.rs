@@ -3,7 +3,7 @@ use super::*;
 use crate::action::Step;
 use crate::observation::cell_centre_in_robot_m;
 use crate::observation::{HEIGHT_MAP_CELLS, HEIGHT_MAP_SIDE};
-use crate::robot::WHEELLEG;
+use crate::robot::{Robot, WHEELLEG};
 
 fn flat() -> [f32; HEIGHT_MAP_CELLS] {
     [0.0; HEIGHT_MAP_CELLS]
@@ -71,7 +71,7 @@ fn a_grid_map_of_the_policy_layout_gets_the_policy_maps_verdicts() {
     block(&mut map, (0.05, 0.25), (-0.5, -0.42), 0.15);
     let grid = GridMap::new(&map, HEIGHT_MAP_SIDE, HEIGHT_MAP_CELL_M).unwrap();
     for margin_m in [-0.01, 0.0, DEFAULT_MARGIN_M, 0.02] {
-        let guard = CollisionGuard::new(WHEELLEG, margin_m);
+        let guard = CollisionGuard::new(&Robot::WHEELLEG, margin_m);
         for index in 0..crate::action::COUNT {
             let action = Action::from_index(index).unwrap();
             assert_eq!(
@@ -85,11 +85,15 @@ fn a_grid_map_of_the_policy_layout_gets_the_policy_maps_verdicts() {
 
 #[test]
 fn flat_ground_lets_every_reachable_action_through() {
-    let guard = CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M);
+    let guard = CollisionGuard::new(&Robot::WHEELLEG, DEFAULT_MARGIN_M);
     let map = flat();
     for index in 0..crate::action::COUNT {
         let action = Action::from_index(index).unwrap();
-        let reachable = WHEELLEG.is_reachable(target_config(default_legs(), action));
+        let reachable = WHEELLEG.is_reachable(target_config(
+            default_legs(),
+            action,
+            &Robot::WHEELLEG.actions,
+        ));
         let verdict = guard.check(HeightMapRef::Metres(&map), default_legs(), action);
         assert_eq!(verdict.is_ok(), reachable, "{action:?}: {verdict:?}");
     }
@@ -97,7 +101,7 @@ fn flat_ground_lets_every_reachable_action_through() {
 
 #[test]
 fn a_wall_just_ahead_refuses_forward_but_not_backward() {
-    let guard = CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M);
+    let guard = CollisionGuard::new(&Robot::WHEELLEG, DEFAULT_MARGIN_M);
     let mut map = flat();
     // The wheels' front edge is at hip_x + radius = 0.25 m; a tall wall from 0.31 m.
     block(&mut map, (0.31, 0.8), (-0.8, 0.8), 0.5);
@@ -128,7 +132,7 @@ fn walls_1cm(front_m: f32, left_m: f32) -> [f32; 128 * 128] {
 
 #[test]
 fn the_lenient_check_forgives_an_overlap_where_the_robot_stands_but_no_new_contact() {
-    let guard = CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M);
+    let guard = CollisionGuard::new(&Robot::WHEELLEG, DEFAULT_MARGIN_M);
     let legs = default_legs();
     let overlap = |map: &[f32], action| {
         let grid = HeightMapRef::Grid(GridMap::new(map, 128, 0.01).unwrap());
@@ -168,7 +172,7 @@ fn the_lenient_check_forgives_an_overlap_where_the_robot_stands_but_no_new_conta
 
 #[test]
 fn a_step_ahead_in_a_plan_is_judged_from_where_it_starts() {
-    let guard = CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M);
+    let guard = CollisionGuard::new(&Robot::WHEELLEG, DEFAULT_MARGIN_M);
     // A wall a few steps ahead: clear from here, hit from 0.15 m further on, and from a
     // pose turned round at that place a step backwards (towards the wall) hits it too.
     let map = walls_1cm(0.45, 1.0);
@@ -197,7 +201,7 @@ fn a_step_ahead_in_a_plan_is_judged_from_where_it_starts() {
 
 #[test]
 fn a_low_bar_between_the_wheels_passes_under_a_high_body_only() {
-    let guard = CollisionGuard::new(WHEELLEG, 0.01);
+    let guard = CollisionGuard::new(&Robot::WHEELLEG, 0.01);
     let mut map = flat();
     // A bar across the centre line, narrower than the gap between the wheels, 0.10 m high.
     block(&mut map, (0.0, 0.05), (-0.06, 0.06), 0.10);
@@ -219,7 +223,7 @@ fn a_low_bar_between_the_wheels_passes_under_a_high_body_only() {
 
 #[test]
 fn where_everything_is_refused_the_lenient_level_lets_the_robot_back_off_only() {
-    let guard = CollisionGuard::new(WHEELLEG, 0.025);
+    let guard = CollisionGuard::new(&Robot::WHEELLEG, 0.025);
     let mut map = flat();
     // A wall whose first cells are centred 25 mm beyond the front wheels' reach: grown by
     // 25 mm, the columns overlap the wheels by 25 mm, so the strict check refuses even
@@ -251,9 +255,13 @@ fn where_everything_is_refused_the_lenient_level_lets_the_robot_back_off_only() 
 
 #[test]
 fn arrival_goes_first_only_where_the_guard_passes_it() {
-    let guard = CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M);
+    let guard = CollisionGuard::new(&Robot::WHEELLEG, DEFAULT_MARGIN_M);
     // The target 6 cm ahead: one step forward arrives. The policy wants to turn in place.
-    let arrival = Arrival::new(nalgebra::Vector2::new(0.06, 0.0), 0.05);
+    let arrival = Arrival::new(
+        nalgebra::Vector2::new(0.06, 0.0),
+        0.05,
+        &Robot::WHEELLEG.actions,
+    );
     let mut logits = [0.0f32; DIMS * CHOICES];
     for head in 0..DIMS {
         logits[head * CHOICES + 1] = 2.0;
@@ -284,7 +292,7 @@ fn arrival_goes_first_only_where_the_guard_passes_it() {
 
 #[test]
 fn millimetres_and_metres_agree() {
-    let guard = CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M);
+    let guard = CollisionGuard::new(&Robot::WHEELLEG, DEFAULT_MARGIN_M);
     let mut map = flat();
     block(&mut map, (0.2, 0.4), (0.15, 0.4), 0.07);
     let mut map_mm = [0i16; HEIGHT_MAP_CELLS];
@@ -302,7 +310,7 @@ fn millimetres_and_metres_agree() {
 
 #[test]
 fn unreachable_legs_are_refused() {
-    let guard = CollisionGuard::new(WHEELLEG, 0.0);
+    let guard = CollisionGuard::new(&Robot::WHEELLEG, 0.0);
     let legs = LegConfig {
         clearance_m: WHEELLEG.clearance_range_m[1],
         track_m: WHEELLEG.default_track_m,
@@ -318,7 +326,7 @@ fn unreachable_legs_are_refused() {
 
 #[test]
 fn bad_heights_and_margins_do_not_panic() {
-    let guard = CollisionGuard::new(WHEELLEG, f32::NAN);
+    let guard = CollisionGuard::new(&Robot::WHEELLEG, f32::NAN);
     assert_eq!(guard.margin_m(), 0.0);
     let mut map = [f32::NAN; HEIGHT_MAP_CELLS];
     map[0] = f32::INFINITY;
@@ -356,7 +364,7 @@ fn segment_rect_distance_cases() {
 fn fine_window_keeps_the_whole_maps_verdicts() {
     const SIDE: usize = 128;
     const CELL_M: f32 = 0.01;
-    let guard = CollisionGuard::new(WHEELLEG, DEFAULT_MARGIN_M);
+    let guard = CollisionGuard::new(&Robot::WHEELLEG, DEFAULT_MARGIN_M);
     let bounds = guard.fine_window(SIDE, CELL_M);
     assert!(bounds.rows < SIDE && bounds.cols < SIDE, "{bounds:?}");
     assert!(bounds.cells() <= 5600, "{bounds:?}");

@@ -5,8 +5,8 @@
 //! [`Action`], it yields one [`Setpoint`] per tick (default 100 Hz) for the step's duration, and
 //! nothing more. It is an iterator over fixed-size values: no buffer, no allocation.
 //!
-//! **The ideal step** ([`ideal_step`]): the body translates by `MOVE_STEP_M` along the start
-//! pose's own x and/or y axis on a straight line, and rotates by `YAW_STEP_DEG` about its centre,
+//! **The ideal step** ([`ideal_step`]): the body translates by the lattice's move step along the start
+//! pose's own x and/or y axis on a straight line, and rotates by its yaw step about its centre,
 //! both at once, while the legs go from the start to the target (clearance, track). The end pose
 //! is `start * Isometry2::new((dx, dy), dyaw)`.
 //!
@@ -32,10 +32,10 @@
 //! passes through anyway (one the world validated with the step, see docs/robustness.md),
 //! instead of wheels coasting while the legs freeze, which leaves the path.
 
-use crate::action::{Action, CLEARANCE_STEP_M, MOVE_STEP_M, TRACK_STEP_M, YAW_STEP_DEG};
+use crate::action::{Action, ActionLattice};
 use crate::base::{BaseError, BaseVelocity, MecanumBase, WheelSpeeds};
 use crate::leg::{IkError, JointAngles, LegConfig};
-use crate::robot::RobotGeometry;
+use crate::robot::{Robot, RobotGeometry};
 use core::f32::consts::PI;
 use nalgebra::Isometry2;
 
@@ -140,12 +140,12 @@ impl BaseDisplacement {
         dyaw_rad: 0.0,
     };
 
-    /// The base part of a lattice action.
-    pub fn of_action(action: Action) -> BaseDisplacement {
+    /// The base part of a lattice action on `lattice`.
+    pub fn of_action(action: Action, lattice: &ActionLattice) -> BaseDisplacement {
         BaseDisplacement {
-            dx_m: f32::from(action.move_x.sign()) * MOVE_STEP_M,
-            dy_m: f32::from(action.move_y.sign()) * MOVE_STEP_M,
-            dyaw_rad: f32::from(action.yaw.sign()) * YAW_STEP_DEG.to_radians(),
+            dx_m: f32::from(action.move_x.sign()) * lattice.move_step_m,
+            dy_m: f32::from(action.move_y.sign()) * lattice.move_step_m,
+            dyaw_rad: f32::from(action.yaw.sign()) * lattice.yaw_step_deg.to_radians(),
         }
     }
 
@@ -169,19 +169,25 @@ impl BaseDisplacement {
     }
 }
 
-/// The leg configuration an action asks for from `start` (not checked for reachability).
-pub fn target_config(start: LegConfig, action: Action) -> LegConfig {
+/// The leg configuration an action on `lattice` asks for from `start` (not checked for
+/// reachability).
+pub fn target_config(start: LegConfig, action: Action, lattice: &ActionLattice) -> LegConfig {
     LegConfig {
-        clearance_m: start.clearance_m + f32::from(action.clearance.sign()) * CLEARANCE_STEP_M,
-        track_m: start.track_m + f32::from(action.track.sign()) * TRACK_STEP_M,
+        clearance_m: start.clearance_m
+            + f32::from(action.clearance.sign()) * lattice.clearance_step_m,
+        track_m: start.track_m + f32::from(action.track.sign()) * lattice.track_step_m,
     }
 }
 
 /// The ideal outcome of one step: end pose (relative to the start pose) and end legs.
-pub fn ideal_step(start: LegConfig, action: Action) -> (Isometry2<f32>, LegConfig) {
+pub fn ideal_step(
+    start: LegConfig,
+    action: Action,
+    lattice: &ActionLattice,
+) -> (Isometry2<f32>, LegConfig) {
     (
-        BaseDisplacement::of_action(action).isometry(),
-        target_config(start, action),
+        BaseDisplacement::of_action(action, lattice).isometry(),
+        target_config(start, action, lattice),
     )
 }
 

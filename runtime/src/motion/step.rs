@@ -19,20 +19,21 @@ pub struct StepMotion {
 }
 
 impl StepMotion {
-    /// Plans the step `action` from leg configuration `start`, checking reachability along the
-    /// way and the wheel and joint limits at every tick.
+    /// Plans the step `action` of `robot` (its geometry and action lattice) from leg
+    /// configuration `start`, checking reachability along the way and the wheel and joint
+    /// limits at every tick.
     pub fn plan(
-        geometry: &RobotGeometry,
+        robot: &Robot,
         config: &MotionConfig,
         start: LegConfig,
         action: Action,
     ) -> Result<StepMotion, MotionError> {
         StepMotion::plan_between(
-            geometry,
+            &robot.geometry,
             config,
             start,
-            target_config(start, action),
-            BaseDisplacement::of_action(action),
+            target_config(start, action, &robot.actions),
+            BaseDisplacement::of_action(action, &robot.actions),
         )
     }
 

@@ -1,7 +1,7 @@
 use super::*;
 use crate::action::Step;
 use crate::base::{Odometry, WheelSpeeds};
-use crate::robot::WHEELLEG;
+use crate::robot::{Robot, WHEELLEG};
 
 fn default_legs() -> LegConfig {
     LegConfig {
@@ -23,7 +23,7 @@ fn busy_action() -> Action {
 #[test]
 fn default_stream_has_one_setpoint_per_tick_at_100_hz() {
     let m = StepMotion::plan(
-        &WHEELLEG,
+        &Robot::WHEELLEG,
         &MotionConfig::default(),
         default_legs(),
         busy_action(),
@@ -40,7 +40,8 @@ fn integrated_commands_land_on_the_ideal_step() {
     let start = default_legs();
     for index in 0..crate::action::COUNT {
         let action = Action::from_index(index).unwrap();
-        let Ok(m) = StepMotion::plan(&WHEELLEG, &MotionConfig::default(), start, action) else {
+        let Ok(m) = StepMotion::plan(&Robot::WHEELLEG, &MotionConfig::default(), start, action)
+        else {
             continue;
         };
         let tick_s = m.tick_s();
@@ -58,7 +59,7 @@ fn integrated_commands_land_on_the_ideal_step() {
             last = Some(sp);
         }
         let last = last.unwrap();
-        let (pose, legs) = ideal_step(start, action);
+        let (pose, legs) = ideal_step(start, action, &Robot::WHEELLEG.actions);
         let err = odo.pose.inverse() * pose;
         assert!(err.translation.vector.norm() < 1e-5, "{action:?}: {odo:?}");
         assert!(err.rotation.angle().abs() < 1e-5);
@@ -70,7 +71,7 @@ fn integrated_commands_land_on_the_ideal_step() {
 #[test]
 fn velocities_start_and_end_at_rest_and_stay_within_limits() {
     let config = MotionConfig::default();
-    let m = StepMotion::plan(&WHEELLEG, &config, default_legs(), busy_action()).unwrap();
+    let m = StepMotion::plan(&Robot::WHEELLEG, &config, default_legs(), busy_action()).unwrap();
     let all: heapless::Vec<Setpoint, 64> = m.collect();
     let first = all.first().unwrap();
     let last = all.last().unwrap();
@@ -96,7 +97,7 @@ fn velocities_start_and_end_at_rest_and_stay_within_limits() {
 #[test]
 fn legs_follow_ik_at_every_tick() {
     let m = StepMotion::plan(
-        &WHEELLEG,
+        &Robot::WHEELLEG,
         &MotionConfig::default(),
         default_legs(),
         busy_action(),
@@ -125,7 +126,7 @@ fn impossible_or_too_fast_steps_are_refused() {
         ..Action::IDLE
     };
     assert!(matches!(
-        StepMotion::plan(&WHEELLEG, &MotionConfig::default(), top, up),
+        StepMotion::plan(&Robot::WHEELLEG, &MotionConfig::default(), top, up),
         Err(MotionError::Unreachable(_))
     ));
     let hasty = MotionConfig {
@@ -137,7 +138,7 @@ fn impossible_or_too_fast_steps_are_refused() {
         ..Action::IDLE
     };
     assert!(matches!(
-        StepMotion::plan(&WHEELLEG, &hasty, default_legs(), forward),
+        StepMotion::plan(&Robot::WHEELLEG, &hasty, default_legs(), forward),
         Err(MotionError::WheelSpeedLimit { .. })
     ));
     let slow_joints = MotionConfig {
@@ -145,7 +146,7 @@ fn impossible_or_too_fast_steps_are_refused() {
         ..MotionConfig::default()
     };
     assert!(matches!(
-        StepMotion::plan(&WHEELLEG, &slow_joints, default_legs(), up),
+        StepMotion::plan(&Robot::WHEELLEG, &slow_joints, default_legs(), up),
         Err(MotionError::JointSpeedLimit { .. })
     ));
     let no_rate = MotionConfig {
@@ -153,7 +154,7 @@ fn impossible_or_too_fast_steps_are_refused() {
         ..MotionConfig::default()
     };
     assert_eq!(
-        StepMotion::plan(&WHEELLEG, &no_rate, default_legs(), forward),
+        StepMotion::plan(&Robot::WHEELLEG, &no_rate, default_legs(), forward),
         Err(MotionError::BadTiming)
     );
 }
@@ -162,7 +163,7 @@ fn impossible_or_too_fast_steps_are_refused() {
 fn a_stop_decelerates_along_the_steps_own_path() {
     let config = MotionConfig::default();
     let start = default_legs();
-    let step = StepMotion::plan(&WHEELLEG, &config, start, busy_action()).unwrap();
+    let step = StepMotion::plan(&Robot::WHEELLEG, &config, start, busy_action()).unwrap();
     let tick_s = step.tick_s();
     for sent in [0, 1, 10, 25, 40, 49, 50] {
         let stop = step.stop_after(sent).unwrap();
@@ -181,12 +182,12 @@ fn a_stop_decelerates_along_the_steps_own_path() {
         for sp in stop_iter.by_ref() {
             count += 1;
             // On the path: legs and pose are the step's at some progress, never going back.
-            let s = (sp.legs.clearance_m - start.clearance_m) / CLEARANCE_STEP_M;
+            let s = (sp.legs.clearance_m - start.clearance_m) / crate::action::CLEARANCE_STEP_M;
             assert!(s >= previous_s - 1e-5 && s <= 1.0 + 1e-5, "{sent}: {s}");
             let ideal = step.displacement().isometry_at(s);
             assert!((ideal.translation.vector - sp.ideal_pose.translation.vector).norm() < 1e-5);
             assert!(sp.wheels.max_abs_radps() <= config.max_wheel_radps);
-            let previous_track_m = start.track_m - previous_s * TRACK_STEP_M;
+            let previous_track_m = start.track_m - previous_s * crate::action::TRACK_STEP_M;
             let base =
                 MecanumBase::new(&WHEELLEG, 0.5 * (previous_track_m + sp.legs.track_m)).unwrap();
             odo.integrate(base.body_velocity(sp.wheels).unwrap(), tick_s)
@@ -216,7 +217,49 @@ fn control_rate_is_configurable() {
         step_duration_s: 0.8,
         ..MotionConfig::default()
     };
-    let m = StepMotion::plan(&WHEELLEG, &config, default_legs(), busy_action()).unwrap();
+    let m = StepMotion::plan(&Robot::WHEELLEG, &config, default_legs(), busy_action()).unwrap();
     assert_eq!(m.ticks(), 200);
     assert!((m.tick_s() - 0.004).abs() < 1e-7);
+}
+
+#[test]
+fn a_robot_s_own_lattice_sets_its_steps() {
+    let mut robot = Robot::WHEELLEG;
+    robot.actions = crate::action::ActionLattice {
+        move_step_m: 0.10,
+        yaw_step_deg: 10.0,
+        clearance_step_m: 0.04,
+        track_step_m: 0.04,
+    };
+    let action = Action {
+        move_x: Step::Plus,
+        yaw: Step::Minus,
+        clearance: Step::Plus,
+        track: Step::Minus,
+        ..Action::IDLE
+    };
+    let (pose, legs) = ideal_step(default_legs(), action, &robot.actions);
+    assert!((pose.translation.vector.x - 0.10).abs() < 1e-6, "{pose:?}");
+    assert!((pose.rotation.angle() + 10f32.to_radians()).abs() < 1e-6);
+    assert!((legs.clearance_m - (default_legs().clearance_m + 0.04)).abs() < 1e-6);
+    assert!((legs.track_m - (default_legs().track_m - 0.04)).abs() < 1e-6);
+    // The planned motion ends there too, and the arrival test steps as far.
+    let m = StepMotion::plan(&robot, &MotionConfig::default(), default_legs(), action).unwrap();
+    assert_eq!(m.target(), legs);
+    let target = nalgebra::Vector2::new(0.10, 0.0);
+    let forward = Action {
+        move_x: Step::Plus,
+        ..Action::IDLE
+    };
+    assert!(crate::arrival::Arrival::new(target, 0.01, &robot.actions).reached_by(forward));
+    assert!(
+        !crate::arrival::Arrival::new(target, 0.01, &Robot::WHEELLEG.actions).reached_by(forward)
+    );
+    // The guard's window reaches one (longer) step farther.
+    let window = |r: &Robot| {
+        crate::guard::CollisionGuard::new(r, 0.0)
+            .fine_window(128, 0.01)
+            .cells()
+    };
+    assert!(window(&robot) > window(&Robot::WHEELLEG));
 }

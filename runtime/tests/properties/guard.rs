@@ -1,6 +1,7 @@
 //! Collision guard.
 
 use super::*;
+use wheelleg_runtime::robot::Robot;
 
 fn any_height_map_mm() -> impl Strategy<Value = Vec<i16>> {
     // Mostly bare ground with a few obstacles, plus the extremes a broken sensor sends.
@@ -30,7 +31,7 @@ proptest! {
     ) {
         use wheelleg_runtime::action::Action;
         use wheelleg_runtime::guard::{CollisionGuard, HeightMapRef};
-        let guard = CollisionGuard::new(WHEELLEG, margin_m);
+        let guard = CollisionGuard::new(&Robot::WHEELLEG, margin_m);
         let map: &[i16; wheelleg_runtime::observation::HEIGHT_MAP_CELLS] =
             heights.as_slice().try_into().unwrap();
         let legs = LegConfig { clearance_m, track_m };

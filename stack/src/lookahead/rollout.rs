@@ -7,6 +7,7 @@ use wheelleg_runtime::action::{Action, MOVE_STEP_M};
 use wheelleg_runtime::arrival::Arrival;
 use wheelleg_runtime::decision::{Decider, ObservationKey};
 use wheelleg_runtime::observation::STATE_LEN;
+use wheelleg_runtime::robot::Robot;
 use wheelleg_sim::env::{Env, Observation, Status};
 
 /// The policy's inputs for a batch of episodes, with each observation's key.
@@ -59,7 +60,8 @@ fn rule_action(
 ) -> Action {
     RobotRule {
         guard: None,
-        arrival: arrival.then(|| Arrival::from_state_m(state, success_radius_m)),
+        arrival: arrival
+            .then(|| Arrival::from_state_m(state, success_radius_m, &Robot::WHEELLEG.actions)),
     }
     .choose(decider, key, logits)
 }
