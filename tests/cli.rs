@@ -381,6 +381,19 @@ fn robot_check_reports_what_each_robot_allows() {
     assert!(report.contains("robot:           wheelleg"), "{report}");
     assert!(report.contains("squeeze   yes"), "{report}");
 
+    let picture = scratch("robot-picture").join("strider.png");
+    let out = wheelleg(&[
+        "robot",
+        "check",
+        STRIDER,
+        "--picture",
+        picture.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let png = std::fs::read(&picture).unwrap();
+    assert!(png.starts_with(b"\x89PNG"), "not a PNG");
+    std::fs::remove_file(&picture).unwrap();
+
     let out = wheelleg(&["robot", "check", STRIDER, "--json"]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();

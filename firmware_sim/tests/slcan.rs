@@ -23,8 +23,14 @@ impl Drop for Sim {
 
 /// Starts `firmware_sim --slcan <spec>` and returns it with the place it printed.
 fn start(spec: &str) -> (Sim, String) {
+    start_with(spec, &[])
+}
+
+/// [`start`] with more arguments.
+fn start_with(spec: &str, more: &[&str]) -> (Sim, String) {
     let mut child = Command::new(env!("CARGO_BIN_EXE_firmware_sim"))
         .args(["--slcan", spec, "--duration-s", "60"])
+        .args(more)
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
         .spawn()
@@ -327,4 +333,51 @@ fn the_pty_endpoint_answers_like_a_serial_adapter() {
         "{:?}",
         seen.heartbeats
     );
+}
+
+#[test]
+fn the_axes_are_the_robot_descriptions() {
+    let strider = concat!(env!("CARGO_MANIFEST_DIR"), "/../robots/strider.toml");
+    let (_sim, place) = start_with("tcp:127.0.0.1:0", &["--robot", strider]);
+    let address = place.strip_prefix("tcp:").expect("a tcp: address");
+    let mut stream = TcpStream::connect(address).unwrap();
+    stream.set_nodelay(true).unwrap();
+    let rx = replies(stream.try_clone().unwrap());
+    stream.write_all(b"S8\rO\r").unwrap();
+    for _ in 0..2 {
+        assert_eq!(next(&rx), b"");
+    }
+    let mut seen = Seen::default();
+    watch(&rx, &mut seen, Duration::from_millis(400), || {});
+    // Its 16 axes on nodes 21 to 36, none on the shipped robot's 1 to 16.
+    for node in 21..=36u8 {
+        assert!(
+            seen.heartbeats.iter().any(|h| h.0 == node),
+            "no heartbeat from node {node}: {:?}",
+            seen.heartbeats
+        );
+    }
+    assert!(seen.heartbeats.iter().all(|h| (21..=36).contains(&h.0)));
+}
+
+#[test]
+fn a_bad_robot_description_is_refused_naming_the_key() {
+    let dir = std::env::temp_dir().join(format!("firmware-sim-robot-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let bad = dir.join("bad.toml");
+    let shipped = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../robots/wheelleg.toml"
+    ))
+    .unwrap();
+    std::fs::write(&bad, shipped.replacen("node_id = 5,", "node_id = 4,", 1)).unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_firmware_sim"))
+        .args(["--slcan", "tcp:127.0.0.1:0", "--duration-s", "1", "--robot"])
+        .arg(&bad)
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("can.axes.front_right_knee.node_id"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -23,6 +23,10 @@ enum Command {
         /// One JSON object instead of the text report.
         #[arg(long)]
         json: bool,
+        /// Also draw the front and side views at the default and the extreme poses (PNG, in
+        /// metres), to hold against the robot.
+        #[arg(long)]
+        picture: Option<PathBuf>,
     },
     /// Read a URDF of a robot of the paper's kind into a description (the CAN map and the
     /// pose ranges get documented defaults to edit, unless the URDF was written by `robot urdf`).
@@ -46,9 +50,37 @@ enum Command {
 /// Runs `robot`.
 pub fn run(args: Args) -> CliResult {
     match args.command {
-        Command::Check { file, json } => {
+        Command::Check {
+            file,
+            json,
+            picture,
+        } => {
             let description = RobotDescription::load(&file)?;
             let report = reach(&description);
+            if let Some(path) = &picture {
+                let pose = |label: &str, p: wheelleg_robot::reach::Pose| {
+                    let legs = wheelleg_runtime::leg::LegConfig {
+                        clearance_m: p.clearance_m,
+                        track_m: p.track_m,
+                    };
+                    (label.to_string(), legs)
+                };
+                let poses = [
+                    pose("default", report.default_pose),
+                    pose("lift", report.lift.pose),
+                    pose("spread", report.spread.pose),
+                    pose("squeeze", report.squeeze.pose),
+                ];
+                let canvas = wheelleg_sim::render::robot_views(
+                    &description.name,
+                    &description.robot.geometry,
+                    &poses,
+                )?;
+                canvas
+                    .save_png(path)
+                    .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+                eprintln!("wrote {}", path.display());
+            }
             if json {
                 outln!("{}", serde_json::to_string(&report)?);
             } else {

@@ -9,7 +9,7 @@ pub mod stack;
 use stack::{ControllerDecider, Stack, ROW_ELEMENTS, WORK_BYTES};
 pub use stack::{DecisionRecord, Observation};
 use wheelleg_runtime::action::Action;
-use wheelleg_runtime::guard::{GridMap, HeightMapRef, WindowBounds};
+use wheelleg_runtime::guard::{height_mm, GridMap, HeightMapRef, WindowBounds};
 use wheelleg_sim::env::{Env, Observation as SimObservation};
 use wheelleg_sim::height_map::MapGrid;
 
@@ -24,7 +24,7 @@ pub fn window_mm_le(fine_m: &[f32], bounds: &WindowBounds) -> Vec<u8> {
     for row in bounds.rows() {
         for col in bounds.cols() {
             let m = fine_m.get(row * bounds.side + col).copied().unwrap_or(0.0);
-            out.extend_from_slice(&((m * 1000.0).round() as i16).to_le_bytes());
+            out.extend_from_slice(&height_mm(m).to_le_bytes());
         }
     }
     out

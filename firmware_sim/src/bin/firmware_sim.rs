@@ -1,12 +1,14 @@
-//! `firmware_sim`: the robot's 16 simulated ODrive axes as their own process on a SocketCAN
+//! `firmware_sim`: a robot's 16 simulated ODrive axes as their own process on a SocketCAN
 //! interface or behind an SLCAN endpoint, so the controller or any CAN tool can run against
-//! them exactly as against real motors.
+//! them exactly as against real motors. The axes are the robot description's (`--robot`,
+//! the shipped robot by default): its node ids, directions and gear ratios.
 //!
 //! ```text
 //! sudo ip link add dev vcan0 type vcan && sudo ip link set up vcan0
 //! firmware_sim --can vcan0 --log traffic.log
 //! firmware_sim --slcan tcp:127.0.0.1:20108     # python-can: socket://127.0.0.1:20108
 //! firmware_sim --slcan pty                     # prints the /dev/pts/N to open
+//! firmware_sim --robot robots/strider.toml --slcan tcp:127.0.0.1:0
 //! ```
 
 use clap::{ArgGroup, Parser};
@@ -17,10 +19,10 @@ use wheelleg_firmware_sim::bus::{BusError, Transport};
 use wheelleg_firmware_sim::candump::{CandumpWriter, DEFAULT_EPOCH_US};
 use wheelleg_firmware_sim::firmware::Firmware;
 use wheelleg_firmware_sim::slcan::{EndpointSpec, SlcanEndpoint};
+use wheelleg_robot::RobotDescription;
 use wheelleg_runtime::can::protocol::NodeId;
-use wheelleg_runtime::can::{CanFrame, NodeMap};
+use wheelleg_runtime::can::CanFrame;
 use wheelleg_runtime::leg::LegConfig;
-use wheelleg_runtime::robot::WHEELLEG;
 
 /// Simulated ODrive axes for the wheel-legged robot on a SocketCAN bus or an SLCAN endpoint.
 #[derive(Parser, Debug)]
@@ -46,12 +48,15 @@ struct Args {
     /// Fault injection: this node id never transmits.
     #[arg(long)]
     silent_node: Option<u8>,
-    /// Initial body clearance the legs are at (metres).
-    #[arg(long, default_value_t = WHEELLEG.default_clearance_m)]
-    clearance_m: f32,
-    /// Initial wheel track the legs are at (metres).
-    #[arg(long, default_value_t = WHEELLEG.default_track_m)]
-    track_m: f32,
+    /// The robot whose axes to simulate (robots/NAME.toml). Default: the shipped robot.
+    #[arg(long)]
+    robot: Option<std::path::PathBuf>,
+    /// Initial body clearance the legs are at (metres). Default: the robot's default pose.
+    #[arg(long)]
+    clearance_m: Option<f32>,
+    /// Initial wheel track the legs are at (metres). Default: the robot's default pose.
+    #[arg(long)]
+    track_m: Option<f32>,
 }
 
 fn parse_endpoint(s: &str) -> Result<EndpointSpec, String> {
@@ -74,12 +79,28 @@ fn run(args: &Args) -> Result<(), Box<dyn std::error::Error>> {
     if !(args.rate_hz.is_finite() && args.rate_hz > 0.0 && args.rate_hz <= 100_000.0) {
         return Err("--rate-hz must be in (0, 100000]".into());
     }
-    let start = LegConfig {
-        clearance_m: args.clearance_m,
-        track_m: args.track_m,
+    let description = match &args.robot {
+        Some(path) => RobotDescription::load(path)?,
+        None => RobotDescription::shipped(),
     };
-    let mut firmware = Firmware::for_robot(&WHEELLEG, &NodeMap::NOMINAL, start)
+    let robot = description.robot;
+    let start = LegConfig {
+        clearance_m: args
+            .clearance_m
+            .unwrap_or(robot.geometry.default_clearance_m),
+        track_m: args.track_m.unwrap_or(robot.geometry.default_track_m),
+    };
+    let mut firmware = Firmware::for_robot(&robot.geometry, &robot.can, start)
         .map_err(|e| format!("start pose {start:?} unreachable: {e:?}"))?;
+    eprintln!(
+        "firmware_sim: robot '{}', nodes {}",
+        description.name,
+        wheelleg_runtime::can::Axis::ALL
+            .iter()
+            .map(|&axis| robot.can.node_id(axis).get().to_string())
+            .collect::<Vec<_>>()
+            .join(" ")
+    );
     if let Some(n) = args.silent_node {
         let node = NodeId::new(n).ok_or("--silent-node must be 0..=63")?;
         firmware

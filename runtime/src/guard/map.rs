@@ -19,15 +19,23 @@ pub enum HeightMapRef<'a> {
 }
 
 impl HeightMapRef<'_> {
-    /// The height of cell (`row`, `col`) of the whole map (0 outside what is held).
+    /// The height of cell (`row`, `col`) of the whole map (0 outside what is held); an unknown
+    /// height (NaN, only in the maps in metres) as the tallest obstacle
+    /// ([`super::UNKNOWN_HEIGHT_M`]: a map in millimetres carries it as
+    /// [`super::UNKNOWN_HEIGHT_MM`]).
     pub(super) fn height_at_m(&self, row: usize, col: usize) -> f32 {
         let index = row * self.side() + col;
         match self {
             HeightMapRef::Millimetres(cells) => {
                 cells.get(index).map_or(0.0, |&mm| f32::from(mm) * 1.0e-3)
             }
-            HeightMapRef::Metres(cells) => cells.get(index).copied().unwrap_or(0.0),
-            HeightMapRef::Grid(grid) => grid.heights_m.get(index).copied().unwrap_or(0.0),
+            HeightMapRef::Metres(cells) => cells
+                .get(index)
+                .map_or(0.0, |&m| super::known_or_tallest_m(m)),
+            HeightMapRef::Grid(grid) => grid
+                .heights_m
+                .get(index)
+                .map_or(0.0, |&m| super::known_or_tallest_m(m)),
             HeightMapRef::Window(window) => window.height_m(row, col),
         }
     }

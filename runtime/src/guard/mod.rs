@@ -85,6 +85,35 @@ pub enum Refusal {
     Collision,
 }
 
+/// The height of a cell nobody measured (NaN in a map in metres): the tallest obstacle a map
+/// in millimetres holds, so that the guard never takes an unknown cell for free ground.
+pub const UNKNOWN_HEIGHT_MM: i16 = i16::MAX;
+
+/// [`UNKNOWN_HEIGHT_MM`] in metres.
+pub const UNKNOWN_HEIGHT_M: f32 = UNKNOWN_HEIGHT_MM as f32 * 1.0e-3;
+
+/// A cell's height as the guard takes it: unknown (NaN) is [`UNKNOWN_HEIGHT_M`].
+#[inline]
+pub(crate) fn known_or_tallest_m(height_m: f32) -> f32 {
+    if height_m.is_nan() {
+        UNKNOWN_HEIGHT_M
+    } else {
+        height_m
+    }
+}
+
+/// A height in metres as a map in millimetres carries it (the fine window, the observation
+/// link): rounded to the millimetre and saturated, and an unknown height (NaN) as
+/// [`UNKNOWN_HEIGHT_MM`], the tallest obstacle.
+pub fn height_mm(height_m: f32) -> i16 {
+    if height_m.is_nan() {
+        UNKNOWN_HEIGHT_MM
+    } else {
+        // `as` saturates at the i16 range.
+        libm::roundf(height_m * 1000.0) as i16
+    }
+}
+
 /// Checks actions against the height map before they are sent.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CollisionGuard {
@@ -323,8 +352,9 @@ impl CollisionGuard {
             for row in rows {
                 for col in intersect(cols.clone(), heights.occupied(row)) {
                     let (x_m, y_m) = heights.cell_centre_m(row, col);
+                    // Unknown heights arrive as the tallest obstacle (`height_at_m`).
                     let height_m = heights.height_at_m(row, col);
-                    if height_m.is_nan() || height_m <= 0.0 {
+                    if height_m <= 0.0 {
                         continue;
                     }
                     let centre = inverse * Point2::new(x_m, y_m);

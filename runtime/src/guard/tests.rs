@@ -331,8 +331,9 @@ fn bad_heights_and_margins_do_not_panic() {
     let mut map = [f32::NAN; HEIGHT_MAP_CELLS];
     map[0] = f32::INFINITY;
     map[1] = -1.0;
+    // Nothing known around the robot: no move is taken for a move over free ground.
     let verdict = guard.check(HeightMapRef::Metres(&map), default_legs(), forward());
-    assert_eq!(verdict, Ok(()));
+    assert_eq!(verdict, Err(Refusal::Collision));
     let bad_legs = LegConfig {
         clearance_m: f32::NAN,
         track_m: 0.3,
@@ -504,4 +505,33 @@ fn a_leg_or_part_skipped_as_apart_from_a_column_overlaps_it_nowhere() {
         legs_apart > 1000 && parts_apart > 1000 && parts_near > 1000 && touching > 100,
         "{legs_apart} {parts_apart} {parts_near} {touching}"
     );
+}
+
+#[test]
+fn an_unknown_cell_is_never_free_ground() {
+    let guard = CollisionGuard::new(&Robot::WHEELLEG, DEFAULT_MARGIN_M);
+    let mut backward = Action::IDLE;
+    backward.set(crate::action::Dim::MoveX, Step::Minus);
+    // Unknown cells where a_wall_just_ahead_refuses_forward_but_not_backward has its wall.
+    let mut map = flat();
+    block(&mut map, (0.31, 0.8), (-0.8, 0.8), f32::NAN);
+    assert!(map.iter().any(|h| h.is_nan()));
+    let metres = HeightMapRef::Metres(&map);
+    assert_eq!(
+        guard.check(metres, default_legs(), forward()),
+        Err(Refusal::Collision)
+    );
+    assert_eq!(guard.check(metres, default_legs(), backward), Ok(()));
+    // In millimetres, as the controller receives a map: the unknown cells are the tallest.
+    let mm: [i16; HEIGHT_MAP_CELLS] = core::array::from_fn(|i| height_mm(map[i]));
+    assert!(mm.contains(&UNKNOWN_HEIGHT_MM));
+    let millimetres = HeightMapRef::Millimetres(&mm);
+    assert_eq!(
+        guard.check(millimetres, default_legs(), forward()),
+        Err(Refusal::Collision)
+    );
+    assert_eq!(guard.check(millimetres, default_legs(), backward), Ok(()));
+    assert_eq!(height_mm(0.1234), 123);
+    assert_eq!(height_mm(-0.0006), -1);
+    assert_eq!(height_mm(1.0e9), i16::MAX);
 }

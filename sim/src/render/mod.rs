@@ -1,6 +1,6 @@
 //! PNG pictures for people, drawn with `plotters`: a scene's top view with the way the robot
-//! took ([`top_view`]), the height map it sees ([`height_map_image`]), and the pieces other
-//! figures share (a chart in world metres, obstacles by kind, the robot's footprint).
+//! took ([`top_view`]), the height map it sees ([`height_map_image`]), a robot's front and
+//! side views at its extreme poses ([`robot_views`]), and the pieces other figures share (a chart in world metres, obstacles by kind, the robot's footprint).
 //!
 //! Every picture has axes in metres and a legend or a colour bar, and draws its text with the
 //! vendored DejaVu Sans (`third_party/dejavu`), so it looks the same on every machine.
@@ -17,9 +17,11 @@ use std::sync::OnceLock;
 use wheelleg_runtime::robot::RobotGeometry;
 
 mod height_map;
+mod robot_views;
 mod top_view;
 
 pub use height_map::height_map_image;
+pub use robot_views::robot_views;
 pub use top_view::top_view;
 
 /// Pixels per metre of the charts of scenes.
