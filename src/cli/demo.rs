@@ -24,8 +24,8 @@ use std::borrow::Cow;
 use std::io::Write;
 use std::path::PathBuf;
 use wheelleg::closed_loop::{
-    ClosedLoop, Driver, EpisodeReport, Fault, LoopConfig, LoopError, PlannerDriver, PolicyDriver,
-    Tolerance, BITRATE_BPS,
+    leg_behaviours, ClosedLoop, Driver, EpisodeReport, Fault, LoopConfig, LoopError, PlannerDriver,
+    PolicyDriver, Tolerance, BITRATE_BPS,
 };
 use wheelleg_firmware_sim::candump::{CandumpWriter, DEFAULT_EPOCH_US};
 use wheelleg_firmware_sim::rig::RigError;
@@ -45,19 +45,19 @@ pub const SHIPPED_WEIGHTS: &[u8] = include_bytes!("../../weights/policy.wlw");
 /// How the shipped weights are named in the demo's report.
 const SHIPPED_LABEL: &str = "shipped weights/policy.wlw, built in";
 
-/// Complex scenes drawn from the seed until the planner solves one: a default scene the demo
-/// cannot finish would demonstrate nothing.
+/// Composed scenes (a leg behaviour's fence amid clutter) drawn from the seed until the planner
+/// solves one: a default scene the demo cannot finish would demonstrate nothing.
 const MAX_SCENE_DRAWS: u32 = 20;
 
-/// Planner effort when choosing the default scene: solvable complex scenes plan in well under
-/// this, while proving one unsolvable can take minutes, so a draw that needs more is skipped.
+/// Planner effort when choosing the default scene: solvable scenes plan in well under this,
+/// while proving one unsolvable can take minutes, so a draw that needs more is skipped.
 const SCENE_CHOICE_EXPANSIONS: usize = 5_000;
 
 /// Arguments of `demo`.
 #[derive(clap::Args)]
 pub struct Args {
     /// Scenario file (JSON); the first scenario, or the one named by --name. Default: a
-    /// generated complex scene (see --seed).
+    /// generated composed scene, a leg behaviour amid clutter (see --seed).
     #[arg(long)]
     scenario: Option<PathBuf>,
     /// Name of the scenario to run from --scenario.
@@ -141,14 +141,14 @@ fn scene(args: &Args, planner: &PlannerConfig) -> Result<(Scenario, String), Str
     };
     for draw in 0..MAX_SCENE_DRAWS {
         let scenario = generate(
-            SceneKind::Complex,
+            SceneKind::Composed,
             &mut rng,
-            format!("complex-seed{}-{draw}", args.seed),
+            format!("composed-seed{}-{draw}", args.seed),
         );
         let env = Env::new(&scenario, LoopConfig::default().env).map_err(|e| e.to_string())?;
         if PlannerDriver::new(&env, &quick).is_ok() {
             let origin = format!(
-                "generated complex scene (seed {}, draw {}: first the planner solves)",
+                "generated composed scene (seed {}, draw {}: first the planner solves)",
                 args.seed,
                 draw + 1
             );
@@ -156,7 +156,7 @@ fn scene(args: &Args, planner: &PlannerConfig) -> Result<(Scenario, String), Str
         }
     }
     Err(format!(
-        "none of the first {MAX_SCENE_DRAWS} complex scenes of seed {} is solvable within {} \
+        "none of the first {MAX_SCENE_DRAWS} composed scenes of seed {} is solvable within {} \
          planner expansions; try another --seed",
         args.seed, quick.max_expansions
     ))
@@ -361,6 +361,39 @@ fn inject_silence(closed_loop: &mut ClosedLoop, node: u8) {
     }
 }
 
+/// What the legs did along `path`: each behaviour with the decisions and the stretch of ground
+/// it took.
+fn describe_behaviours(path: &[wheelleg_sim::state::RobotState]) -> String {
+    let found = leg_behaviours(path);
+    if found.is_empty() {
+        return "stayed in the default pose".into();
+    }
+    found
+        .iter()
+        .map(|b| {
+            let what = match b.name {
+                "lift" => "lifted the body",
+                "spread" => "spread the legs",
+                _ => "narrowed the legs",
+            };
+            let plural = if b.most_steps == 1 { "" } else { "s" };
+            format!(
+                "{what} ({}, up to {} lattice step{plural}) from decision {} to {}, \
+                 ({:.2}, {:.2}) m to ({:.2}, {:.2}) m",
+                b.name,
+                b.most_steps,
+                b.states.0,
+                b.states.1,
+                b.from_m.0,
+                b.from_m.1,
+                b.to_m.0,
+                b.to_m.1
+            )
+        })
+        .collect::<Vec<_>>()
+        .join("; ")
+}
+
 /// `value` to the thousandth, so that a tolerance prints as given (2, not 2.0000002).
 fn thousandths(value: f32) -> f32 {
     (value * 1e3).round() / 1e3
@@ -378,6 +411,7 @@ fn print_report(report: &EpisodeReport, wall_s: f64, tolerance: &Tolerance) {
         (Status::Running, None) => "incomplete".to_owned(),
     };
     outln!("result:    {result}");
+    outln!("legs:      {}", describe_behaviours(&report.path));
     let t = &report.tracking;
     outln!(
         "steps:     {} decisions ({} moved, {} undone by the world, {} refused by the legs), \

@@ -60,7 +60,7 @@ use wheelleg_sim::state::RobotState;
 
 pub use driver::{Driver, DriverError, PlannerDriver, PolicyDriver};
 pub use fault::{Fault, LoopError, StepError};
-pub use report::{EpisodeReport, StepKind, StepRecord, Tracking};
+pub use report::{leg_behaviours, EpisodeReport, LegBehaviour, StepKind, StepRecord, Tracking};
 
 /// The robot's CAN bit rate.
 pub const BITRATE_BPS: f64 = 1_000_000.0;

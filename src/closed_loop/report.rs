@@ -80,3 +80,101 @@ pub struct EpisodeReport {
     /// What the controller made of the feedback it received.
     pub feedback: BusStats,
 }
+
+/// A leg behaviour an episode used: a run of consecutive states whose legs left the default
+/// pose one way.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LegBehaviour {
+    /// `lift` (body raised), `spread` (legs widened) or `squeeze` (legs narrowed).
+    pub name: &'static str,
+    /// First and last state of the run (0: the start).
+    pub states: (usize, usize),
+    /// Where the body centre was at the run's first and last state, world metres.
+    pub from_m: (f32, f32),
+    /// See `from_m`.
+    pub to_m: (f32, f32),
+    /// The farthest the run took the legs from the default pose, in lattice steps.
+    pub most_steps: i32,
+}
+
+/// How many lattice steps a state's legs are off the default pose one way (0 or less: not).
+type StepsOff = fn(&RobotState) -> i32;
+
+/// The leg behaviours along `path`, in the order they began.
+pub fn leg_behaviours(path: &[RobotState]) -> Vec<LegBehaviour> {
+    let kinds: [(&'static str, StepsOff); 3] = [
+        ("lift", |s| s.clearance_steps),
+        ("spread", |s| s.track_steps),
+        ("squeeze", |s| -s.track_steps),
+    ];
+    let mut found = Vec::new();
+    for (name, steps) in kinds {
+        let mut run: Option<LegBehaviour> = None;
+        for (i, state) in path.iter().enumerate() {
+            let at = (state.position.x, state.position.y);
+            match (steps(state) > 0, run.as_mut()) {
+                (true, Some(r)) => {
+                    r.states.1 = i;
+                    r.to_m = at;
+                    r.most_steps = r.most_steps.max(steps(state));
+                }
+                (true, None) => {
+                    run = Some(LegBehaviour {
+                        name,
+                        states: (i, i),
+                        from_m: at,
+                        to_m: at,
+                        most_steps: steps(state),
+                    })
+                }
+                (false, _) => found.extend(run.take()),
+            }
+        }
+        found.extend(run);
+    }
+    found.sort_by_key(|b| b.states.0);
+    found
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Point2;
+
+    fn state(x: f32, clearance_steps: i32, track_steps: i32) -> RobotState {
+        RobotState {
+            clearance_steps,
+            track_steps,
+            ..RobotState::new(Point2::new(x, 0.0), 0)
+        }
+    }
+
+    #[test]
+    fn each_run_off_the_default_pose_is_one_behaviour() {
+        let path = [
+            state(0.0, 0, 0),
+            state(0.1, 1, 0),
+            state(0.2, 3, -1),
+            state(0.3, 0, -2),
+            state(0.4, 0, 0),
+            state(0.5, -1, 4),
+            state(0.6, 0, 0),
+        ];
+        let found = leg_behaviours(&path);
+        let summary: Vec<_> = found
+            .iter()
+            .map(|b| (b.name, b.states, b.most_steps))
+            .collect();
+        assert_eq!(
+            summary,
+            [
+                ("lift", (1, 2), 3),
+                ("squeeze", (2, 3), 2),
+                ("spread", (5, 5), 4)
+            ]
+        );
+        assert_eq!(found[0].from_m, (0.1, 0.0));
+        assert_eq!(found[0].to_m, (0.2, 0.0));
+        assert!(leg_behaviours(&path[..1]).is_empty());
+    }
+}

@@ -48,6 +48,12 @@ fn demo_binary_writes_the_path_and_the_bus_log() {
     );
     assert!(stdout.contains("collision guard"), "{stdout}");
     assert!(stdout.contains("SUCCESS"), "{stdout}");
+    // The default scene is a leg behaviour amid clutter, and the report says what the legs did.
+    assert!(stdout.contains("generated composed scene"), "{stdout}");
+    assert!(
+        stdout.contains("legs:      ") && !stdout.contains("stayed in the default pose"),
+        "{stdout}"
+    );
 
     // The same with a (random) weights file: the policy drives, the loop runs to the end.
     std::fs::write(dir.join("random.wlw"), random_policy_bytes(3)).unwrap();
