@@ -17,8 +17,8 @@ use wheelleg_trainer::network_f32::NetworkF32;
 use wheelleg_trainer::quantize::{fine_tune, ActionRange, QatOptions, QatSettings, RangeMethod};
 
 fn baseline() -> NetworkF32 {
-    let path =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../runs/baseline-s0/checkpoint.ckpt");
+    // Plain PPO (configs/baseline.toml, seed 0).
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/baseline.ckpt");
     Checkpoint::load(&path)
         .unwrap()
         .network

@@ -112,7 +112,7 @@ fn staged_successes_are_not_stored_and_unstaged_runs_log_no_stage() {
     // have to succeed), nothing is stored, and without the curriculum the same run stores.
     let straight = wheelleg_trainer::checkpoint::load_policy(std::path::Path::new(concat!(
         env!("CARGO_MANIFEST_DIR"),
-        "/../runs/curriculum-s0/secondary-straight/checkpoint.ckpt"
+        "/tests/fixtures/straight-secondary.ckpt"
     )))
     .unwrap();
     let mut config = staged_config("straight");
