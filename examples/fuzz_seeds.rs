@@ -254,7 +254,12 @@ fn can_seeds(out: &Path) {
         clearance_m: WHEELLEG.default_clearance_m,
         track_m: WHEELLEG.default_track_m,
     };
-    let mut rig = Rig::in_process(&WHEELLEG, RigConfig::default(), legs).unwrap();
+    let mut rig = Rig::in_process(
+        &wheelleg_runtime::robot::Robot::WHEELLEG,
+        RigConfig::default(),
+        legs,
+    )
+    .unwrap();
     let log = SharedLog::default();
     rig.log_to(CandumpWriter::new(
         Box::new(log.clone()),

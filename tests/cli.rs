@@ -484,13 +484,14 @@ fn robot_refuses_bad_descriptions_and_urdfs_by_name() {
 
 /// The shipped policy's tensors in a version 3 file trained for `robot`.
 fn weights_for(robot: &wheelleg_robot::RobotDescription) -> Vec<u8> {
+    use wheelleg_runtime::model::format::RobotRecord;
     use wheelleg_runtime::model::format::FORMAT_VERSION;
-    use wheelleg_runtime::model::load::{open_envelope, record_of};
+    use wheelleg_runtime::model::load::open_envelope;
     let shipped =
         std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/weights/policy.wlw")).unwrap();
     let (_, payload) = open_envelope(&shipped).unwrap();
     let mut payload = payload.to_vec();
-    let record = record_of(&robot.name, &robot.robot, robot.bit_rate_bps);
+    let record = RobotRecord::of(&robot.name, &robot.robot, robot.bit_rate_bps);
     payload.extend(postcard::to_allocvec(&record).unwrap());
     wheelleg_trainer::quantize::file_bytes::envelope_bytes(FORMAT_VERSION, &payload).unwrap()
 }

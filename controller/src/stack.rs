@@ -157,7 +157,6 @@ pub struct Stack<'w, 'd, const STATES: usize = CONTROLLER_STATES> {
     decider: &'d mut Decider<STATES>,
     guard: CollisionGuard,
     window: WindowBounds,
-    robot: Robot,
 }
 
 impl<'w, 'd, const STATES: usize> Stack<'w, 'd, STATES> {
@@ -178,13 +177,12 @@ impl<'w, 'd, const STATES: usize> Stack<'w, 'd, STATES> {
             decider,
             guard,
             window,
-            robot,
         })
     }
 
     /// The robot the weights were trained for: what the control loop drives.
     pub fn robot(&self) -> Robot {
-        self.robot
+        self.policy.model().trained_for.robot
     }
 
     /// The part of the fine map the guard reads.
@@ -253,8 +251,11 @@ impl<'w, 'd, const STATES: usize> Stack<'w, 'd, STATES> {
     ) -> DecisionRecord {
         let legs = observation.legs();
         let key = ObservationKey::of_mm(&observation.height_mm, &observation.state_mm);
-        let arrival =
-            Arrival::from_state_mm(&observation.state_mm, DEFAULT_RADIUS_M, &self.robot.actions);
+        let arrival = Arrival::from_state_mm(
+            &observation.state_mm,
+            DEFAULT_RADIUS_M,
+            &self.policy.model().trained_for.robot.actions,
+        );
         let greedy = outputs.action();
         let greedy_verdict = match self.guard.check(map, legs, greedy) {
             Ok(()) => 0,

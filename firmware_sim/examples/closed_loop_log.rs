@@ -8,7 +8,7 @@ use wheelleg_firmware_sim::rig::{Rig, RigConfig};
 use wheelleg_runtime::action::{Action, Step};
 use wheelleg_runtime::can::bus_load::{bus_load, Traffic};
 use wheelleg_runtime::leg::LegConfig;
-use wheelleg_runtime::robot::WHEELLEG;
+use wheelleg_runtime::robot::{Robot, WHEELLEG};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let path = std::env::args()
@@ -18,7 +18,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         clearance_m: WHEELLEG.default_clearance_m,
         track_m: WHEELLEG.default_track_m,
     };
-    let mut rig = Rig::in_process(&WHEELLEG, RigConfig::default(), start)?;
+    let mut rig = Rig::in_process(&Robot::WHEELLEG, RigConfig::default(), start)?;
     let file = BufWriter::new(std::fs::File::create(&path)?);
     rig.log_to(CandumpWriter::new(Box::new(file), "can0", DEFAULT_EPOCH_US));
     rig.start_up()?;

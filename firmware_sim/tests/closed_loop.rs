@@ -33,7 +33,7 @@ fn default_legs() -> LegConfig {
 }
 
 fn started(config: RigConfig) -> Rig {
-    let mut rig = Rig::in_process(&WHEELLEG, config, default_legs()).unwrap();
+    let mut rig = Rig::in_process(&Robot::WHEELLEG, config, default_legs()).unwrap();
     rig.start_up().unwrap();
     rig
 }
@@ -257,7 +257,7 @@ impl Write for SharedBuf {
 
 #[test]
 fn logged_traffic_replays_into_the_same_feedback() {
-    let mut rig = Rig::in_process(&WHEELLEG, RigConfig::default(), default_legs()).unwrap();
+    let mut rig = Rig::in_process(&Robot::WHEELLEG, RigConfig::default(), default_legs()).unwrap();
     let buf = SharedBuf::default();
     rig.log_to(CandumpWriter::new(
         Box::new(buf.clone()),

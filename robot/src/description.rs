@@ -27,15 +27,15 @@ pub struct RobotDescription {
 }
 
 impl RobotDescription {
-    /// The shipped robot (`robots/wheelleg.toml`).
+    /// The shipped robot: the runtime's [`TrainedFor::SHIPPED`], which `robots/wheelleg.toml`
+    /// describes bit for bit (`tests/description.rs`).
     pub fn shipped() -> RobotDescription {
-        // The shipped file is checked by this crate's tests; a broken one fails them, never a
-        // user's run, so the fallback to the compiled constants is never taken.
-        RobotDescription::from_toml(SHIPPED_TOML).unwrap_or(RobotDescription {
-            name: "wheelleg".into(),
-            robot: Robot::WHEELLEG,
-            bit_rate_bps: 1_000_000,
-        })
+        let shipped = TrainedFor::SHIPPED;
+        RobotDescription {
+            name: shipped.name.into(),
+            robot: shipped.robot,
+            bit_rate_bps: shipped.bit_rate_bps,
+        }
     }
 
     /// Reads and checks a description from TOML text.

@@ -184,9 +184,8 @@ impl Section {
     }
 
     /// The tunnel's free height: the body's underside, or lower where a link dips inside the
-    /// tunnel's width above the ground.
-    fn tunnel_height_m(&self) -> f32 {
-        let half = self.tunnel_half_width_m();
+    /// tunnel's half width `half` above the ground.
+    fn tunnel_height_m(&self, half: f32) -> f32 {
         self.link_points()
             .filter(|p| p[0] - self.link_radius_m < half)
             .map(|p| p[1] - self.link_radius_m)
@@ -219,10 +218,13 @@ pub fn reach(description: &RobotDescription) -> Reach {
                 [s[0].min(v), s[1].max(v)]
             })
     };
-    let tunnel = |(pose, s): &(Pose, Section)| Passage {
-        width_m: 2.0 * s.tunnel_half_width_m(),
-        height_m: s.tunnel_height_m(),
-        pose: *pose,
+    let tunnel = |(pose, s): &(Pose, Section)| {
+        let half = s.tunnel_half_width_m();
+        Passage {
+            width_m: 2.0 * half,
+            height_m: s.tunnel_height_m(half),
+            pose: *pose,
+        }
     };
     let gap = |(pose, s): &(Pose, Section)| Passage {
         width_m: 2.0 * s.outer_half_width_m(),

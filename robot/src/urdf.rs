@@ -22,15 +22,13 @@
 //! nominal masses (uniform density 1,000 kg/m³, not the robot's) so that simulators accept it.
 
 use crate::description::{
-    ActionKeys, AxisKeys, AxisTable, BodyKeys, CanKeys, ControlMode, DescriptionFile, LegKeys,
-    PoseKeys, RobotDescription, WheelKeys,
+    ActionKeys, BodyKeys, CanKeys, DescriptionFile, LegKeys, PoseKeys, RobotDescription, WheelKeys,
 };
 use crate::validate::validate;
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use std::collections::HashMap;
-use wheelleg_runtime::can::node_map::Axis;
 use wheelleg_runtime::leg::LegConfig;
-use wheelleg_runtime::robot::{LegId, Robot};
+use wheelleg_runtime::robot::LegId;
 
 /// Tolerance on directions and on the legs' mirror symmetry: a micrometre, or a micro-radian.
 const TOLERANCE: f64 = 1e-6;
@@ -174,9 +172,8 @@ fn read_leg(
     hip: &urdf_rs::Joint,
     body: &Isometry3<f64>,
 ) -> Result<LegRead, UrdfError> {
-    let hip_frame = isometry(&hip.origin);
-    let hip_in_body = body.inverse() * hip_frame;
-    let p = hip_in_body.translation.vector;
+    let frame_hip = body.inverse() * isometry(&hip.origin);
+    let p = frame_hip.translation.vector;
     if p.z.abs() > TOLERANCE {
         return refuse(format!(
             "joint '{}' is {:.4} m above the body box's centre; the hips must sit at the body's mid-height",
@@ -216,7 +213,6 @@ fn read_leg(
         }
         Ok(length)
     };
-    let frame_hip = body.inverse() * hip_frame;
     let k_hip = sign(hip, &frame_hip)?;
     let thigh_link = tree.link(&hip.child.link)?;
     let knee = tree.next(&hip.child.link, "knee", urdf_rs::JointType::Revolute)?;
@@ -413,6 +409,7 @@ pub fn import(text: &str) -> Result<RobotDescription, UrdfError> {
         }
     }
     let own = own_element(text)?;
+    let shipped = DescriptionFile::from_description(&RobotDescription::shipped());
     let name = if valid_name(&urdf.name) {
         urdf.name.clone()
     } else {
@@ -453,8 +450,9 @@ pub fn import(text: &str) -> Result<RobotDescription, UrdfError> {
             default_clearance_m: 0.0,
             default_track_m: 0.0,
         },
-        actions: default_actions(),
-        can: default_can(),
+        // The shipped robot's lattice and CAN map: the documented defaults the user edits.
+        actions: shipped.actions,
+        can: shipped.can,
     };
     match own {
         Some(own) => {
@@ -499,38 +497,6 @@ fn own_element(text: &str) -> Result<Option<OwnElement>, UrdfError> {
     toml::from_str(body)
         .map(Some)
         .map_err(|e| UrdfError(format!("the <wheelleg> element: {e}")))
-}
-
-fn default_actions() -> ActionKeys {
-    let file = DescriptionFile::from_description(&RobotDescription {
-        name: String::new(),
-        robot: Robot::WHEELLEG,
-        bit_rate_bps: 1_000_000,
-    });
-    file.actions
-}
-
-fn default_can() -> CanKeys {
-    CanKeys {
-        bit_rate_bps: 1_000_000,
-        axes: AxisTable::from_fn(|axis| {
-            let index = axis.index() as u8;
-            match axis {
-                Axis::Joint(..) => AxisKeys {
-                    node_id: 1 + index,
-                    direction: 1,
-                    gear_ratio: 9.0,
-                    control_mode: ControlMode::Position,
-                },
-                Axis::Wheel(leg) => AxisKeys {
-                    node_id: 1 + index,
-                    direction: leg.side_sign() as i8,
-                    gear_ratio: 1.0,
-                    control_mode: ControlMode::Velocity,
-                },
-            }
-        }),
-    }
 }
 
 /// The pose ranges the joint limits reach, rounded inward to the centimetre, and the default

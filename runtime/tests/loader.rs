@@ -9,8 +9,8 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use wheelleg_runtime::can::node_map::AXIS_COUNT;
 use wheelleg_runtime::can::{NodeId, NodeMap};
-use wheelleg_runtime::model::format::{FORMAT_VERSION, MAGIC, OLDEST_FORMAT_VERSION};
-use wheelleg_runtime::model::load::{record_of, Model, TrainedFor, MAX_CONV_LAYERS};
+use wheelleg_runtime::model::format::{RobotRecord, FORMAT_VERSION, MAGIC, OLDEST_FORMAT_VERSION};
+use wheelleg_runtime::model::load::{Model, TrainedFor, MAX_CONV_LAYERS};
 use wheelleg_runtime::model::{Capacity, DefaultPolicy, LayerRef, LoadError, Policy};
 use wheelleg_runtime::robot::Robot;
 
@@ -460,7 +460,7 @@ fn a_robot_the_runtime_cannot_drive_is_refused_by_what_is_wrong() {
     let mut file = WeightsFile::shipped();
     file.version = FORMAT_VERSION;
     let payload = file.payload_bytes();
-    let record = record_of("wheelleg", &Robot::WHEELLEG, 1_000_000);
+    let record = RobotRecord::of("wheelleg", &Robot::WHEELLEG, 1_000_000);
     let mut encoded = Vec::new();
     push(&mut encoded, &record);
     let record_len = encoded.len();

@@ -53,7 +53,7 @@ use wheelleg_firmware_sim::candump::CandumpWriter;
 use wheelleg_firmware_sim::rig::{Rig, RigConfig, RigError, StepReport};
 use wheelleg_runtime::action::Action;
 use wheelleg_runtime::motion::{BaseDisplacement, MotionError, StepMotion};
-use wheelleg_runtime::robot::RobotGeometry;
+use wheelleg_runtime::robot::{Robot, RobotGeometry};
 use wheelleg_sim::env::{Env, EnvConfig, InvalidAction};
 use wheelleg_sim::scenario::Scenario;
 use wheelleg_sim::state::RobotState;
@@ -120,13 +120,22 @@ pub(crate) fn lattice_pose(state: &RobotState) -> Isometry2<f32> {
     )
 }
 
+/// The robot the loop drives: the world's geometry, with the shipped robot's action lattice
+/// and node map (the simulator runs the shipped robot).
+fn sim_robot(env: &Env) -> Robot {
+    Robot {
+        geometry: *env.geometry(),
+        ..Robot::WHEELLEG
+    }
+}
+
 impl ClosedLoop {
     /// The loop on the in-process bus with simulated motors; not started yet
     /// ([`ClosedLoop::start`]).
     pub fn in_process(scenario: &Scenario, config: LoopConfig) -> Result<ClosedLoop, LoopError> {
         let env = Env::new(scenario, config.env)?;
         let legs = env.state().leg_config(env.geometry());
-        let rig = Rig::in_process(env.geometry(), config.rig, legs)?;
+        let rig = Rig::in_process(&sim_robot(&env), config.rig, legs)?;
         Ok(ClosedLoop::with(env, rig, config))
     }
 
@@ -139,7 +148,7 @@ impl ClosedLoop {
     ) -> Result<ClosedLoop, LoopError> {
         let env = Env::new(scenario, config.env)?;
         let legs = env.state().leg_config(env.geometry());
-        let rig = Rig::remote(env.geometry(), config.rig, legs, transport)?;
+        let rig = Rig::remote(&sim_robot(&env), config.rig, legs, transport)?;
         Ok(ClosedLoop::with(env, rig, config))
     }
 

@@ -5,7 +5,7 @@ use nalgebra::Isometry2;
 use wheelleg_runtime::base::BaseError;
 use wheelleg_runtime::can::bus_load::frame_bits;
 use wheelleg_runtime::can::host::{CanError, Health};
-use wheelleg_runtime::can::node_map::{Axis, NodeMap};
+use wheelleg_runtime::can::node_map::Axis;
 use wheelleg_runtime::can::CanFrame;
 use wheelleg_runtime::leg::{IkError, LegConfig};
 use wheelleg_runtime::motion::{MotionConfig, MotionError};
@@ -23,8 +23,6 @@ pub struct RigConfig {
     pub health_timeout_us: u64,
     /// Fault injection on the in-process bus.
     pub faults: Faults,
-    /// Node map and calibration.
-    pub map: NodeMap,
 }
 
 impl Default for RigConfig {
@@ -37,7 +35,6 @@ impl Default for RigConfig {
             settle_s: 0.2,
             health_timeout_us: 50_000,
             faults: Faults::NONE,
-            map: NodeMap::NOMINAL,
         }
     }
 }

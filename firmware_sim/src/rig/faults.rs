@@ -35,11 +35,12 @@ impl Rig {
     /// The legs as the simulated joints really are (forward kinematics of their true
     /// positions, averaged over the four legs); `None` for a remote rig.
     pub fn true_legs(&self) -> Option<LegConfig> {
-        self.firmware.true_legs(&self.config.map, &self.geometry)
+        self.firmware
+            .true_legs(&self.robot.can, &self.robot.geometry)
     }
 
     pub(super) fn true_wheel_speeds(&self) -> Option<WheelSpeeds> {
-        self.firmware.true_wheel_speeds(&self.config.map)
+        self.firmware.true_wheel_speeds(&self.robot.can)
     }
 
     /// Starts (or stops) recording the ground truth at the end of every control tick; what was

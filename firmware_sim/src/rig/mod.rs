@@ -38,7 +38,7 @@ use wheelleg_runtime::can::protocol::AxisState;
 use wheelleg_runtime::can::CanFrame;
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::motion::{ideal_step, MotionConfig, Setpoint, StepMotion, StopMotion};
-use wheelleg_runtime::robot::{Robot, RobotGeometry};
+use wheelleg_runtime::robot::Robot;
 
 mod config;
 mod faults;
@@ -54,7 +54,8 @@ pub const TX_QUEUE_FRAMES: usize = 64;
 
 /// The controller and, on an in-process bus, the simulated motors, stepped together.
 pub struct Rig {
-    geometry: RobotGeometry,
+    /// The robot driven: its geometry, action lattice and node map.
+    robot: Robot,
     config: RigConfig,
     commander: Commander,
     tracker: FeedbackTracker,
@@ -93,22 +94,19 @@ pub struct Rig {
 }
 
 impl Rig {
-    /// A rig on an in-process bus, legs at `start`, motors idle; call [`Rig::start_up`] next.
-    pub fn in_process(
-        geometry: &RobotGeometry,
-        config: RigConfig,
-        start: LegConfig,
-    ) -> Result<Rig, RigError> {
+    /// A rig for `robot` on an in-process bus, legs at `start`, motors idle; call
+    /// [`Rig::start_up`] next.
+    pub fn in_process(robot: &Robot, config: RigConfig, start: LegConfig) -> Result<Rig, RigError> {
         let bus = InProcessBus::new(config.faults);
         let host = bus.port();
         let firmware_port = bus.port();
         Ok(Rig {
-            geometry: *geometry,
+            robot: *robot,
             config,
-            commander: Commander::new(config.map),
-            tracker: FeedbackTracker::new(config.map),
+            commander: Commander::new(robot.can),
+            tracker: FeedbackTracker::new(robot.can),
             tx: TxQueue::new(),
-            firmware: Firmware::for_robot(geometry, &config.map, start)?,
+            firmware: Firmware::for_robot(&robot.geometry, &robot.can, start)?,
             bus,
             host: Box::new(host),
             firmware_port: Some(firmware_port),
@@ -135,19 +133,19 @@ impl Rig {
     /// in another process, or real ODrives): no local simulation, control ticks paced by the
     /// wall clock. The remote axes must start with the legs at `start`.
     pub fn remote(
-        geometry: &RobotGeometry,
+        robot: &Robot,
         config: RigConfig,
         start: LegConfig,
         host: Box<dyn Transport>,
     ) -> Result<Rig, RigError> {
-        geometry.leg_ik(start)?;
+        robot.geometry.leg_ik(start)?;
         Ok(Rig {
-            geometry: *geometry,
+            robot: *robot,
             config,
-            commander: Commander::new(config.map),
-            tracker: FeedbackTracker::new(config.map),
+            commander: Commander::new(robot.can),
+            tracker: FeedbackTracker::new(robot.can),
             tx: TxQueue::new(),
-            firmware: Firmware::new(Vec::new(), config.map),
+            firmware: Firmware::new(Vec::new(), robot.can),
             bus: InProcessBus::new(Faults::NONE),
             host,
             firmware_port: None,
@@ -251,7 +249,7 @@ impl Rig {
     /// Arms every axis and holds the start pose until all report closed loop.
     pub fn start_up(&mut self) -> Result<(), RigError> {
         self.commander.queue_startup(&mut self.tx)?;
-        let hold = Setpoint::hold(&self.geometry, self.legs)?;
+        let hold = Setpoint::hold(&self.robot.geometry, self.legs)?;
         // A few heartbeat periods: enough for every axis to report its new state.
         for _ in 0..30 {
             self.control_tick(&hold, false)?;
@@ -287,9 +285,9 @@ impl Rig {
         }
         if let (Some(wheels), Some(legs)) = (
             self.tracker.wheel_speeds(),
-            self.tracker.leg_config(&self.geometry),
+            self.tracker.leg_config(&self.robot.geometry),
         ) {
-            let base = MecanumBase::at(&self.geometry, legs)?;
+            let base = MecanumBase::at(&self.robot.geometry, legs)?;
             self.odometry
                 .integrate_wheels(&base, wheels, self.tick_s())?;
         }
@@ -339,7 +337,7 @@ impl Rig {
                     }
                     if let (Some(legs), Some(wheels)) = (self.true_legs(), self.true_wheel_speeds())
                     {
-                        let base = MecanumBase::at(&self.geometry, legs)?;
+                        let base = MecanumBase::at(&self.robot.geometry, legs)?;
                         self.true_odometry.integrate_wheels(&base, wheels, dt_s)?;
                     }
                     if !self.scheduled.is_empty() {
@@ -377,7 +375,7 @@ impl Rig {
 
     /// Holds the current legs with wheels stopped for `duration_s` (still supervised).
     pub fn hold(&mut self, duration_s: f32) -> Result<(), RigError> {
-        let hold = Setpoint::hold(&self.geometry, self.legs)?;
+        let hold = Setpoint::hold(&self.robot.geometry, self.legs)?;
         let ticks = (duration_s / self.tick_s()).round() as u32;
         for _ in 0..ticks {
             self.control_tick(&hold, true)?;
@@ -387,16 +385,10 @@ impl Rig {
 
     /// Executes one decision: its setpoint stream, then `settle_s` of holding the target.
     pub fn step(&mut self, action: Action) -> Result<StepReport, RigError> {
-        // The host rig drives the shipped robot's lattice with its own geometry and node map.
-        let robot = Robot {
-            geometry: self.geometry,
-            actions: Robot::WHEELLEG.actions,
-            can: self.config.map,
-        };
-        let motion = StepMotion::plan(&robot, &self.config.motion, self.legs, action)?;
+        let motion = StepMotion::plan(&self.robot, &self.config.motion, self.legs, action)?;
         debug_assert_eq!(
             (motion.displacement().isometry(), motion.target()),
-            ideal_step(self.legs, action, &robot.actions)
+            ideal_step(self.legs, action, &self.robot.actions)
         );
         self.execute(motion)
     }
@@ -426,7 +418,7 @@ impl Rig {
         self.hold(self.config.settle_s)?;
         let achieved_legs =
             self.tracker
-                .leg_config(&self.geometry)
+                .leg_config(&self.robot.geometry)
                 .ok_or(RigError::StartupFailed(
                     self.tracker
                         .health(self.now_us, self.config.health_timeout_us),

@@ -59,7 +59,7 @@ impl Rig {
             self.stopped_at_us = Some(self.now_us);
             self.begin_stop(0);
         }
-        let hold = Setpoint::hold(&self.geometry, self.legs)?;
+        let hold = Setpoint::hold(&self.robot.geometry, self.legs)?;
         self.control_tick(&hold, false)
     }
 

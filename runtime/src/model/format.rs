@@ -199,3 +199,31 @@ pub struct RobotRecord<'a> {
     /// The bus's bit rate.
     pub bit_rate_bps: u32,
 }
+
+impl<'a> RobotRecord<'a> {
+    /// The record that stores `robot` under `name` (for writers).
+    pub fn of(name: &'a str, robot: &crate::robot::Robot, bit_rate_bps: u32) -> RobotRecord<'a> {
+        let map = &robot.can;
+        let a = &robot.actions;
+        RobotRecord {
+            name,
+            geometry: robot.geometry.to_array(),
+            actions: [
+                a.move_step_m,
+                a.yaw_step_deg,
+                a.clearance_step_m,
+                a.track_step_m,
+            ],
+            node_ids: crate::can::Axis::ALL.map(|axis| map.node_id(axis).get()),
+            directions: crate::can::Axis::ALL.map(|axis| {
+                if map.get(axis).direction < 0.0 {
+                    -1
+                } else {
+                    1
+                }
+            }),
+            gear_ratios: crate::can::Axis::ALL.map(|axis| map.get(axis).gear_ratio),
+            bit_rate_bps,
+        }
+    }
+}

@@ -18,7 +18,7 @@ use wheelleg_runtime::model::format::{
     FORMAT_VERSION, MAGIC,
 };
 use wheelleg_runtime::model::format::{RobotRecord, ROBOT_RECORD_VERSION};
-use wheelleg_runtime::model::load::{open_envelope, record_of, trained_for};
+use wheelleg_runtime::model::load::{open_envelope, trained_for};
 use wheelleg_runtime::robot::Robot;
 
 mod inputs;
@@ -363,7 +363,7 @@ impl WeightsFile {
         if self.version >= ROBOT_RECORD_VERSION {
             push(
                 &mut out,
-                &record_of(&self.robot.name, &self.robot.robot, self.robot.bit_rate_bps),
+                &RobotRecord::of(&self.robot.name, &self.robot.robot, self.robot.bit_rate_bps),
             );
         }
         out

@@ -4,10 +4,9 @@
 use serde::Serialize;
 use wheelleg_runtime::model::crc32::crc32;
 use wheelleg_runtime::model::format::{
-    ActQuantRecord, ConvRecord, DenseRecord, Envelope, InputQuantRecord, InputRecord,
+    ActQuantRecord, ConvRecord, DenseRecord, Envelope, InputQuantRecord, InputRecord, RobotRecord,
     FORMAT_VERSION, MAGIC, OLDEST_FORMAT_VERSION, ROBOT_RECORD_VERSION,
 };
-use wheelleg_runtime::model::load::record_of;
 
 use super::params::ActQuant;
 
@@ -168,7 +167,7 @@ impl QuantizedNetwork {
             // The seventh part: postcard lays out a struct as its fields one after another, so
             // appending the record is the payload with the record as a last field.
             let robot = &self.robot;
-            let record = record_of(&robot.name, &robot.robot, robot.bit_rate_bps);
+            let record = RobotRecord::of(&robot.name, &robot.robot, robot.bit_rate_bps);
             bytes.extend(
                 postcard::to_allocvec(&record).map_err(|e| QuantizeError::Encode(e.to_string()))?,
             );

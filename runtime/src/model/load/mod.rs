@@ -28,7 +28,7 @@ use checks::{
 pub use checks::{i32_at, open_envelope};
 pub use error::{Capacity, LayerRef, LoadError};
 pub use layers::{ConvLayer, DenseLayer, Linear, Requirements};
-pub use robot::{record_of, trained_for, TrainedFor};
+pub use robot::{trained_for, TrainedFor};
 
 /// Most conv layers a model may have (sizes the layer table, not the activations).
 pub const MAX_CONV_LAYERS: usize = 8;
