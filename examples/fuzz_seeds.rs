@@ -119,7 +119,12 @@ fn weights_seeds(out: &Path) {
     let mut rng = ChaCha8Rng::seed_from_u64(1);
     let observations: Vec<(Vec<f32>, Vec<f32>)> = (0..4)
         .map(|i| {
-            let scene = generate(SceneKind::Complex, &mut rng, format!("calibration-{i}"));
+            let scene = generate(
+                wheelleg_sim::generate::SceneRobot::shipped(),
+                SceneKind::Complex,
+                &mut rng,
+                format!("calibration-{i}"),
+            );
             let mut o = Observation::default();
             Env::new(&scene, EnvConfig::default())
                 .unwrap()
@@ -161,9 +166,17 @@ fn scenario_seeds(out: &Path) {
     for kind in SceneKind::ALL {
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let scenes: Vec<_> = (0..2)
-            .map(|i| generate(kind, &mut rng, format!("{}-{i}", kind.name())))
+            .map(|i| {
+                generate(
+                    wheelleg_sim::generate::SceneRobot::shipped(),
+                    kind,
+                    &mut rng,
+                    format!("{}-{i}", kind.name()),
+                )
+            })
             .collect();
-        let json = wheelleg_sim::scenario_file::to_json(&scenes);
+        let json =
+            wheelleg_sim::scenario_file::to_json(&scenes, &wheelleg_runtime::robot::WHEELLEG);
         write(
             out,
             "scenario_json",
@@ -177,6 +190,7 @@ fn checkpoint_seeds(out: &Path) {
     for (i, arch) in small_architectures().iter().enumerate() {
         let network = NetworkF32::random(arch, &mut ChaCha8Rng::seed_from_u64(i as u64));
         let scene = generate(
+            wheelleg_sim::generate::SceneRobot::shipped(),
             SceneKind::Complex,
             &mut ChaCha8Rng::seed_from_u64(i as u64),
             format!("complex-e0-{i}"),
@@ -184,7 +198,10 @@ fn checkpoint_seeds(out: &Path) {
         let envs = (0..i)
             .map(|e| EnvSnapshot {
                 scene_rng_word_pos: 1234 * e as u128,
-                scenario_json: wheelleg_sim::scenario_file::to_json(std::slice::from_ref(&scene)),
+                scenario_json: wheelleg_sim::scenario_file::to_json(
+                    std::slice::from_ref(&scene),
+                    &wheelleg_runtime::robot::WHEELLEG,
+                ),
                 actions: vec![121, 40, 202][..e].to_vec(),
                 episodes_started: e as u64,
             })

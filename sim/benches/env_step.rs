@@ -53,10 +53,15 @@ fn bench_env(c: &mut Criterion) {
     ] {
         let kind = kind.expect("known kind");
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
-        let envs: Vec<Env> = generate_many(kind, &mut rng, 64)
-            .iter()
-            .map(|s| Env::new(s, EnvConfig::default()).expect("generated scenes are valid"))
-            .collect();
+        let envs: Vec<Env> = generate_many(
+            wheelleg_sim::generate::SceneRobot::shipped(),
+            kind,
+            &mut rng,
+            64,
+        )
+        .iter()
+        .map(|s| Env::new(s, EnvConfig::default()).expect("generated scenes are valid"))
+        .collect();
         let mut observation = Observation::default();
         group.bench_function(kind.name(), |b| {
             b.iter(|| black_box(run_steps(&envs, &mut rng, &mut observation, STEPS)))
@@ -65,7 +70,12 @@ fn bench_env(c: &mut Criterion) {
     group.finish();
 
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2);
-    let scenes = generate_many(SceneKind::Complex, &mut rng, 64);
+    let scenes = generate_many(
+        wheelleg_sim::generate::SceneRobot::shipped(),
+        SceneKind::Complex,
+        &mut rng,
+        64,
+    );
     let boxes: Vec<Vec<_>> = scenes
         .iter()
         .map(|s| s.obstacles.iter().map(|o| o.ground_box()).collect())
@@ -85,6 +95,7 @@ fn bench_env(c: &mut Criterion) {
         })
     });
     let lift = generate_many(
+        wheelleg_sim::generate::SceneRobot::shipped(),
         SceneKind::from_name("lift").expect("known kind"),
         &mut rng,
         8,

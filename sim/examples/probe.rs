@@ -43,7 +43,12 @@ fn main() {
             (0, 0, 0, 0.0, 0.0f32);
         let mut expansions = Vec::new();
         // Every kind draws from the one generator, so a skipped kind still draws its scenes.
-        let scenes = generate_many(kind, &mut rng, per_kind);
+        let scenes = generate_many(
+            wheelleg_sim::generate::SceneRobot::shipped(),
+            kind,
+            &mut rng,
+            per_kind,
+        );
         if only.as_deref().is_some_and(|name| name != kind.name()) {
             continue;
         }

@@ -88,7 +88,12 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
 
     fn scenes(n: usize) -> Vec<Scenario> {
-        generate_many(SceneKind::Complex, &mut ChaCha8Rng::seed_from_u64(3), n)
+        generate_many(
+            crate::generate::SceneRobot::shipped(),
+            SceneKind::Complex,
+            &mut ChaCha8Rng::seed_from_u64(3),
+            n,
+        )
     }
 
     #[test]

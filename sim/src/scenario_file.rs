@@ -20,7 +20,7 @@ use nalgebra::Point2;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 use wheelleg_runtime::action::{CLEARANCE_STEP_M, TRACK_STEP_M, YAW_STEP_DEG};
-use wheelleg_runtime::robot::{RobotGeometry, WHEELLEG};
+use wheelleg_runtime::robot::RobotGeometry;
 
 #[derive(Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -129,9 +129,9 @@ pub fn load(path: &Path, geometry: &RobotGeometry) -> Result<Vec<Scenario>, Scen
 }
 
 /// Serializes scenarios as a scenario file.
-pub fn to_json(scenarios: &[Scenario]) -> String {
+pub fn to_json(scenarios: &[Scenario], geometry: &RobotGeometry) -> String {
     let file = FileRecord {
-        scenarios: scenarios.iter().map(to_record).collect(),
+        scenarios: scenarios.iter().map(|s| to_record(s, geometry)).collect(),
     };
     // Serializing plain records of strings and numbers cannot fail.
     serde_json::to_string_pretty(&file).unwrap_or_default()
@@ -139,8 +139,12 @@ pub fn to_json(scenarios: &[Scenario]) -> String {
 
 /// Writes a scenario file atomically: a reader never sees half a file, and a failed write leaves
 /// the old file in place.
-pub fn save(path: &Path, scenarios: &[Scenario]) -> Result<(), ScenarioFileError> {
-    crate::atomic_write(path, to_json(scenarios).as_bytes()).map_err(|source| {
+pub fn save(
+    path: &Path,
+    scenarios: &[Scenario],
+    geometry: &RobotGeometry,
+) -> Result<(), ScenarioFileError> {
+    crate::atomic_write(path, to_json(scenarios, geometry).as_bytes()).map_err(|source| {
         ScenarioFileError::Io {
             path: path.display().to_string(),
             source,
@@ -257,12 +261,11 @@ fn from_record(
     })
 }
 
-fn to_record(s: &Scenario) -> ScenarioRecord {
+fn to_record(s: &Scenario, geometry: &RobotGeometry) -> ScenarioRecord {
     // Values are printed at 0.1 mm: scenario coordinates live on mm-scale lattices, and this
     // keeps files readable (no 0.30000001) while reading back to the same f32.
     let round = |v: f32| (v as f64 * 1.0e4).round() / 1.0e4;
-    // Files describe the project's robot (the one `Env::new` simulates).
-    let legs = s.start.leg_config(&WHEELLEG);
+    let legs = s.start.leg_config(geometry);
     ScenarioRecord {
         name: s.name.clone(),
         robot: RobotRecord {

@@ -10,8 +10,7 @@ use std::collections::BTreeMap;
 use wheelleg_runtime::action::{Action, Step};
 use wheelleg_sim::env::{Env, EnvConfig};
 use wheelleg_sim::generate::{
-    generate_many, passing_legs, Behaviour, ComposedEnding, ComposedVariant, SceneKind,
-    COMPOSED_PAIRS,
+    generate_many, Behaviour, ComposedEnding, ComposedVariant, SceneKind, COMPOSED_PAIRS,
 };
 use wheelleg_sim::obstacle::GRID_CELL_M;
 use wheelleg_sim::planner::{plan, PlanOutcome};
@@ -23,7 +22,12 @@ use common::{fence_blocks, lattice_legs, prove_solvable, weighted, LegFilter};
 /// 400 held-out-style composed scenes of one seed.
 fn sample() -> Vec<Scenario> {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(31);
-    generate_many(SceneKind::Composed, &mut rng, 400)
+    generate_many(
+        wheelleg_sim::generate::SceneRobot::shipped(),
+        SceneKind::Composed,
+        &mut rng,
+        400,
+    )
 }
 
 /// The first scene of each variant in `scenes`, by variant name.
@@ -305,7 +309,7 @@ fn a_scene_of_every_variant_is_solvable() {
             let (entry, exit_x) = entry_and_exit_x(fence);
             let to_entry = plan_to(scene, &env, entry);
             take(&mut env, to_entry, &mut actions);
-            let passing = passing_legs(*behaviour);
+            let passing = wheelleg_sim::generate::SceneRobot::shipped().passing_legs(*behaviour);
             let yaw_steps = env.state().yaw_steps;
             take(&mut env, line_up(yaw_steps, legs, passing), &mut actions);
             legs = passing;
@@ -330,7 +334,7 @@ fn a_scene_of_every_variant_is_solvable() {
     let paths = prove_solvable(&scenes, all_but_last, &frozen);
     for ((variant, scene), path) in firsts.values().zip(paths) {
         for behaviour in &variant.fences {
-            let passing = passing_legs(*behaviour);
+            let passing = wheelleg_sim::generate::SceneRobot::shipped().passing_legs(*behaviour);
             assert!(
                 path.iter()
                     .any(|s| (s.clearance_steps, s.track_steps) == passing),

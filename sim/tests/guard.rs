@@ -50,7 +50,12 @@ fn compare(
     let mut fine = vec![0.0; grid.map_or(0, MapGrid::cells)];
     for kind in SceneKind::ALL {
         for n in 0..scenes_per_kind {
-            let scene = generate(kind, &mut rng, format!("{kind:?}-{n}"));
+            let scene = generate(
+                wheelleg_sim::generate::SceneRobot::shipped(),
+                kind,
+                &mut rng,
+                format!("{kind:?}-{n}"),
+            );
             let mut env =
                 Env::new(&scene, EnvConfig::default()).expect("generated scenes are valid");
             for _ in 0..steps {

@@ -267,7 +267,13 @@ fn enclosed_target_is_unsolvable() {
 #[test]
 fn generated_lift_scene_needs_the_clearance_dimension() {
     let mut rng = <rand_chacha::ChaCha8Rng as rand::SeedableRng>::seed_from_u64(7);
-    let scenario = generate_many(SceneKind::Behaviour(Behaviour::LiftOver), &mut rng, 1).remove(0);
+    let scenario = generate_many(
+        wheelleg_sim::generate::SceneRobot::shipped(),
+        SceneKind::Behaviour(Behaviour::LiftOver),
+        &mut rng,
+        1,
+    )
+    .remove(0);
     let env = Env::new(&scenario, EnvConfig::default()).unwrap();
     let frozen = PlannerConfig {
         max_expansions: 3_000,

@@ -49,7 +49,12 @@ fn results() -> Vec<String> {
         .into_iter()
         .filter(|&k| k != SceneKind::Composed);
     for kind in recorded {
-        for scene in generate_many(kind, &mut rng, 3) {
+        for scene in generate_many(
+            wheelleg_sim::generate::SceneRobot::shipped(),
+            kind,
+            &mut rng,
+            3,
+        ) {
             let env = Env::new(&scene, EnvConfig::default()).unwrap();
             out.push(describe(&scene.name, "exact", &env, &exact));
             out.push(describe(&scene.name, "weighted", &env, &weighted));

@@ -23,9 +23,24 @@ fn rng(seed: u64) -> rand_chacha::ChaCha8Rng {
 #[test]
 fn the_same_seed_gives_the_same_scenes() {
     for kind in SceneKind::ALL {
-        let a = generate_many(kind, &mut rng(11), 20);
-        let b = generate_many(kind, &mut rng(11), 20);
-        let c = generate_many(kind, &mut rng(12), 20);
+        let a = generate_many(
+            wheelleg_sim::generate::SceneRobot::shipped(),
+            kind,
+            &mut rng(11),
+            20,
+        );
+        let b = generate_many(
+            wheelleg_sim::generate::SceneRobot::shipped(),
+            kind,
+            &mut rng(11),
+            20,
+        );
+        let c = generate_many(
+            wheelleg_sim::generate::SceneRobot::shipped(),
+            kind,
+            &mut rng(12),
+            20,
+        );
         assert_eq!(a, b, "{}", kind.name());
         assert_ne!(a, c, "{}", kind.name());
     }
@@ -37,8 +52,13 @@ fn scenario_files_round_trip_exactly() {
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join("scenes.json");
     for kind in SceneKind::ALL {
-        let scenes = generate_many(kind, &mut rng(3), 25);
-        scenario_file::save(&path, &scenes).unwrap();
+        let scenes = generate_many(
+            wheelleg_sim::generate::SceneRobot::shipped(),
+            kind,
+            &mut rng(3),
+            25,
+        );
+        scenario_file::save(&path, &scenes, &WHEELLEG).unwrap();
         let loaded = scenario_file::load(&path, &WHEELLEG).unwrap();
         assert_eq!(loaded, scenes, "{}", kind.name());
     }
@@ -119,7 +139,12 @@ fn each_fence_needs_its_behaviour() {
         (Behaviour::Squeeze, |_, t| t == 0, |_, t| t == -10),
     ];
     for (behaviour, frozen, with_behaviour) in cases {
-        for scene in generate_many(SceneKind::Behaviour(behaviour), &mut rng(5), 2) {
+        for scene in generate_many(
+            wheelleg_sim::generate::SceneRobot::shipped(),
+            SceneKind::Behaviour(behaviour),
+            &mut rng(5),
+            2,
+        ) {
             assert!(
                 fence_blocks(&scene, &lattice_legs(frozen)),
                 "{} must block frozen legs",
@@ -136,7 +161,12 @@ fn each_fence_needs_its_behaviour() {
 
 #[test]
 fn around_scenes_block_the_straight_line() {
-    for scene in generate_many(SceneKind::Behaviour(Behaviour::Around), &mut rng(6), 10) {
+    for scene in generate_many(
+        wheelleg_sim::generate::SceneRobot::shipped(),
+        SceneKind::Behaviour(Behaviour::Around),
+        &mut rng(6),
+        10,
+    ) {
         let obstacles = ObstacleSet::new(&scene.obstacles);
         let legs = lattice_legs(|_, _| true);
         // Wherever the straight line crosses a block, no pose of the robot centred there is free.
@@ -163,7 +193,13 @@ fn lined_up_starts_stay_within_their_band_and_the_draws_are_pinned() {
     let mut seen_backwards = false;
     let mut r = rng(11);
     for i in 0..200 {
-        let s = generate_with_start(kind, StartYaw::within_deg(15.0), &mut r, format!("s{i}"));
+        let s = generate_with_start(
+            wheelleg_sim::generate::SceneRobot::shipped(),
+            kind,
+            StartYaw::within_deg(15.0),
+            &mut r,
+            format!("s{i}"),
+        );
         let yaw = s.start.yaw_deg().rem_euclid(360.0);
         let from_x = yaw.min((yaw - 180.0).abs()).min(360.0 - yaw);
         assert!(from_x <= 15.0 + 1e-3, "{} starts at {yaw} deg", s.name);
@@ -173,23 +209,36 @@ fn lined_up_starts_stay_within_their_band_and_the_draws_are_pinned() {
     // The draws are pinned: one scene per kind family from a fixed seed, as the file format
     // writes it. A change to what the generator draws, or in what order, shows up here (and
     // breaks every seeded figure in docs/results.md, so it must be deliberate).
-    let complex = generate(SceneKind::Complex, &mut rng(5), "c0".to_string());
+    let complex = generate(
+        wheelleg_sim::generate::SceneRobot::shipped(),
+        SceneKind::Complex,
+        &mut rng(5),
+        "c0".to_string(),
+    );
     let lift = generate(
+        wheelleg_sim::generate::SceneRobot::shipped(),
         SceneKind::Behaviour(Behaviour::LiftOver),
         &mut rng(5),
         "l0".to_string(),
     );
     for (scene, golden) in [(complex, GOLDEN_COMPLEX), (lift, GOLDEN_LIFT)] {
-        assert_eq!(compact(&scenario_file::to_json(&[scene])), golden);
+        assert_eq!(
+            compact(&scenario_file::to_json(&[scene], &WHEELLEG)),
+            golden
+        );
     }
     // `within_deg(90)` is `Any`: the same draws give the same scene.
     let wide = generate_with_start(
+        wheelleg_sim::generate::SceneRobot::shipped(),
         SceneKind::Complex,
         StartYaw::within_deg(90.0),
         &mut rng(5),
         "c0".to_string(),
     );
-    assert_eq!(compact(&scenario_file::to_json(&[wide])), GOLDEN_COMPLEX);
+    assert_eq!(
+        compact(&scenario_file::to_json(&[wide], &WHEELLEG)),
+        GOLDEN_COMPLEX
+    );
 }
 
 /// A scenario file without its layout whitespace (names here have no spaces).
@@ -197,10 +246,10 @@ fn compact(json: &str) -> String {
     json.split_whitespace().collect()
 }
 
-/// `generate(SceneKind::Complex, seed 5, "c0")` as a scenario file.
+/// `generate(wheelleg_sim::generate::SceneRobot::shipped(), SceneKind::Complex, seed 5, "c0")` as a scenario file.
 const GOLDEN_COMPLEX: &str = r#"{"scenarios":[{"name":"c0","robot":{"x":-0.025,"y":-0.025,"yaw_deg":95.0},"target":{"x":0.825,"y":-0.025},"obstacles":[{"kind":"block","x":1.125,"y":-0.375,"yaw_deg":90.0},{"kind":"bar","x":1.375,"y":0.625,"yaw_deg":0.0},{"kind":"block","x":0.125,"y":0.375,"yaw_deg":90.0},{"kind":"block","x":0.125,"y":-0.375,"yaw_deg":0.0}]}]}"#;
 
-/// `generate(lift, seed 5, "l0")` as a scenario file.
+/// `generate(wheelleg_sim::generate::SceneRobot::shipped(), lift, seed 5, "l0")` as a scenario file.
 const GOLDEN_LIFT: &str = concat!(
     r#"{"scenarios":[{"name":"l0","robot":{"x":-0.025,"y":-0.025,"yaw_deg":95.0},"targe"#,
     r#"t":{"x":0.925,"y":-0.025},"obstacles":["#,
@@ -230,6 +279,7 @@ fn generated_spread_scenes_are_solvable() {
         ..PlannerConfig::default()
     };
     for scene in generate_many(
+        wheelleg_sim::generate::SceneRobot::shipped(),
         SceneKind::Behaviour(Behaviour::SpreadOver),
         &mut rng(21),
         20,
@@ -262,7 +312,12 @@ fn generated_around_scenes_are_solvable() {
     // wanders in front of the block on some scenes; 5 finds all 20 in a few thousand
     // expansions at most.
     let config = weighted(5.0).restricted(|a| a.clearance == Step::Zero && a.track == Step::Zero);
-    let scenes = generate_many(SceneKind::Behaviour(Behaviour::Around), &mut rng(21), 20);
+    let scenes = generate_many(
+        wheelleg_sim::generate::SceneRobot::shipped(),
+        SceneKind::Behaviour(Behaviour::Around),
+        &mut rng(21),
+        20,
+    );
     for (scene, path) in scenes
         .iter()
         .zip(prove_solvable(&scenes, |_| Vec::new(), &config))
@@ -282,7 +337,12 @@ fn generated_around_scenes_are_solvable() {
 fn generated_lift_scenes_are_solvable() {
     // The search the fallback runs, every action allowed: it finds each in a few hundred
     // expansions at most.
-    let scenes = generate_many(SceneKind::Behaviour(Behaviour::LiftOver), &mut rng(21), 20);
+    let scenes = generate_many(
+        wheelleg_sim::generate::SceneRobot::shipped(),
+        SceneKind::Behaviour(Behaviour::LiftOver),
+        &mut rng(21),
+        20,
+    );
     let config = weighted(FALLBACK_WEIGHT);
     for (scene, path) in scenes
         .iter()
@@ -330,7 +390,12 @@ fn generated_squeeze_scenes_are_solvable() {
     };
     let config = weighted(FALLBACK_WEIGHT)
         .restricted(|a| a.clearance == Step::Zero && a.track == Step::Zero);
-    let scenes = generate_many(SceneKind::Behaviour(Behaviour::Squeeze), &mut rng(21), 20);
+    let scenes = generate_many(
+        wheelleg_sim::generate::SceneRobot::shipped(),
+        SceneKind::Behaviour(Behaviour::Squeeze),
+        &mut rng(21),
+        20,
+    );
     for (scene, path) in scenes.iter().zip(prove_solvable(&scenes, prefix, &config)) {
         // The fence blocks the default track (`each_fence_needs_its_behaviour`): the plan
         // crosses it narrowed.

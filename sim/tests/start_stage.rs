@@ -6,7 +6,7 @@ use wheelleg_runtime::action::{Action, Step};
 use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::env::{Env, EnvConfig, Status};
 use wheelleg_sim::generate::{
-    generate_staged, generate_with_start, passing_legs, Behaviour, SceneKind, StartYaw,
+    generate_staged, generate_with_start, Behaviour, SceneKind, StartYaw,
 };
 use wheelleg_sim::scenario::Scenario;
 use wheelleg_sim::scenario_file;
@@ -30,8 +30,21 @@ fn stage_one_is_the_normal_generator() {
             for i in 0..30 {
                 let name = format!("s{i}");
                 assert_eq!(
-                    generate_staged(kind, start_yaw, 1.0, &mut a, name.clone()),
-                    generate_with_start(kind, start_yaw, &mut b, name),
+                    generate_staged(
+                        wheelleg_sim::generate::SceneRobot::shipped(),
+                        kind,
+                        start_yaw,
+                        1.0,
+                        &mut a,
+                        name.clone()
+                    ),
+                    generate_with_start(
+                        wheelleg_sim::generate::SceneRobot::shipped(),
+                        kind,
+                        start_yaw,
+                        &mut b,
+                        name
+                    ),
                     "{} scene {i}",
                     kind.name()
                 );
@@ -91,8 +104,16 @@ fn stage_zero_starts_lined_up_in_the_passing_pose_and_drives_through() {
         let kind = SceneKind::Behaviour(behaviour);
         let mut r = rng(7);
         for i in 0..40 {
-            let scene = generate_staged(kind, StartYaw::Any, 0.0, &mut r, format!("z{i}"));
-            let (clearance, track) = passing_legs(behaviour);
+            let scene = generate_staged(
+                wheelleg_sim::generate::SceneRobot::shipped(),
+                kind,
+                StartYaw::Any,
+                0.0,
+                &mut r,
+                format!("z{i}"),
+            );
+            let (clearance, track) =
+                wheelleg_sim::generate::SceneRobot::shipped().passing_legs(behaviour);
             assert_eq!(
                 (scene.start.clearance_steps, scene.start.track_steps),
                 (clearance, track),
@@ -112,7 +133,7 @@ fn stage_zero_starts_lined_up_in_the_passing_pose_and_drives_through() {
                     "{} {}: {e}\n{}",
                     behaviour.name(),
                     scene.name,
-                    scenario_file::to_json(std::slice::from_ref(&scene))
+                    scenario_file::to_json(std::slice::from_ref(&scene), &WHEELLEG)
                 );
             }
         }
@@ -123,14 +144,28 @@ fn stage_zero_starts_lined_up_in_the_passing_pose_and_drives_through() {
 fn every_stage_keeps_the_scene_and_moves_only_the_start() {
     for behaviour in PASSAGES {
         let kind = SceneKind::Behaviour(behaviour);
-        let (clearance, track) = passing_legs(behaviour);
+        let (clearance, track) =
+            wheelleg_sim::generate::SceneRobot::shipped().passing_legs(behaviour);
         for tenth in 0..10 {
             let stage = tenth as f32 / 10.0;
             let (mut a, mut b) = (rng(100 + tenth), rng(100 + tenth));
             for i in 0..20 {
                 let name = format!("t{i}");
-                let staged = generate_staged(kind, StartYaw::Any, stage, &mut a, name.clone());
-                let drawn = generate_with_start(kind, StartYaw::Any, &mut b, name);
+                let staged = generate_staged(
+                    wheelleg_sim::generate::SceneRobot::shipped(),
+                    kind,
+                    StartYaw::Any,
+                    stage,
+                    &mut a,
+                    name.clone(),
+                );
+                let drawn = generate_with_start(
+                    wheelleg_sim::generate::SceneRobot::shipped(),
+                    kind,
+                    StartYaw::Any,
+                    &mut b,
+                    name,
+                );
                 assert_eq!(staged.obstacles, drawn.obstacles);
                 assert_eq!(staged.target, drawn.target);
                 Env::new(&staged, EnvConfig::default()).unwrap();
@@ -159,7 +194,16 @@ fn the_same_seed_and_stage_give_the_same_scenes() {
     let draw = |seed, stage| {
         let mut r = rng(seed);
         (0..20)
-            .map(|i| generate_staged(kind, StartYaw::Any, stage, &mut r, format!("d{i}")))
+            .map(|i| {
+                generate_staged(
+                    wheelleg_sim::generate::SceneRobot::shipped(),
+                    kind,
+                    StartYaw::Any,
+                    stage,
+                    &mut r,
+                    format!("d{i}"),
+                )
+            })
             .collect::<Vec<_>>()
     };
     assert_eq!(draw(3, 0.3), draw(3, 0.3));
@@ -172,16 +216,30 @@ fn start_leg_poses_round_trip_and_default_ones_are_not_written() {
     let kind = SceneKind::Behaviour(Behaviour::SpreadOver);
     let mut r = rng(5);
     let scenes: Vec<Scenario> = (0..10)
-        .map(|i| generate_staged(kind, StartYaw::Any, 0.1 * i as f32, &mut r, format!("p{i}")))
+        .map(|i| {
+            generate_staged(
+                wheelleg_sim::generate::SceneRobot::shipped(),
+                kind,
+                StartYaw::Any,
+                0.1 * i as f32,
+                &mut r,
+                format!("p{i}"),
+            )
+        })
         .collect();
     assert!(scenes.iter().any(|s| s.start.track_steps == 10));
-    let json = scenario_file::to_json(&scenes);
+    let json = scenario_file::to_json(&scenes, &WHEELLEG);
     assert!(json.contains("\"track_m\": 0.56"), "{json}");
     assert!(json.contains("\"clearance_m\": 0.08"), "{json}");
     assert_eq!(scenario_file::parse(&json, &WHEELLEG).unwrap(), scenes);
     // Default poses: the file is as before the fields existed.
-    let plain = wheelleg_sim::generate::generate_many(kind, &mut rng(5), 5);
-    let json = scenario_file::to_json(&plain);
+    let plain = wheelleg_sim::generate::generate_many(
+        wheelleg_sim::generate::SceneRobot::shipped(),
+        kind,
+        &mut rng(5),
+        5,
+    );
+    let json = scenario_file::to_json(&plain, &WHEELLEG);
     assert!(!json.contains("clearance_m") && !json.contains("track_m"));
     assert_eq!(scenario_file::parse(&json, &WHEELLEG).unwrap(), plain);
 }

@@ -158,7 +158,12 @@ fn compare(kind: &str, seed: u64, scenes: usize, tries_per_state: usize) -> Stag
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     let mut stages = Stages::default();
     let mut compared = 0u32;
-    for scenario in generate_many(kind, &mut rng, scenes) {
+    for scenario in generate_many(
+        wheelleg_sim::generate::SceneRobot::shipped(),
+        kind,
+        &mut rng,
+        scenes,
+    ) {
         let mut env = Env::new(&scenario, EnvConfig::default()).expect("valid scene");
         while !env.status().is_done() {
             let from = *env.state();
@@ -220,7 +225,12 @@ fn the_cheap_clearance_bound_is_below_parrys() {
     let (mut checked, mut touching, mut ratio_sum) = (0u32, 0u32, 0.0f64);
     for name in ["complex", "lift"] {
         let kind = SceneKind::from_name(name).expect("known kind");
-        for scenario in generate_many(kind, &mut rng, 40) {
+        for scenario in generate_many(
+            wheelleg_sim::generate::SceneRobot::shipped(),
+            kind,
+            &mut rng,
+            40,
+        ) {
             let env = Env::new(&scenario, EnvConfig::default()).expect("valid scene");
             let mut from = *env.state();
             for _ in 0..60 {

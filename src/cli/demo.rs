@@ -14,6 +14,7 @@
 mod bus;
 mod qemu;
 
+use super::robot::RobotArg;
 use super::stack_args::StackArgs;
 use super::CliResult;
 use bus::{open_slcan, open_socketcan, LogFile};
@@ -29,14 +30,15 @@ use wheelleg::closed_loop::{
 };
 use wheelleg_firmware_sim::candump::{CandumpWriter, DEFAULT_EPOCH_US};
 use wheelleg_firmware_sim::rig::RigError;
+use wheelleg_robot::RobotDescription;
 use wheelleg_runtime::action::{MOVE_STEP_M, YAW_STEP_DEG};
 use wheelleg_runtime::can::node_map::{Axis, NodeMap};
-use wheelleg_runtime::robot::WHEELLEG;
-use wheelleg_sim::env::{Env, Status};
-use wheelleg_sim::generate::{generate, SceneKind};
+use wheelleg_sim::env::{Env, EnvConfig, Status};
+use wheelleg_sim::generate::{generate, SceneKind, SceneRobot};
 use wheelleg_sim::planner::PlannerConfig;
 use wheelleg_sim::render::top_view;
 use wheelleg_sim::scenario::Scenario;
+use wheelleg_stack::policy::Int8Policy;
 
 /// The shipped int8 policy (`weights/policy.wlw`, its model card beside it), built into the
 /// binary: the demo's driver when neither `--weights` nor `--planner` is given.
@@ -114,12 +116,21 @@ pub struct Args {
     /// The decision stack.
     #[command(flatten)]
     stack: StackArgs,
+    /// The robot: its geometry in the world, its node map on the bus; the weights must be
+    /// trained for it.
+    #[command(flatten)]
+    robot: RobotArg,
 }
 
 /// The scene to run and how it was chosen.
-fn scene(args: &Args, planner: &PlannerConfig) -> Result<(Scenario, String), String> {
+fn scene(
+    args: &Args,
+    env_config: EnvConfig,
+    planner: &PlannerConfig,
+) -> Result<(Scenario, String), String> {
+    let geometry = env_config.geometry;
     if let Some(path) = &args.scenario {
-        let scenarios = wheelleg_sim::scenario_file::load(path, &WHEELLEG)
+        let scenarios = wheelleg_sim::scenario_file::load(path, &geometry)
             .map_err(|e| format!("{}: {e}", path.display()))?;
         let chosen = match &args.name {
             Some(name) => scenarios
@@ -141,11 +152,12 @@ fn scene(args: &Args, planner: &PlannerConfig) -> Result<(Scenario, String), Str
     };
     for draw in 0..MAX_SCENE_DRAWS {
         let scenario = generate(
+            SceneRobot::of(&geometry),
             SceneKind::Composed,
             &mut rng,
             format!("composed-seed{}-{draw}", args.seed),
         );
-        let env = Env::new(&scenario, LoopConfig::default().env).map_err(|e| e.to_string())?;
+        let env = Env::new(&scenario, env_config).map_err(|e| e.to_string())?;
         if PlannerDriver::new(&env, &quick).is_ok() {
             let origin = format!(
                 "generated composed scene (seed {}, draw {}: first the planner solves)",
@@ -208,10 +220,16 @@ fn tolerance(args: &Args) -> Result<Tolerance, String> {
 fn closed_loop(
     args: &Args,
     scenario: &Scenario,
+    robot: &RobotDescription,
     tolerance: Tolerance,
 ) -> Result<ClosedLoop, String> {
     let config = LoopConfig {
         tolerance,
+        env: EnvConfig {
+            geometry: robot.robot.geometry,
+            ..LoopConfig::default().env
+        },
+        node_map: robot.robot.can,
         ..LoopConfig::default()
     };
     let Some(iface) = &args.can else {
@@ -237,21 +255,44 @@ pub fn run(args: Args) -> CliResult {
         max_expansions: args.max_expansions,
         ..PlannerConfig::default()
     };
+    let (robot, geometry) = args.robot.simulated()?;
     let weights = weights(&args)?;
+    if let Some((bytes, label)) = &weights {
+        let policy = Int8Policy::from_bytes(bytes)
+            .map_err(|e| format!("{label}: not a usable policy weights file: {e}"))?;
+        robot.accepts(&policy.model().trained_for, label)?;
+    }
     let tolerance = tolerance(&args)?;
     if let Some(node) = args.silent_node {
         if !Axis::ALL
             .iter()
-            .any(|&a| NodeMap::NOMINAL.node_id(a).get() == node)
+            .any(|&a| robot.robot.can.node_id(a).get() == node)
         {
-            return Err(format!("--silent-node {node}: the robot's nodes are 1 to 16").into());
+            return Err(format!(
+                "--silent-node {node}: robot '{}' has no such node",
+                robot.name
+            )
+            .into());
         }
     }
-    let (scenario, origin) = scene(&args, &planner)?;
+    let env_config = EnvConfig {
+        geometry,
+        ..LoopConfig::default().env
+    };
+    let (scenario, origin) = scene(&args, env_config, &planner)?;
     if args.controller == "qemu" {
+        if robot != RobotDescription::shipped() {
+            return Err(format!(
+                "--controller qemu with robot '{}': the firmware image holds the shipped \
+                 robot's weights; run the firmware with the robot's own weights through \
+                 `scripts/mcu.sh` (WHEELLEG_WEIGHTS)",
+                robot.name
+            )
+            .into());
+        }
         return run_qemu(&args, &scenario, &origin);
     }
-    let mut closed_loop = closed_loop(&args, &scenario, tolerance)?;
+    let mut closed_loop = closed_loop(&args, &scenario, &robot, tolerance)?;
 
     // Both drivers decide from the world as it is at the start of the episode.
     let mut driver: Box<dyn Driver + '_> = match &weights {
@@ -311,7 +352,7 @@ pub fn run(args: Args) -> CliResult {
         let step = closed_loop.env().steps() + 1;
         if let (Some(node), Some(at)) = (args.silent_node, args.silent_at_step) {
             if step == at {
-                inject_silence(&mut closed_loop, node);
+                inject_silence(&mut closed_loop, &robot.robot.can, node);
             }
         }
         let decided = driver.decide(closed_loop.env()).map_err(LoopError::from);
@@ -328,7 +369,7 @@ pub fn run(args: Args) -> CliResult {
     closed_loop.take_log()?;
     log_file.commit()?;
     let png = args.out.join("path.png");
-    top_view(&scenario, &WHEELLEG, &report.path, &report.collided_at)?
+    top_view(&scenario, &geometry, &report.path, &report.collided_at)?
         .save_png(&png)
         .map_err(|e| format!("cannot write {}: {e}", png.display()))?;
 
@@ -348,11 +389,11 @@ pub fn run(args: Args) -> CliResult {
     }
 }
 
-fn inject_silence(closed_loop: &mut ClosedLoop, node: u8) {
+fn inject_silence(closed_loop: &mut ClosedLoop, node_map: &NodeMap, node: u8) {
     let step = closed_loop.env().steps() + 1;
     if let Some(axis) = Axis::ALL
         .into_iter()
-        .find(|&a| NodeMap::NOMINAL.node_id(a).get() == node)
+        .find(|&a| node_map.node_id(a).get() == node)
     {
         if let Some(sim) = closed_loop.rig_mut().firmware_mut().axis_mut(axis) {
             outln!("inject:    node {node} ({axis:?}) goes silent before step {step}");

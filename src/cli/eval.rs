@@ -2,15 +2,15 @@
 //! [--stack policy|robot|full] [--rule untried|argmax|sample] [layer options, shared with demo]
 //! [--planner-expansions N | --planner-results PLAN.json]`.
 
+use super::robot::RobotArg;
 use super::stack_args::StackArgs;
 use super::CliResult;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use std::path::PathBuf;
-use wheelleg_robot::RobotDescription;
 use wheelleg_runtime::model::format::MAGIC;
-use wheelleg_runtime::robot::WHEELLEG;
-use wheelleg_sim::generate::generate_many;
+use wheelleg_sim::env::EnvConfig;
+use wheelleg_sim::generate::{generate_many, SceneRobot};
 use wheelleg_stack::policy::Int8Policy;
 use wheelleg_stack::{DecisionRule, Preset};
 use wheelleg_trainer::batch_policy::FloatPolicy;
@@ -57,15 +57,26 @@ pub struct Args {
     /// The decision stack.
     #[command(flatten)]
     stack: StackArgs,
+    /// The robot simulated; the policy must be trained for it.
+    #[command(flatten)]
+    robot: RobotArg,
 }
 
 /// Runs `eval`.
 pub fn run(args: Args) -> CliResult {
+    let (robot, geometry) = args.robot.simulated()?;
     let scenarios = match (&args.scenarios, args.generated, &args.kind) {
-        (Some(file), _, _) => wheelleg_sim::scenario_file::load(file, &WHEELLEG)?,
+        (Some(file), _, _) => wheelleg_sim::scenario_file::load(file, &geometry)?,
         (None, Some(n), Some(kind)) => {
             let kind = super::generate::parse_kind(kind).map_err(|e| format!("--kind: {e}"))?;
-            generate_many(kind, &mut ChaCha8Rng::seed_from_u64(args.seed), n)
+            let scene_robot = SceneRobot::of(&geometry);
+            super::generate::scene_kind_for(scene_robot, kind, &robot.name)?;
+            generate_many(
+                scene_robot,
+                kind,
+                &mut ChaCha8Rng::seed_from_u64(args.seed),
+                n,
+            )
         }
         _ => return Err("give --scenarios FILE or --generated N --kind K".into()),
     };
@@ -102,7 +113,10 @@ pub fn run(args: Args) -> CliResult {
         stack,
         planner_expansions: args.planner_expansions,
         known_shortest,
-        ..EvalOptions::default()
+        env_config: EnvConfig {
+            geometry,
+            ..EvalOptions::default().env_config
+        },
     };
     let mut rng = ChaCha8Rng::seed_from_u64(args.seed);
     rng.set_stream(1);
@@ -111,16 +125,21 @@ pub fn run(args: Args) -> CliResult {
     let report = if bytes.starts_with(&MAGIC) {
         let policy = Int8Policy::from_bytes(&bytes)
             .map_err(|e| format!("{}: {e}", args.policy.display()))?;
-        // The simulator runs the shipped robot (robots/wheelleg.toml).
-        RobotDescription::shipped().accepts(
+        robot.accepts(
             &policy.model().trained_for,
             &args.policy.display().to_string(),
         )?;
         evaluate(&policy, &scenarios, &options, &mut rng)?
     } else {
-        let net = wheelleg_trainer::checkpoint::Checkpoint::from_bytes(&bytes)
-            .and_then(|c| c.network.to_network())
-            .map_err(|e| format!("{}: {e}", args.policy.display()))?;
+        let label = args.policy.display().to_string();
+        let (checkpoint, extras) =
+            wheelleg_trainer::checkpoint::Checkpoint::from_bytes_with_extras(&bytes)
+                .map_err(|e| format!("{label}: {e}"))?;
+        extras.check_robot(&robot, &label)?;
+        let net = checkpoint
+            .network
+            .to_network()
+            .map_err(|e| format!("{label}: {e}"))?;
         let policy = FloatPolicy::new(&net, &BackendKind::Flex.device()?)?;
         evaluate(&policy, &scenarios, &options, &mut rng)?
     };

@@ -129,6 +129,7 @@ pub fn run(args: Args) -> CliResult {
         ..QatOptions::default()
     };
     qat.validate()?;
+    let (checkpoint, extras) = Checkpoint::load_with_extras(&args.policy)?;
     let options = ExportOptions {
         qat,
         action_range,
@@ -137,8 +138,8 @@ pub fn run(args: Args) -> CliResult {
         calibration_observations: args.calibration,
         holdout_observations: args.holdout,
         range: parse_range(&args.range)?,
+        robot: extras.robot()?,
     };
-    let checkpoint = Checkpoint::load(&args.policy)?;
     let network = checkpoint.network.to_network()?;
     let source = format!(
         "{} ({} run, iteration {}, {} env steps, seed {})",

@@ -1,11 +1,11 @@
-//! `wheelleg plan --scenarios FILE [--json] [--max-expansions N] [--jobs N]`.
+//! `wheelleg plan --scenarios FILE [--json] [--max-expansions N] [--jobs N] [--robot FILE]`.
 
+use super::robot::RobotArg;
 use super::CliResult;
 use serde_json::json;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering as AtomicOrdering};
 use std::sync::Mutex;
-use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::env::{Env, EnvConfig};
 use wheelleg_sim::planner::{plan_with_fallback, PlanOutcome, PlannerConfig};
 
@@ -27,6 +27,9 @@ pub struct Args {
     /// same for any number: results in file order, each scenario's search independent.
     #[arg(long)]
     jobs: Option<usize>,
+    /// The robot planned for.
+    #[command(flatten)]
+    robot: RobotArg,
 }
 
 /// What the planner found for one scenario.
@@ -41,6 +44,7 @@ struct Found {
 /// file order.
 fn plan_all(
     scenarios: &[wheelleg_sim::scenario::Scenario],
+    env_config: EnvConfig,
     config: &PlannerConfig,
     jobs: usize,
 ) -> Result<Vec<Found>, String> {
@@ -52,7 +56,7 @@ fn plan_all(
         let Some(scenario) = scenarios.get(i) else {
             break;
         };
-        let found = Env::new(scenario, EnvConfig::default())
+        let found = Env::new(scenario, env_config)
             .map(|env| {
                 let found = plan_with_fallback(&env, config);
                 let (solvable, steps, shortest) = match found.outcome() {
@@ -86,7 +90,12 @@ fn plan_all(
 
 /// Runs `plan`.
 pub fn run(args: Args) -> CliResult {
-    let scenarios = wheelleg_sim::scenario_file::load(&args.scenarios, &WHEELLEG)?;
+    let (_, geometry) = args.robot.simulated()?;
+    let scenarios = wheelleg_sim::scenario_file::load(&args.scenarios, &geometry)?;
+    let env_config = EnvConfig {
+        geometry,
+        ..EnvConfig::default()
+    };
     let config = PlannerConfig {
         max_expansions: args.max_expansions,
         ..PlannerConfig::default()
@@ -96,7 +105,7 @@ pub fn run(args: Args) -> CliResult {
         Some(jobs) => jobs,
         None => std::thread::available_parallelism().map_or(1, |n| n.get()),
     };
-    let found = plan_all(&scenarios, &config, jobs)?;
+    let found = plan_all(&scenarios, env_config, &config, jobs)?;
     let mut results = Vec::with_capacity(scenarios.len());
     if !args.json {
         outln!(

@@ -4,11 +4,11 @@
 //! distance between the paths, trainer::trajectory::relevance), prints the figures and draws
 //! the obstacles white to red by relevance beside the trajectories.
 
+use super::robot::RobotArg;
 use super::CliResult;
 use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::PathBuf;
-use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::env::EnvConfig;
 use wheelleg_trainer::trajectory::relevance::{relevance, render, DecidingPolicy};
 
@@ -30,11 +30,15 @@ pub struct Args {
     /// Print JSON instead of a table.
     #[arg(long)]
     json: bool,
+    /// The robot simulated; the checkpoint must be trained for it.
+    #[command(flatten)]
+    robot: RobotArg,
 }
 
 /// Runs `relevance`.
 pub fn run(args: Args) -> CliResult {
-    let scenarios = wheelleg_sim::scenario_file::load(&args.scenario, &WHEELLEG)?;
+    let (description, geometry) = args.robot.simulated()?;
+    let scenarios = wheelleg_sim::scenario_file::load(&args.scenario, &geometry)?;
     let scenario = scenarios.get(args.index).ok_or_else(|| {
         format!(
             "--index {} is out of range: {} holds {} scenario(s)",
@@ -46,10 +50,14 @@ pub fn run(args: Args) -> CliResult {
     let network = wheelleg_trainer::checkpoint::load_policy(&args.policy)?;
     wheelleg_trainer::network::check_policy_shape(&network)
         .map_err(|e| format!("{}: {e}", args.policy.display()))?;
-    let config = EnvConfig::default();
+    wheelleg_trainer::checkpoint::check_robot(&args.policy, &description)?;
+    let config = EnvConfig {
+        geometry,
+        ..EnvConfig::default()
+    };
     let mut policy = DecidingPolicy::new(&network);
     let report = relevance(scenario, config, &mut |obs| policy.act(obs))?;
-    render(scenario, &report, &WHEELLEG, &config)?
+    render(scenario, &report, &geometry, &config)?
         .save_png(&args.out)
         .map_err(|e| format!("cannot write {}: {e}", args.out.display()))?;
     let status = |s: wheelleg_sim::env::Status| format!("{s:?}");

@@ -1,8 +1,8 @@
-//! `wheelleg render --scenarios FILE --out DIR`.
+//! `wheelleg render --scenarios FILE --out DIR [--robot FILE]`.
 
+use super::robot::RobotArg;
 use super::CliResult;
 use std::path::PathBuf;
-use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::env::{Env, EnvConfig, Observation};
 use wheelleg_sim::planner::{plan_with_fallback, PlanOutcome, PlannerConfig};
 use wheelleg_sim::render::{height_map_image, top_view};
@@ -19,15 +19,23 @@ pub struct Args {
     /// Planner effort per scenario, in expanded states (0: draw no path).
     #[arg(long, default_value_t = 5_000)]
     max_expansions: usize,
+    /// The robot drawn and simulated.
+    #[command(flatten)]
+    robot: RobotArg,
 }
 
 /// Runs `render`: `<name>.png` (top view) and `<name>-heightmap.png` per scenario.
 pub fn run(args: Args) -> CliResult {
-    let scenarios = wheelleg_sim::scenario_file::load(&args.scenarios, &WHEELLEG)?;
+    let (_, geometry) = args.robot.simulated()?;
+    let scenarios = wheelleg_sim::scenario_file::load(&args.scenarios, &geometry)?;
+    let env_config = EnvConfig {
+        geometry,
+        ..EnvConfig::default()
+    };
     std::fs::create_dir_all(&args.out)
         .map_err(|e| format!("cannot create {}: {e}", args.out.display()))?;
     for scenario in &scenarios {
-        let env = Env::new(scenario, EnvConfig::default())?;
+        let env = Env::new(scenario, env_config)?;
         let mut path = vec![*env.state()];
         if args.max_expansions > 0 {
             let config = PlannerConfig {
@@ -48,7 +56,7 @@ pub fn run(args: Args) -> CliResult {
         }
         let file_stem = sanitize(&scenario.name);
         let top = args.out.join(format!("{file_stem}.png"));
-        top_view(scenario, &WHEELLEG, &path, &[])?.save_png(&top)?;
+        top_view(scenario, &geometry, &path, &[])?.save_png(&top)?;
         let mut observation = Observation::default();
         env.observe(&mut observation);
         let map = args.out.join(format!("{file_stem}-heightmap.png"));

@@ -5,6 +5,34 @@ use std::path::{Path, PathBuf};
 use wheelleg_robot::reach::reach;
 use wheelleg_robot::urdf;
 use wheelleg_robot::RobotDescription;
+use wheelleg_runtime::robot::RobotGeometry;
+
+/// `--robot FILE`, the robot a command simulates, plans for or drives: the shipped robot
+/// (`robots/wheelleg.toml`, compiled in) when not given.
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct RobotArg {
+    /// Robot description (robots/NAME.toml); the shipped robot when not given.
+    #[arg(long, value_name = "FILE")]
+    pub robot: Option<PathBuf>,
+}
+
+impl RobotArg {
+    /// The description, read and checked.
+    pub fn description(&self) -> Result<RobotDescription, String> {
+        match &self.robot {
+            Some(path) => RobotDescription::load(path),
+            None => Ok(RobotDescription::shipped()),
+        }
+    }
+
+    /// The description and the geometry the simulator runs it with (refused when the
+    /// simulator cannot: [`RobotDescription::simulated_geometry`]).
+    pub fn simulated(&self) -> Result<(RobotDescription, RobotGeometry), String> {
+        let description = self.description()?;
+        let geometry = description.simulated_geometry()?;
+        Ok((description, geometry))
+    }
+}
 
 /// Arguments of `robot`.
 #[derive(clap::Args)]

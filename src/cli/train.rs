@@ -1,11 +1,11 @@
 //! `wheelleg train baseline|secondary|randomize|primary|all --config FILE --out runs/NAME
-//! [--seed S] [--resume]`.
+//! [--seed S] [--resume] [--robot FILE]`.
 
 use super::CliResult;
 use std::path::PathBuf;
 use wheelleg_trainer::config::TrainConfig;
 use wheelleg_trainer::curriculum::{
-    run_all, run_primary, run_randomize, run_secondary, CurriculumOptions,
+    left_out_behaviours, run_all, run_primary, run_randomize, run_secondary, CurriculumOptions,
 };
 use wheelleg_trainer::runner::{train, RunOptions};
 
@@ -52,11 +52,26 @@ pub struct Args {
     /// on to the config's total on the same schedules.
     #[arg(long, value_name = "N")]
     stop_at_env_steps: Option<u64>,
+    /// Robot description trained for, in place of the config's `run.robot` (robots/NAME.toml).
+    #[arg(long, value_name = "FILE")]
+    robot: Option<PathBuf>,
 }
 
 /// Runs `train`.
 pub fn run(args: Args) -> CliResult {
-    let config = TrainConfig::load(&args.config)?;
+    let mut config = TrainConfig::load(&args.config)?;
+    if let Some(path) = &args.robot {
+        config.set_robot(path)?;
+    }
+    for (behaviour, why) in left_out_behaviours(&config)? {
+        if !matches!(args.stage, Stage::Baseline) {
+            eprintln!(
+                "curriculum: robot '{}' trains no {} policy: {why}",
+                config.robot.name,
+                behaviour.name()
+            );
+        }
+    }
     let curriculum = CurriculumOptions {
         out: args.out.clone(),
         seed: args.seed,

@@ -109,6 +109,9 @@ impl Driver for PlannerDriver {
 pub struct PolicyDriver<'a> {
     policy: DefaultPolicy<'a>,
     label: String,
+    /// The robot the weights were trained for: its guard geometry and action lattice.
+    robot: Robot,
+    robot_name: String,
     observation: Observation,
     /// Never repeats an action already taken at the same observation (see
     /// `wheelleg_runtime::decision`).
@@ -148,10 +151,9 @@ impl<'a> PolicyDriver<'a> {
             )));
         }
         let policy = DefaultPolicy::from_bytes(bytes).map_err(|e| unusable(&e))?;
-        // The closed loop runs the shipped robot (robots/wheelleg.toml).
-        wheelleg_robot::RobotDescription::shipped()
-            .accepts(&policy.model().trained_for, label)
-            .map_err(DriverError)?;
+        // As on the controller, the robot is the one the weights name.
+        let trained = policy.model().trained_for;
+        let (robot, robot_name) = (trained.robot, trained.name.to_owned());
         let lookahead = match stack.lookahead {
             Some(config) => Some((
                 Lookahead::new(config),
@@ -162,11 +164,11 @@ impl<'a> PolicyDriver<'a> {
         Ok(PolicyDriver {
             policy,
             label: label.to_owned(),
+            robot,
+            robot_name,
             observation: Observation::default(),
             decider: Decider::new(),
-            guard: stack
-                .guard
-                .map(|g| CollisionGuard::new(&Robot::WHEELLEG, g.margin_m)),
+            guard: stack.guard.map(|g| CollisionGuard::new(&robot, g.margin_m)),
             guard_map: stack.guard.and_then(|g| g.grid).map(GuardMap::new),
             lookahead,
             last_metres: stack.last_metres.map(LastMetres::new),
@@ -228,6 +230,13 @@ impl Driver for PolicyDriver<'_> {
     }
 
     fn decide(&mut self, env: &Env) -> Result<Action, DriverError> {
+        if *env.geometry() != self.robot.geometry {
+            return Err(DriverError(format!(
+                "{} was trained for robot '{}', and the world simulates another robot's \
+                 geometry: a policy drives only the robot it was trained for",
+                self.label, self.robot_name
+            )));
+        }
         if let Some(action) = self.planned_step(env) {
             return Ok(action);
         }
@@ -261,9 +270,10 @@ impl Driver for PolicyDriver<'_> {
                     track_m: state_mm[1] as f32 * 1.0e-3,
                 },
             }),
-            arrival: self.stack.arrival.then(|| {
-                Arrival::from_state_mm(&state_mm, success_radius_m, &Robot::WHEELLEG.actions)
-            }),
+            arrival: self
+                .stack
+                .arrival
+                .then(|| Arrival::from_state_mm(&state_mm, success_radius_m, &self.robot.actions)),
         };
         let logits = &outputs.action_logits;
         let Some((lookahead, policy)) = &mut self.lookahead else {

@@ -51,7 +51,8 @@ use std::io::Write;
 use wheelleg_firmware_sim::bus::Transport;
 use wheelleg_firmware_sim::candump::CandumpWriter;
 use wheelleg_firmware_sim::rig::{Rig, RigConfig, RigError, StepReport};
-use wheelleg_runtime::action::Action;
+use wheelleg_runtime::action::{Action, ActionLattice};
+use wheelleg_runtime::can::NodeMap;
 use wheelleg_runtime::motion::{BaseDisplacement, MotionError, StepMotion};
 use wheelleg_runtime::robot::{Robot, RobotGeometry};
 use wheelleg_sim::env::{Env, EnvConfig, InvalidAction};
@@ -98,6 +99,9 @@ pub struct LoopConfig {
     pub env: EnvConfig,
     /// How closely an achieved step must match the ideal one.
     pub tolerance: Tolerance,
+    /// The CAN wiring of the robot driven (its description's node ids, directions and gear
+    /// ratios); the shipped robot's by default. The geometry is the world's (`env`).
+    pub node_map: NodeMap,
 }
 
 /// The world and the robot's motors, stepped together.
@@ -120,12 +124,13 @@ pub(crate) fn lattice_pose(state: &RobotState) -> Isometry2<f32> {
     )
 }
 
-/// The robot the loop drives: the world's geometry, with the shipped robot's action lattice
-/// and node map (the simulator runs the shipped robot).
-fn sim_robot(env: &Env) -> Robot {
+/// The robot the loop drives: the world's geometry, the configured wiring, on the paper's
+/// action lattice (the one the simulator steps on).
+fn sim_robot(env: &Env, config: &LoopConfig) -> Robot {
     Robot {
         geometry: *env.geometry(),
-        ..Robot::WHEELLEG
+        actions: ActionLattice::PAPER,
+        can: config.node_map,
     }
 }
 
@@ -135,7 +140,7 @@ impl ClosedLoop {
     pub fn in_process(scenario: &Scenario, config: LoopConfig) -> Result<ClosedLoop, LoopError> {
         let env = Env::new(scenario, config.env)?;
         let legs = env.state().leg_config(env.geometry());
-        let rig = Rig::in_process(&sim_robot(&env), config.rig, legs)?;
+        let rig = Rig::in_process(&sim_robot(&env, &config), config.rig, legs)?;
         Ok(ClosedLoop::with(env, rig, config))
     }
 
@@ -148,7 +153,7 @@ impl ClosedLoop {
     ) -> Result<ClosedLoop, LoopError> {
         let env = Env::new(scenario, config.env)?;
         let legs = env.state().leg_config(env.geometry());
-        let rig = Rig::remote(&sim_robot(&env), config.rig, legs, transport)?;
+        let rig = Rig::remote(&sim_robot(&env, &config), config.rig, legs, transport)?;
         Ok(ClosedLoop::with(env, rig, config))
     }
 

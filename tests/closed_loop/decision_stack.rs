@@ -17,7 +17,14 @@ fn trained_policy_closed_loop_success_is_within_2_points_of_simulation() {
     // Held out: a seed no training configuration uses for complex scenes.
     let mut rng = ChaCha8Rng::seed_from_u64(9_000);
     let scenes: Vec<Scenario> = (0..50)
-        .map(|i| generate(SceneKind::Complex, &mut rng, format!("held-out-{i}")))
+        .map(|i| {
+            generate(
+                wheelleg_sim::generate::SceneRobot::shipped(),
+                SceneKind::Complex,
+                &mut rng,
+                format!("held-out-{i}"),
+            )
+        })
         .collect();
     let comparison = compare_success(&scenes, &LoopConfig::default(), |_| {
         PolicyDriver::new(&bytes, "weights/policy.wlw", Preset::Policy.config())
@@ -41,7 +48,14 @@ fn the_collision_guard_spares_collisions_and_arrival_adds_successes() {
     // Held out, as above.
     let mut rng = ChaCha8Rng::seed_from_u64(9_000);
     let scenes: Vec<Scenario> = (0..100)
-        .map(|i| generate(SceneKind::Complex, &mut rng, format!("held-out-{i}")))
+        .map(|i| {
+            generate(
+                wheelleg_sim::generate::SceneRobot::shipped(),
+                SceneKind::Complex,
+                &mut rng,
+                format!("held-out-{i}"),
+            )
+        })
         .collect();
     // (successes, collision-free successes, collisions) over the scenes.
     let run = |guarded: bool, arrival: bool, fine_map: bool| {
@@ -111,7 +125,14 @@ fn the_look_ahead_and_its_search_shorten_the_drivers_way_and_lose_no_success() {
     // Held out, as above.
     let mut rng = ChaCha8Rng::seed_from_u64(9_000);
     let scenes: Vec<Scenario> = (0..40)
-        .map(|i| generate(SceneKind::Complex, &mut rng, format!("held-out-{i}")))
+        .map(|i| {
+            generate(
+                wheelleg_sim::generate::SceneRobot::shipped(),
+                SceneKind::Complex,
+                &mut rng,
+                format!("held-out-{i}"),
+            )
+        })
         .collect();
     // Each scene's (success, decisions), with the robot's stack: 1 cm guard and arrival.
     let run = |lookahead: Option<LookaheadConfig>| -> Vec<(bool, u32)> {
@@ -191,6 +212,7 @@ fn the_full_stack_reaches_a_target_beside_a_squeeze_fence_where_the_robot_stack_
     // shipped file's few squeeze failures: the robot passes the gap and dithers beyond it, the
     // target beside a block of the fence (docs/results.md, "Composed scenes").
     let scenes = wheelleg_sim::generate::generate_many(
+        wheelleg_sim::generate::SceneRobot::shipped(),
         SceneKind::Behaviour(Behaviour::Squeeze),
         &mut ChaCha8Rng::seed_from_u64(1_000_000),
         8,

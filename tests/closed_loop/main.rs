@@ -49,7 +49,12 @@ fn solvable_scenes(kind: SceneKind, seed: u64, count: usize) -> Vec<Scenario> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut scenes = Vec::new();
     for i in 0..10 * count {
-        let scene = generate(kind, &mut rng, format!("{}-{i}", kind.name()));
+        let scene = generate(
+            wheelleg_sim::generate::SceneRobot::shipped(),
+            kind,
+            &mut rng,
+            format!("{}-{i}", kind.name()),
+        );
         let env = Env::new(&scene, LoopConfig::default().env).unwrap();
         if PlannerDriver::new(&env, &planner()).is_ok() {
             scenes.push(scene);
@@ -83,7 +88,14 @@ fn random_policy_bytes(seed: u64) -> Vec<u8> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let network = NetworkF32::random(&Architecture::default_policy(), &mut rng);
     let observations: Vec<Observation> = (0..16)
-        .map(|i| generate(SceneKind::Complex, &mut rng, format!("calibration-{i}")))
+        .map(|i| {
+            generate(
+                wheelleg_sim::generate::SceneRobot::shipped(),
+                SceneKind::Complex,
+                &mut rng,
+                format!("calibration-{i}"),
+            )
+        })
         .map(|s| {
             let mut o = Observation::default();
             Env::new(&s, LoopConfig::default().env)

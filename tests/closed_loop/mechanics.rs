@@ -87,7 +87,14 @@ fn moving_random_policy(scenes: &[Scenario], min_moves: usize) -> Vec<u8> {
 fn random_int8_policy_runs_the_loop_and_tracks_the_ideal_steps() {
     let mut rng = ChaCha8Rng::seed_from_u64(31);
     let scenes: Vec<Scenario> = (0..2)
-        .map(|i| generate(SceneKind::Complex, &mut rng, format!("complex-{i}")))
+        .map(|i| {
+            generate(
+                wheelleg_sim::generate::SceneRobot::shipped(),
+                SceneKind::Complex,
+                &mut rng,
+                format!("complex-{i}"),
+            )
+        })
         .collect();
     let dir = scratch_dir("random-policy");
     let path = dir.join("random.wlw");

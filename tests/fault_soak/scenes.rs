@@ -32,7 +32,12 @@ pub(crate) fn planned_scenes() -> Vec<Planned> {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let mut found = 0;
         for i in 0..10 * count {
-            let scene = generate(kind, &mut rng, format!("{}-{i}", kind.name()));
+            let scene = generate(
+                wheelleg_sim::generate::SceneRobot::shipped(),
+                kind,
+                &mut rng,
+                format!("{}-{i}", kind.name()),
+            );
             let mut env = Env::new(&scene, LoopConfig::default().env).unwrap();
             let Ok(mut driver) = PlannerDriver::new(&env, &planner) else {
                 continue;

@@ -54,9 +54,22 @@ fn main() {
     let device = BackendKind::Flex.device().unwrap();
     let float = FloatPolicy::new(&network, &device).unwrap();
     let options = ExportOptions::default();
-    let calib = rollout_observations(&float, options.scene_kind, options.seed, 20_000).unwrap();
-    let holdout =
-        rollout_observations(&float, options.scene_kind, options.seed + 1, 10_000).unwrap();
+    let calib = rollout_observations(
+        &float,
+        &options.robot,
+        options.scene_kind,
+        options.seed,
+        20_000,
+    )
+    .unwrap();
+    let holdout = rollout_observations(
+        &float,
+        &options.robot,
+        options.scene_kind,
+        options.seed + 1,
+        10_000,
+    )
+    .unwrap();
     let calibration = Calibration::from_observations(
         &network,
         calib.iter().map(|(h, s)| (h.as_slice(), s.as_slice())),

@@ -26,6 +26,7 @@ fn main() {
     let options = ExportOptions::default();
     let calibration_set = rollout_observations(
         &float,
+        &options.robot,
         options.scene_kind,
         options.seed,
         options.calibration_observations,
@@ -33,6 +34,7 @@ fn main() {
     .unwrap();
     let holdout = rollout_observations(
         &float,
+        &options.robot,
         options.scene_kind,
         options.seed + 1,
         options.holdout_observations,

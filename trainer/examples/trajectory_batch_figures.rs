@@ -117,6 +117,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let (mut solved, mut area, mut kept, mut placements, mut steps) = (0, 0.0, 0, 0, 0);
         for i in 0..scenes {
             let scenario = generate(
+                wheelleg_sim::generate::SceneRobot::shipped(),
                 SceneKind::Behaviour(behaviour),
                 &mut rng,
                 format!("{}-{i}", behaviour.name()),

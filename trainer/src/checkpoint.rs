@@ -16,6 +16,7 @@ use crate::ppo::Adam;
 use crate::vec_env::EnvSnapshot;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
+use wheelleg_robot::RobotDescription;
 
 const MAGIC: &[u8; 8] = b"WLCKPT01";
 const HEADER_LEN: usize = 24;
@@ -245,12 +246,44 @@ pub struct CheckpointExtras {
     /// re-samples them (`run.failure_resample_probability`). Extras written before this field
     /// existed end after `start_stage`; they still load (see [`Checkpoint::from_bytes`]).
     pub failures: Option<Vec<String>>,
+    /// The robot trained for, as its description's TOML; `None` for the shipped robot (so a
+    /// shipped robot's checkpoint is byte for byte what it was before robots were named).
+    pub robot: Option<String>,
 }
 
 /// The extras as written before `failures` existed.
 #[derive(Deserialize)]
 struct ExtrasBeforeFailures {
     start_stage: Option<StartStageState>,
+}
+
+/// The extras as written before `robot` existed.
+#[derive(Deserialize)]
+struct ExtrasBeforeRobot {
+    start_stage: Option<StartStageState>,
+    failures: Option<Vec<String>>,
+}
+
+impl CheckpointExtras {
+    /// How `robot` is recorded: `None` for the shipped robot, its description otherwise.
+    pub fn robot_record(robot: &RobotDescription) -> Option<String> {
+        (*robot != RobotDescription::shipped()).then(|| robot.to_toml())
+    }
+
+    /// The robot the checkpoint's policy was trained for.
+    pub fn robot(&self) -> Result<RobotDescription, String> {
+        match &self.robot {
+            None => Ok(RobotDescription::shipped()),
+            Some(text) => RobotDescription::from_toml(text)
+                .map_err(|e| format!("checkpoint corrupt: its robot description: {e}")),
+        }
+    }
+
+    /// Refuses a checkpoint (`what`) trained for another robot than `robot`, naming both.
+    pub fn check_robot(&self, robot: &RobotDescription, what: &str) -> Result<(), String> {
+        let trained = self.robot()?;
+        robot.accepts(&trained.trained_for(), what)
+    }
 }
 
 /// Where a run's start-stage curriculum stands (`run.start_stage`).
@@ -327,15 +360,26 @@ impl Checkpoint {
                 .or_else(|e| {
                     // postcard records carry no field names: an older record is one that
                     // decodes in the older shape and leaves nothing behind.
-                    match postcard::take_from_bytes::<ExtrasBeforeFailures>(rest) {
+                    match postcard::take_from_bytes::<ExtrasBeforeRobot>(rest) {
                         Ok((old, [])) => Ok((
                             CheckpointExtras {
                                 start_stage: old.start_stage,
-                                failures: None,
+                                failures: old.failures,
+                                robot: None,
                             },
                             &[][..],
                         )),
-                        _ => Err(e),
+                        _ => match postcard::take_from_bytes::<ExtrasBeforeFailures>(rest) {
+                            Ok((old, [])) => Ok((
+                                CheckpointExtras {
+                                    start_stage: old.start_stage,
+                                    failures: None,
+                                    robot: None,
+                                },
+                                &[][..],
+                            )),
+                            _ => Err(e),
+                        },
                     }
                 })
                 .map_err(|e| format!("checkpoint corrupt: extras: {e}"))?;
@@ -382,6 +426,13 @@ impl Checkpoint {
 /// Loads just the policy from a checkpoint file.
 pub fn load_policy(path: &Path) -> Result<NetworkF32, String> {
     Checkpoint::load(path)?.network.to_network()
+}
+
+/// Refuses the checkpoint at `path` when it was trained for another robot than `robot`,
+/// naming both.
+pub fn check_robot(path: &Path, robot: &RobotDescription) -> Result<(), String> {
+    let (_, extras) = Checkpoint::load_with_extras(path)?;
+    extras.check_robot(robot, &path.display().to_string())
 }
 
 #[cfg(test)]

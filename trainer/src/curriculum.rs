@@ -23,8 +23,7 @@ use crate::trajectory::batch_file::TrajectoryBatch;
 use crate::trajectory::randomize::{randomize_batch_with, RandomizeConfig, Stats};
 use crate::trajectory::Trajectory;
 use std::path::{Path, PathBuf};
-use wheelleg_sim::env::EnvConfig;
-use wheelleg_sim::generate::{Behaviour, SceneKind};
+use wheelleg_sim::generate::{Behaviour, SceneKind, SceneRobot};
 
 /// Name of the trajectory batch in a curriculum folder.
 pub const BATCH_FILE: &str = "batch.wltb";
@@ -50,7 +49,27 @@ pub fn secondary_dir(out: &Path, behaviour: Behaviour) -> PathBuf {
     out.join(format!("secondary-{}", behaviour.name()))
 }
 
+/// The curriculum's behaviours the robot has, in order; those it lacks are left out
+/// ([`left_out_behaviours`] says why).
 fn behaviours(config: &TrainConfig) -> Result<Vec<Behaviour>, String> {
+    let fit = SceneRobot::of(&config.robot.robot.geometry);
+    Ok(named_behaviours(config)?
+        .into_iter()
+        .filter(|&b| fit.has(b).is_ok())
+        .collect())
+}
+
+/// The curriculum's behaviours the robot lacks, each with why: their secondaries are not
+/// trained and the batch holds none of their trajectories.
+pub fn left_out_behaviours(config: &TrainConfig) -> Result<Vec<(Behaviour, String)>, String> {
+    let fit = SceneRobot::of(&config.robot.robot.geometry);
+    Ok(named_behaviours(config)?
+        .into_iter()
+        .filter_map(|b| fit.has(b).err().map(|why| (b, why)))
+        .collect())
+}
+
+fn named_behaviours(config: &TrainConfig) -> Result<Vec<Behaviour>, String> {
     config
         .curriculum
         .behaviours
@@ -62,14 +81,6 @@ fn behaviours(config: &TrainConfig) -> Result<Vec<Behaviour>, String> {
             )),
         })
         .collect()
-}
-
-fn episode_rules(config: &TrainConfig) -> EnvConfig {
-    EnvConfig {
-        max_steps: config.run.max_episode_steps,
-        invalid_reward: config.run.invalid_reward,
-        ..EnvConfig::default()
-    }
 }
 
 /// Runs (or resumes) one PPO stage in `dir`: resumes when a checkpoint is there, so a stage
@@ -96,10 +107,11 @@ fn run_stage(
     train_stage(config, &opts, inputs)
 }
 
-fn load_network(dir: &Path) -> Result<NetworkF32, String> {
-    Checkpoint::load(&dir.join(crate::runner::CHECKPOINT_FILE))?
-        .network
-        .to_network()
+fn load_network(config: &TrainConfig, dir: &Path) -> Result<NetworkF32, String> {
+    let path = dir.join(crate::runner::CHECKPOINT_FILE);
+    let (checkpoint, extras) = Checkpoint::load_with_extras(&path)?;
+    extras.check_robot(&config.robot, &path.display().to_string())?;
+    checkpoint.network.to_network()
 }
 
 /// The config of `behaviour`'s secondary stage (`first`: the straight-line policy, which starts
@@ -163,7 +175,7 @@ pub fn run_secondary(config: &TrainConfig, opts: &CurriculumOptions) -> Result<(
         )?;
         report_stage(&format!("secondary {}", behaviour.name()), &summary);
         if index == 0 {
-            let mut network = load_network(&dir)?;
+            let mut network = load_network(config, &dir)?;
             soften_action_head(&mut network, config.curriculum.secondary_init_temperature);
             straight = Some(network);
         }
@@ -275,6 +287,9 @@ pub fn stored_trajectories(config: &TrainConfig, out: &Path) -> Result<Vec<Traje
         let stored = TrajectoryBatch::load(&path).map_err(|e| {
             format!("{e} (train the secondary policies first: wheelleg train secondary)")
         })?;
+        stored
+            .header()
+            .check_robot(&config.robot, &path.display().to_string())?;
         if stored.is_empty() {
             let name = behaviour.name();
             return Err(format!(
@@ -301,7 +316,8 @@ pub fn run_randomize(config: &TrainConfig, opts: &CurriculumOptions) -> Result<S
     let randomize = RandomizeConfig {
         per_trajectory: config.curriculum.randomizations,
         seed: opts.seed,
-        env: episode_rules(config),
+        env: config.episode_rules(),
+        robot: config.robot.clone(),
         ..RandomizeConfig::default()
     };
     let bar = if opts.progress {
@@ -332,10 +348,15 @@ pub fn run_primary(config: &TrainConfig, opts: &CurriculumOptions) -> Result<Run
     let batch_path = opts.out.join(BATCH_FILE);
     let batch = TrajectoryBatch::load(&batch_path)
         .map_err(|e| format!("{e} (make the trajectory batch first: wheelleg train randomize)"))?;
+    batch
+        .header()
+        .check_robot(&config.robot, &batch_path.display().to_string())?;
     let init = match config.curriculum.primary_init.as_str() {
         "scratch" => None,
         name => match SceneKind::from_name(name) {
-            Some(SceneKind::Behaviour(b)) => Some(load_network(&secondary_dir(&opts.out, b))?),
+            Some(SceneKind::Behaviour(b)) => {
+                Some(load_network(config, &secondary_dir(&opts.out, b))?)
+            }
             _ => {
                 return Err(format!(
                     "curriculum.primary_init: {name:?} is not a behaviour"

@@ -16,7 +16,8 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
-use wheelleg_sim::generate::{generate_many, SceneKind};
+use wheelleg_robot::RobotDescription;
+use wheelleg_sim::generate::{generate_many, SceneKind, SceneRobot};
 
 /// Where calibration and agreement observations come from.
 #[derive(Clone, Debug)]
@@ -37,6 +38,9 @@ pub struct ExportOptions {
     /// Quantization-aware fine-tuning before quantization (`steps: 0`, the default here:
     /// none; `wheelleg export` takes [`crate::quantize::qat::RECOMMENDED_STEPS`] by default).
     pub qat: QatOptions,
+    /// The robot the policy was trained for (its checkpoint's): the scenes the observations
+    /// come from are built for it, and the weights file records it.
+    pub robot: RobotDescription,
 }
 
 impl Default for ExportOptions {
@@ -52,6 +56,7 @@ impl Default for ExportOptions {
             // difference (docs/results.md, "Quantization") and stays the default of `wheelleg export`.
             action_range: ActionRange::Contenders,
             qat: QatOptions::default(),
+            robot: RobotDescription::shipped(),
         }
     }
 }
@@ -110,6 +115,7 @@ pub struct QatCard {
 /// that quantization variants can be compared on exactly the export's observations.
 pub fn rollout_observations(
     policy: &FloatPolicy,
+    robot: &RobotDescription,
     kind: SceneKind,
     seed: u64,
     count: usize,
@@ -123,11 +129,16 @@ pub fn rollout_observations(
             ..wheelleg_stack::Preset::Policy.config()
         },
         planner_expansions: 0,
+        env_config: wheelleg_sim::env::EnvConfig {
+            geometry: robot.robot.geometry,
+            ..EvalOptions::default().env_config
+        },
         ..EvalOptions::default()
     };
+    let scene_robot = SceneRobot::of(&robot.robot.geometry);
     let mut observations = Vec::with_capacity(count);
     while observations.len() < count {
-        let scenes = generate_many(kind, &mut scenes_rng, 64);
+        let scenes = generate_many(scene_robot, kind, &mut scenes_rng, 64);
         let more = collect_observations(
             policy,
             &scenes,
@@ -168,12 +179,14 @@ pub fn export_policy(
     let float = FloatPolicy::new(network, device)?;
     let calibration_set = rollout_observations(
         &float,
+        &options.robot,
         options.scene_kind,
         options.seed,
         options.calibration_observations,
     )?;
     let holdout = rollout_observations(
         &float,
+        &options.robot,
         options.scene_kind,
         holdout_seed,
         options.holdout_observations,
@@ -187,8 +200,11 @@ pub fn export_policy(
                     .map(|(h, s)| (h.as_slice(), s.as_slice())),
             );
             calibration.action_range = options.action_range;
-            let quantized =
-                quantize(net, &calibration, options.range).map_err(|e| format!("quantize: {e}"))?;
+            let quantized = QuantizedNetwork {
+                robot: options.robot.clone(),
+                ..quantize(net, &calibration, options.range)
+                    .map_err(|e| format!("quantize: {e}"))?
+            };
             let bytes = quantized
                 .to_bytes()
                 .map_err(|e| format!("encode weights: {e}"))?;
@@ -208,6 +224,7 @@ pub fn export_policy(
         let ptq_agreement = measure(&ptq_bytes)?;
         let training_set = rollout_observations(
             &float,
+            &options.robot,
             options.scene_kind,
             options.qat.seed,
             options.qat.observations,

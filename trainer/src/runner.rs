@@ -108,16 +108,22 @@ pub fn train_stage(
     config.validate()?;
     let run = &config.run;
     let kind = SceneKind::from_name(&run.scene_kind).ok_or("bad run.scene_kind")?;
+    if let SceneKind::Behaviour(behaviour) = kind {
+        wheelleg_sim::generate::SceneRobot::of(&config.robot.robot.geometry)
+            .has(behaviour)
+            .map_err(|why| {
+                format!(
+                    "run.scene_kind {}: robot '{}' has no such scenes: {why}",
+                    run.scene_kind, config.robot.name
+                )
+            })?;
+    }
     let device = BackendKind::from_name(&run.backend)?.device()?;
     std::fs::create_dir_all(&opts.out)
         .map_err(|e| format!("cannot create {}: {e}", opts.out.display()))?;
     let ckpt_path = opts.out.join(CHECKPOINT_FILE);
     let metrics_path = opts.out.join(METRICS_FILE);
-    let env_config = EnvConfig {
-        max_steps: run.max_episode_steps,
-        invalid_reward: run.invalid_reward,
-        ..EnvConfig::default()
-    };
+    let env_config = config.episode_rules();
     let steps_per_env = config.steps_per_env();
     let n = run.num_envs;
 
@@ -156,6 +162,9 @@ pub fn train_stage(
 
     if opts.resume {
         let (c, extras) = Checkpoint::load_with_extras(&ckpt_path)?;
+        // The robot first: a run on another robot differs in `run.robot` too, and the
+        // message that names both robots says more.
+        extras.check_robot(&config.robot, &ckpt_path.display().to_string())?;
         let changes = config
             .changes_from_stored(&c.config_toml, inputs.resume_keeps)
             .map_err(|e| format!("{}: {e}", ckpt_path.display()))?;
@@ -352,7 +361,12 @@ pub fn train_stage(
             env_steps >= stop_at || opts.max_iterations.is_some_and(|mx| iterations_here >= mx);
         if iteration % run.checkpoint_interval as u64 == 0 || finished {
             if inputs.record.is_some() {
-                save_trajectories(&trajectories_path, solved.make_contiguous(), env_config)?;
+                save_trajectories(
+                    &trajectories_path,
+                    solved.make_contiguous(),
+                    env_config,
+                    &config.robot,
+                )?;
             }
             let extras = CheckpointExtras {
                 start_stage: schedule.as_ref().map(|s| StartStageState {
@@ -361,6 +375,7 @@ pub fn train_stage(
                     env_stages: envs.env_stages(),
                 }),
                 failures: (run.failure_resample_probability > 0.0).then(|| envs.failure_snapshot()),
+                robot: CheckpointExtras::robot_record(&config.robot),
             };
             Checkpoint {
                 kind: opts.kind.clone(),
@@ -416,6 +431,7 @@ fn save_trajectories(
     path: &Path,
     trajectories: &[Trajectory],
     env: EnvConfig,
+    robot: &wheelleg_robot::RobotDescription,
 ) -> Result<(), String> {
     let temp = path.with_extension("new");
     let _ = std::fs::remove_file(&temp);
@@ -424,6 +440,7 @@ fn save_trajectories(
         per_trajectory: 0,
         include_original: true,
         env,
+        robot: robot.clone(),
         ..RandomizeConfig::default()
     };
     randomize_batch_with(trajectories, &config, &temp, |_| {}).map_err(|e| e.to_string())?;

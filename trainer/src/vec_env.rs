@@ -104,7 +104,7 @@ impl VecEnv {
             .map(|i| {
                 let mut rng = ChaCha8Rng::seed_from_u64(seed);
                 rng.set_stream(i as u64);
-                let scenario = new_scene(scenes, &mut rng, i, 0);
+                let scenario = new_scene(&config.geometry, scenes, &mut rng, i, 0);
                 EnvSlot::start(scenario, config, rng, 0, scenes.stage)
             })
             .collect::<Result<Vec<_>, _>>()?;
@@ -133,7 +133,7 @@ impl VecEnv {
             .iter()
             .map(|s| {
                 let scenes: Vec<Scenario> = s.failures.scenes().cloned().collect();
-                wheelleg_sim::scenario_file::to_json(&scenes)
+                wheelleg_sim::scenario_file::to_json(&scenes, &self.config.geometry)
             })
             .collect()
     }
@@ -148,9 +148,8 @@ impl VecEnv {
             ));
         }
         for (i, (slot, json)) in self.slots.iter_mut().zip(snapshot).enumerate() {
-            let scenes =
-                wheelleg_sim::scenario_file::parse(json, &wheelleg_runtime::robot::WHEELLEG)
-                    .map_err(|e| format!("checkpoint env {i} failure memory: {e}"))?;
+            let scenes = wheelleg_sim::scenario_file::parse(json, &self.config.geometry)
+                .map_err(|e| format!("checkpoint env {i} failure memory: {e}"))?;
             slot.failures.restore(scenes);
         }
         Ok(())
@@ -273,9 +272,10 @@ impl VecEnv {
             .iter()
             .map(|s| EnvSnapshot {
                 scene_rng_word_pos: s.scene_rng.get_word_pos(),
-                scenario_json: wheelleg_sim::scenario_file::to_json(std::slice::from_ref(
-                    &s.scenario,
-                )),
+                scenario_json: wheelleg_sim::scenario_file::to_json(
+                    std::slice::from_ref(&s.scenario),
+                    &self.config.geometry,
+                ),
                 actions: s.actions.clone(),
                 episodes_started: s.episodes_started,
             })
@@ -296,11 +296,9 @@ impl VecEnv {
             let mut rng = ChaCha8Rng::seed_from_u64(seed);
             rng.set_stream(i as u64);
             rng.set_word_pos(snap.scene_rng_word_pos);
-            let scenarios = wheelleg_sim::scenario_file::parse(
-                &snap.scenario_json,
-                &wheelleg_runtime::robot::WHEELLEG,
-            )
-            .map_err(|e| format!("checkpoint env {i}: {e}"))?;
+            let scenarios =
+                wheelleg_sim::scenario_file::parse(&snap.scenario_json, &self.config.geometry)
+                    .map_err(|e| format!("checkpoint env {i}: {e}"))?;
             let scenario = scenarios
                 .into_iter()
                 .next()

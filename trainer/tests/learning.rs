@@ -63,6 +63,7 @@ fn ppo_learns_to_drive_straight_to_the_target() {
         .unwrap();
     // Held-out scenes: a seed never used in training.
     let scenes = generate_many(
+        wheelleg_sim::generate::SceneRobot::shipped(),
         SceneKind::Behaviour(Behaviour::Straight),
         &mut ChaCha8Rng::seed_from_u64(424_242),
         100,

@@ -23,7 +23,7 @@ mod way_there;
 
 pub use guard_map::GuardMap;
 pub(crate) use way_proof::{proof_cap_m, prove_way, ProofPose, WayClearance};
-use way_there::horizontal_reach_m;
+pub(crate) use way_there::horizontal_reach_m;
 
 /// Motion shorter than this that cannot be proven clear of an obstacle counts as touching it
 /// (see [`Env::check_transition`]): 0.1 mm, far below what a real robot tracks, far above
@@ -46,6 +46,9 @@ pub struct EnvConfig {
     /// Reward term of an undone action (collision, impossible pose, out of bounds); the paper's
     /// is [`crate::reward::INVALID_PENALTY`], -0.1.
     pub invalid_reward: f32,
+    /// The robot simulated (a description's geometry, `wheelleg_robot`); the shipped robot by
+    /// default.
+    pub geometry: RobotGeometry,
 }
 
 impl Default for EnvConfig {
@@ -56,6 +59,7 @@ impl Default for EnvConfig {
             give_up_margin_m: 0.5,
             arena_margin_m: 0.6,
             invalid_reward: crate::reward::INVALID_PENALTY,
+            geometry: WHEELLEG,
         }
     }
 }
@@ -131,7 +135,6 @@ impl Default for Observation {
 #[derive(Clone, Debug)]
 pub struct Env {
     config: EnvConfig,
-    geometry: RobotGeometry,
     obstacles: ObstacleSet,
     target: Point2<f32>,
     arena_min: Point2<f32>,
@@ -153,18 +156,9 @@ pub struct Env {
 pub struct EpisodeOver;
 
 impl Env {
-    /// Starts an episode of `scenario` with the project's robot.
+    /// Starts an episode of `scenario` with the robot of `config`.
     pub fn new(scenario: &Scenario, config: EnvConfig) -> Result<Self, ScenarioError> {
-        Env::with_geometry(scenario, config, WHEELLEG)
-    }
-
-    /// Starts an episode with a given robot geometry.
-    pub fn with_geometry(
-        scenario: &Scenario,
-        config: EnvConfig,
-        geometry: RobotGeometry,
-    ) -> Result<Self, ScenarioError> {
-        scenario.validate(&geometry)?;
+        scenario.validate(&config.geometry)?;
         let start = scenario.start.position;
         let margin = Vector2::repeat(config.arena_margin_m);
         let arena_min = Point2::new(
@@ -178,7 +172,6 @@ impl Env {
         let start_distance_m = (scenario.target - start).norm();
         Ok(Env {
             config,
-            geometry,
             obstacles: ObstacleSet::new(&scenario.obstacles),
             target: scenario.target,
             arena_min,
@@ -192,7 +185,7 @@ impl Env {
                 Status::Running
             },
             collisions: 0,
-            reach_m: horizontal_reach_m(&geometry),
+            reach_m: horizontal_reach_m(&config.geometry),
             parts_here: None,
         })
     }
@@ -229,7 +222,7 @@ impl Env {
 
     /// The robot geometry.
     pub fn geometry(&self) -> &RobotGeometry {
-        &self.geometry
+        &self.config.geometry
     }
 
     /// How far any part of the robot reaches horizontally from its centre, in any pose.
@@ -301,7 +294,7 @@ impl Env {
             self.state.yaw_rad(),
             &mut out.height_map,
         );
-        let legs = self.state.leg_config(&self.geometry);
+        let legs = self.state.leg_config(&self.config.geometry);
         let target = self.state.world_to_robot(self.target);
         out.state = [legs.clearance_m, legs.track_m, target.x, target.y];
     }

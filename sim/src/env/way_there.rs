@@ -58,8 +58,9 @@ impl Env {
         {
             return Err(InvalidAction::OutOfBounds);
         }
-        let legs = to.leg_config(&self.geometry);
-        self.geometry
+        let legs = to.leg_config(&self.config.geometry);
+        self.config
+            .geometry
             .leg_ik(legs)
             .map_err(InvalidAction::Impossible)?;
         // Most steps are far from every obstacle: one box test then settles them, without
@@ -71,7 +72,7 @@ impl Env {
         {
             return Ok(());
         }
-        let end = RobotParts::new(&self.geometry, p, to.yaw_rad(), legs)
+        let end = RobotParts::new(&self.config.geometry, p, to.yaw_rad(), legs)
             .map_err(InvalidAction::Impossible)?;
         if self.obstacles.may_touch(&end.aabb()) && self.obstacles.collides(&end) {
             return Err(InvalidAction::Collision);
@@ -147,7 +148,7 @@ impl Env {
         t: f32,
     ) -> Result<RobotParts, IkError> {
         let (position, yaw_rad, legs) = self.between(from, to, t);
-        RobotParts::new(&self.geometry, position, yaw_rad, legs)
+        RobotParts::new(&self.config.geometry, position, yaw_rad, legs)
     }
 
     /// [`Env::pose_between`] without the parts' bounding boxes (the same parts), for the
@@ -159,15 +160,15 @@ impl Env {
         t: f32,
     ) -> Result<[Part; PART_COUNT], IkError> {
         let (position, yaw_rad, legs) = self.between(from, to, t);
-        place_parts(&self.geometry, position, yaw_rad, legs)
+        place_parts(&self.config.geometry, position, yaw_rad, legs)
     }
 
     /// The body position, heading and legs at fraction `t` of the step (see
     /// [`Env::pose_between`]).
     fn between(&self, from: &RobotState, to: &RobotState, t: f32) -> (Point2<f32>, f32, LegConfig) {
         let (legs0, legs1) = (
-            from.leg_config(&self.geometry),
-            to.leg_config(&self.geometry),
+            from.leg_config(&self.config.geometry),
+            to.leg_config(&self.config.geometry),
         );
         let legs = LegConfig {
             clearance_m: legs0.clearance_m + t * (legs1.clearance_m - legs0.clearance_m),
@@ -196,14 +197,12 @@ impl Env {
     pub fn motion_bound_m(&self, from: &RobotState, to: &RobotState) -> Result<f32, IkError> {
         let travel_m = (to.position - from.position).norm();
         let turn_m = self.reach_m * yaw_change_rad(from, to).abs();
-        let leg_m = match LegMotionTable::for_geometry(&self.geometry)
-            .and_then(|table| table.get(from, to))
-        {
+        let leg_m = match LegMotionTable::for_geometry(&self.config.geometry).get(from, to) {
             Some(leg_m) => leg_m,
             None => leg_motion_m(
-                &self.geometry,
-                from.leg_config(&self.geometry),
-                to.leg_config(&self.geometry),
+                &self.config.geometry,
+                from.leg_config(&self.config.geometry),
+                to.leg_config(&self.config.geometry),
             )?,
         };
         Ok(travel_m + turn_m + leg_m)
@@ -359,11 +358,24 @@ struct LegMotionTable {
 }
 
 impl LegMotionTable {
-    /// The table for `geometry` when it is the project's robot (other geometries are worked
-    /// out exactly every time: they are for tests).
-    fn for_geometry(geometry: &RobotGeometry) -> Option<&'static LegMotionTable> {
-        static TABLE: std::sync::OnceLock<LegMotionTable> = std::sync::OnceLock::new();
-        (*geometry == WHEELLEG).then(|| TABLE.get_or_init(|| LegMotionTable::new(&WHEELLEG)))
+    /// The table for `geometry`, built on first use. Tables live as long as the program: a
+    /// run simulates one robot or a few, and a step must not wait on a table's lifetime.
+    fn for_geometry(geometry: &RobotGeometry) -> &'static LegMotionTable {
+        static SHIPPED: std::sync::OnceLock<LegMotionTable> = std::sync::OnceLock::new();
+        type Tables = Vec<(RobotGeometry, &'static LegMotionTable)>;
+        static OTHERS: std::sync::Mutex<Tables> = std::sync::Mutex::new(Vec::new());
+        if *geometry == WHEELLEG {
+            return SHIPPED.get_or_init(|| LegMotionTable::new(&WHEELLEG));
+        }
+        // A poisoned lock only means another thread panicked mid-insert: the list is still
+        // a list of finished tables.
+        let mut others = OTHERS.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some((_, table)) = others.iter().find(|(g, _)| g == geometry) {
+            return table;
+        }
+        let table: &'static LegMotionTable = Box::leak(Box::new(LegMotionTable::new(geometry)));
+        others.push((*geometry, table));
+        table
     }
 
     fn new(geometry: &RobotGeometry) -> Self {
@@ -453,7 +465,7 @@ fn yaw_change_rad(from: &RobotState, to: &RobotState) -> f32 {
 /// A bound on how far any robot part reaches horizontally from the body centre, in any pose:
 /// the body's corner, or a wheel at the widest track (the knees stay inside the wheels'
 /// reach: they are at most a thigh's length outboard of the hips), plus the largest part radius.
-pub(super) fn horizontal_reach_m(geometry: &RobotGeometry) -> f32 {
+pub(crate) fn horizontal_reach_m(geometry: &RobotGeometry) -> f32 {
     let body = (0.5 * geometry.body_length_m).hypot(0.5 * geometry.body_width_m);
     let wheel = (geometry.hip_x_m + geometry.wheel_radius_m)
         .hypot(0.5 * geometry.track_range_m[1] + 0.5 * geometry.wheel_width_m);

@@ -1,12 +1,16 @@
 //! Complex scenes: one to eight obstacles of any kind and yaw on the way to the target.
 
-use super::{cell_index, layout, StartYaw};
+use super::{cell_index, layout, SceneRobot, StartYaw};
 use crate::obstacle::{cell_centre_m, Obstacle, ObstacleKind, ObstacleYaw};
 use crate::scenario::Scenario;
 use rand::Rng;
-use wheelleg_runtime::robot::WHEELLEG;
 
-pub(super) fn complex_scene(rng: &mut impl Rng, name: String, start_yaw: StartYaw) -> Scenario {
+pub(super) fn complex_scene(
+    robot: &SceneRobot,
+    rng: &mut impl Rng,
+    name: String,
+    start_yaw: StartYaw,
+) -> Scenario {
     let lay = layout(rng, 0.5, start_yaw);
     let count = rng.random_range(1..=8);
     let (x0, x1) = (
@@ -22,7 +26,7 @@ pub(super) fn complex_scene(rng: &mut impl Rng, name: String, start_yaw: StartYa
             target: lay.target,
             obstacles: obstacles.to_vec(),
         }
-        .validate(&WHEELLEG)
+        .validate(robot.geometry())
         .is_ok()
     };
     let mut attempts = 0;

@@ -14,7 +14,8 @@
 
 use super::{cell_index, fence_cells, fence_rows, layout, on_robot_lattice, random_obstacle};
 use super::{robot_lattice_index, StartYaw};
-use super::{Behaviour, Layout};
+use super::{Behaviour, Layout, SceneRobot};
+use crate::env::horizontal_reach_m;
 use crate::obstacle::{cell_centre_m, Obstacle, ObstacleYaw, GRID_CELL_M};
 use crate::scenario::Scenario;
 use nalgebra::Point2;
@@ -174,8 +175,22 @@ impl PlacedFence {
 
 /// A composed scene, its variant appended to `name`. The caller redraws scenes that do not
 /// validate (start or target not free), as for every kind.
-pub(super) fn composed_scene(rng: &mut impl Rng, name: String, start_yaw: StartYaw) -> Scenario {
-    let variant = ComposedVariant::draw(rng);
+pub(super) fn composed_scene(
+    robot: &SceneRobot,
+    rng: &mut impl Rng,
+    name: String,
+    start_yaw: StartYaw,
+) -> Scenario {
+    // Fences of a behaviour the robot lacks are drawn again (no draw is repeated for a robot
+    // that has every fence, so the shipped robot's scenes stay as they were); a robot with no
+    // fence at all gets them as drawn, and its callers refuse composed scenes.
+    let any_fence = SINGLE_FENCES.iter().any(|&b| robot.has(b).is_ok());
+    let variant = loop {
+        let variant = ComposedVariant::draw(rng);
+        if !any_fence || variant.fences.iter().all(|&b| robot.has(b).is_ok()) {
+            break variant;
+        }
+    };
     let Layout { start, target } = layout(rng, 0.5, start_yaw);
     let path_cell = cell_index(start.position.y);
     // The first fence as in the behaviour scenes: its first row in the first cell whose centre
@@ -199,12 +214,13 @@ pub(super) fn composed_scene(rng: &mut impl Rng, name: String, start_yaw: StartY
     let target = match variant.ending {
         ComposedEnding::InPassage => last.inside_m(),
         ComposedEnding::Beyond => {
-            // At least 0.55 m past the last row's centre, so that the robot standing there at
-            // any yaw is clear of the fence (its wheels reach 0.39 m from its centre, the row
-            // 0.125 m from its own): a target the fence still reaches could need the passing
-            // pose lined up with it, which a target off the passage's line rules out. As far
-            // as the layout's target when that lies further.
-            let past_m = cell_centre_m(last.last_row()) + 0.55;
+            // Far enough past the last row's centre that the robot standing there at any yaw
+            // is clear of the fence (half the row, the robot's reach and 2 cm; never under
+            // 0.55 m, the shipped robot's): a target the fence still reaches could need the
+            // passing pose lined up with it, which a target off the passage's line rules out.
+            // As far as the layout's target when that lies further.
+            let clear_m = 0.5 * GRID_CELL_M + horizontal_reach_m(robot.geometry()) + 0.02;
+            let past_m = cell_centre_m(last.last_row()) + clear_m.max(0.55);
             let x = target
                 .x
                 .max(on_robot_lattice(robot_lattice_index(past_m + 0.025)));

@@ -10,13 +10,12 @@
 //! ([`super::target_is_free`]).
 
 use super::{behaviour_scene, fence_rows, on_robot_lattice, robot_lattice_index, target_is_free};
-use super::{Behaviour, StartYaw};
+use super::{Behaviour, SceneRobot, StartYaw};
 use crate::obstacle::GRID_CELL_M;
 use crate::scenario::Scenario;
 use nalgebra::Point2;
 use rand::Rng;
 use wheelleg_runtime::action::MOVE_STEP_M;
-use wheelleg_runtime::robot::WHEELLEG;
 
 /// Distance of the target past the centre of the fence's last row, in robot-lattice steps.
 const PAST_LAST_ROW_STEPS: std::ops::RangeInclusive<i32> = 4..=6;
@@ -27,13 +26,15 @@ const BESIDE_OPENING_STEPS: std::ops::RangeInclusive<i32> = 3..=7;
 /// plain scene) with the target just past the fence, beside the opening. Every draw flows from
 /// `rng`; the result validates and its target is free.
 pub fn exit_scene(
+    robot: &SceneRobot,
     behaviour: Behaviour,
     start_yaw: StartYaw,
     rng: &mut impl Rng,
     name: String,
 ) -> Scenario {
     loop {
-        let (mut scenario, passage) = behaviour_scene(behaviour, rng, name.clone(), start_yaw);
+        let (mut scenario, passage) =
+            behaviour_scene(robot, behaviour, rng, name.clone(), start_yaw);
         if behaviour.has_fence() {
             let last_row_x_m = passage.entry_x_m + (fence_rows(behaviour) - 1) as f32 * GRID_CELL_M;
             let past = rng.random_range(PAST_LAST_ROW_STEPS) as f32 * MOVE_STEP_M;
@@ -44,7 +45,7 @@ pub fn exit_scene(
                 on_robot_lattice(robot_lattice_index(passage.line_y_m + beside)),
             );
         }
-        if scenario.validate(&WHEELLEG).is_ok() && target_is_free(&scenario) {
+        if scenario.validate(robot.geometry()).is_ok() && target_is_free(robot, &scenario) {
             return scenario;
         }
     }
@@ -62,6 +63,7 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(5);
         for i in 0..50 {
             let s = exit_scene(
+                SceneRobot::shipped(),
                 Behaviour::Squeeze,
                 StartYaw::Any,
                 &mut rng,

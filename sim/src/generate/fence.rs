@@ -3,32 +3,18 @@
 //! the passage, lined up.
 
 use super::{cell_index, layout, on_robot_lattice, robot_lattice_index};
-use super::{Behaviour, StartYaw};
+use super::{Behaviour, SceneRobot, StartYaw};
 use crate::obstacle::{cell_centre_m, Obstacle, ObstacleKind, ObstacleYaw, GRID_CELL_M};
 use crate::scenario::Scenario;
 use crate::state::{RobotState, YAW_STEPS_PER_TURN};
 use nalgebra::Point2;
 use rand::Rng;
 use wheelleg_runtime::action::MOVE_STEP_M;
-use wheelleg_runtime::robot::WHEELLEG;
-
-/// The leg pose (clearance steps, track steps from the default) in which the robot, lined up
-/// with the fence and centred on its opening, drives straight through the passage without a
-/// collision (`sim/tests/start_stage.rs` checks every stage-0 start does): spread 0.56 m wide
-/// at 0.08 m clearance, squeeze 0.20 m narrow, lift 0.18 m clearance; around keeps the
-/// default pose.
-pub const fn passing_legs(behaviour: Behaviour) -> (i32, i32) {
-    match behaviour {
-        Behaviour::SpreadOver => (-2, 10),
-        Behaviour::Squeeze => (0, -8),
-        Behaviour::LiftOver => (3, 0),
-        Behaviour::Straight | Behaviour::Around => (0, 0),
-    }
-}
 
 /// `scenario` (as drawn, valid) with its start moved to `stage`; `None` when no valid start
 /// was found near the staged one.
 pub(super) fn staged_scene(
+    robot: &SceneRobot,
     scenario: &Scenario,
     behaviour: Behaviour,
     passage: Passage,
@@ -48,7 +34,7 @@ pub(super) fn staged_scene(
     let wrapped = (drawn.yaw_steps + half).rem_euclid(YAW_STEPS_PER_TURN) - half;
     let base = if wrapped.abs() <= half / 2 { 0 } else { half };
     let deviation = (drawn.yaw_steps - base + half).rem_euclid(YAW_STEPS_PER_TURN) - half;
-    let (clearance_steps, track_steps) = passing_legs(behaviour);
+    let (clearance_steps, track_steps) = robot.passing_legs(behaviour);
     let mut start = RobotState {
         position: Point2::new(
             on_robot_lattice(robot_lattice_index(lerp(
@@ -72,7 +58,8 @@ pub(super) fn staged_scene(
             start,
             ..scenario.clone()
         };
-        if candidate.validate(&WHEELLEG).is_ok() && (candidate.target - start.position).norm() > 0.2
+        if candidate.validate(robot.geometry()).is_ok()
+            && (candidate.target - start.position).norm() > 0.2
         {
             return Some(candidate);
         }
@@ -121,6 +108,7 @@ pub(super) struct Passage {
 }
 
 pub(super) fn behaviour_scene(
+    robot: &SceneRobot,
     behaviour: Behaviour,
     rng: &mut impl Rng,
     name: String,
@@ -149,8 +137,8 @@ pub(super) fn behaviour_scene(
         Behaviour::Straight => Vec::new(),
         Behaviour::Around => {
             // Beside the block, on the side away from the second block (or, for one block, on
-            // the start's side): 0.40 m from the block's centre leaves the default pose (0.40 m
-            // wide) 0.10 m clear of the block's face, and lies on the robot lattice.
+            // the start's side), the default pose 0.10 m clear of the block's face
+            // ([`SceneRobot`]: 0.40 m from the block's centre for the shipped robot).
             let centre_m = cell_centre_m(path_cell);
             let mut free_side = if lay.start.position.y >= centre_m {
                 1.0
@@ -173,7 +161,9 @@ pub(super) fn behaviour_scene(
                     ObstacleYaw::Deg0,
                 ));
             }
-            line_y_m = on_robot_lattice(robot_lattice_index(centre_m + free_side * 0.40));
+            line_y_m = on_robot_lattice(robot_lattice_index(
+                centre_m + free_side * robot.around_offset_m(),
+            ));
             blocks
         }
         Behaviour::LiftOver | Behaviour::SpreadOver | Behaviour::Squeeze => {

@@ -26,9 +26,10 @@ mod complex;
 mod composed;
 mod exit;
 mod fence;
+mod fit;
 pub use composed::{ComposedEnding, ComposedVariant, COMPOSED_PAIRS};
 pub use exit::exit_scene;
-pub use fence::passing_legs;
+pub use fit::{SceneRobot, FENCE_MARGIN_M};
 
 use complex::{complex_scene, random_obstacle};
 use fence::{behaviour_scene, fence_cells, fence_rows, staged_scene};
@@ -39,7 +40,6 @@ use crate::state::{RobotState, YAW_STEPS_PER_TURN};
 use nalgebra::Point2;
 use rand::Rng;
 use wheelleg_runtime::action::MOVE_STEP_M;
-use wheelleg_runtime::robot::WHEELLEG;
 
 /// The five behaviours of the paper's secondary policies.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -216,14 +216,17 @@ fn layout(rng: &mut impl Rng, min_ahead_m: f32, start_yaw: StartYaw) -> Layout {
     }
 }
 
-/// Generates one scene of `kind`. Scenes that come out invalid (robot starting inside an
-/// obstacle, target unreachable by construction) are redrawn, so the result always validates.
-pub fn generate(kind: SceneKind, rng: &mut impl Rng, name: String) -> Scenario {
-    generate_with_start(kind, StartYaw::Any, rng, name)
+/// Generates one scene of `kind` for `robot`. Scenes that come out invalid (robot starting inside
+/// an obstacle, target unreachable by construction) are redrawn, so the result always validates.
+/// A fence the robot lacks the behaviour for ([`SceneRobot::has`]) is still built: callers
+/// leave such kinds out, saying why.
+pub fn generate(robot: &SceneRobot, kind: SceneKind, rng: &mut impl Rng, name: String) -> Scenario {
+    generate_with_start(robot, kind, StartYaw::Any, rng, name)
 }
 
 /// [`generate`] with the start yaw drawn as `start_yaw`.
 pub fn generate_with_start(
+    robot: &SceneRobot,
     kind: SceneKind,
     start_yaw: StartYaw,
     rng: &mut impl Rng,
@@ -231,11 +234,11 @@ pub fn generate_with_start(
 ) -> Scenario {
     loop {
         let scenario = match kind {
-            SceneKind::Behaviour(b) => behaviour_scene(b, rng, name.clone(), start_yaw).0,
-            SceneKind::Complex => complex_scene(rng, name.clone(), start_yaw),
-            SceneKind::Composed => composed::composed_scene(rng, name.clone(), start_yaw),
+            SceneKind::Behaviour(b) => behaviour_scene(robot, b, rng, name.clone(), start_yaw).0,
+            SceneKind::Complex => complex_scene(robot, rng, name.clone(), start_yaw),
+            SceneKind::Composed => composed::composed_scene(robot, rng, name.clone(), start_yaw),
         };
-        if scenario.validate(&WHEELLEG).is_ok() && target_is_free(&scenario) {
+        if scenario.validate(robot.geometry()).is_ok() && target_is_free(robot, &scenario) {
             return scenario;
         }
     }
@@ -248,7 +251,7 @@ pub fn generate_with_start(
 ///
 /// - `stage` 0: lined up with the passage (facing along x, towards or away from the target, as
 ///   the drawn yaw was nearer), on its centre line, inside its first row, legs already in the
-///   pose that passes ([`passing_legs`]: spread wide and low, narrow, lifted; beside the
+///   pose that passes ([`SceneRobot::passing_legs`]: spread wide and low, narrow, lifted; beside the
 ///   around block in the default pose);
 /// - from 0 to 0.5 the start moves back along x, still lined up and in the passing pose, to
 ///   the drawn start's x;
@@ -260,6 +263,7 @@ pub fn generate_with_start(
 /// step at a time; if that does not help within 20 steps the drawn start is kept. Every scene
 /// validates. Straight and complex scenes have no passage and are returned as drawn.
 pub fn generate_staged(
+    robot: &SceneRobot,
     kind: SceneKind,
     start_yaw: StartYaw,
     stage: f32,
@@ -268,37 +272,49 @@ pub fn generate_staged(
 ) -> Scenario {
     let behaviour = match kind {
         SceneKind::Behaviour(b) if b != Behaviour::Straight && stage < 1.0 => b,
-        _ => return generate_with_start(kind, start_yaw, rng, name),
+        _ => return generate_with_start(robot, kind, start_yaw, rng, name),
     };
     // The same draws, in the same order, as `generate_with_start`.
     loop {
-        let (scenario, passage) = behaviour_scene(behaviour, rng, name.clone(), start_yaw);
-        if scenario.validate(&WHEELLEG).is_ok() && target_is_free(&scenario) {
-            return staged_scene(&scenario, behaviour, passage, stage).unwrap_or(scenario);
+        let (scenario, passage) = behaviour_scene(robot, behaviour, rng, name.clone(), start_yaw);
+        if scenario.validate(robot.geometry()).is_ok() && target_is_free(robot, &scenario) {
+            return staged_scene(robot, &scenario, behaviour, passage, stage).unwrap_or(scenario);
         }
     }
 }
 
 /// Generates `count` scenes named `{kind}-{i}`.
-pub fn generate_many(kind: SceneKind, rng: &mut impl Rng, count: usize) -> Vec<Scenario> {
+pub fn generate_many(
+    robot: &SceneRobot,
+    kind: SceneKind,
+    rng: &mut impl Rng,
+    count: usize,
+) -> Vec<Scenario> {
     (0..count)
-        .map(|i| generate(kind, rng, format!("{}-{i}", kind.name())))
+        .map(|i| generate(robot, kind, rng, format!("{}-{i}", kind.name())))
         .collect()
 }
 
-/// Whether the robot could stand at the target: some yaw in the default or a squeezed pose
-/// does not collide. Scenes whose target lies inside an obstacle are useless.
-fn target_is_free(scenario: &Scenario) -> bool {
+/// Whether the robot could stand at the target: some yaw in the default pose or one of three
+/// poses across the lattice (lifted and narrowed, spread and low, squeezed) does not collide.
+/// Scenes whose target lies inside an obstacle are useless.
+fn target_is_free(robot: &SceneRobot, scenario: &Scenario) -> bool {
     let obstacles = crate::collision::ObstacleSet::new(&scenario.obstacles);
-    let poses = [(0.12, 0.36), (0.18, 0.24), (0.08, 0.56), (0.10, 0.16)];
+    let geometry = robot.geometry();
+    // Steps from the default pose: (0.12, 0.36), (0.18, 0.24), (0.08, 0.56) and (0.10, 0.16)
+    // m of clearance and track for the shipped robot.
+    let poses = [(0, 0), (3, -6), (-2, 10), (-1, -10)].map(|(c, t)| {
+        RobotState {
+            clearance_steps: c,
+            track_steps: t,
+            ..RobotState::new(scenario.target, 0)
+        }
+        .leg_config(geometry)
+    });
     (0..YAW_STEPS_PER_TURN / 2).step_by(3).any(|yaw| {
-        poses.iter().any(|&(clearance_m, track_m)| {
-            let legs = wheelleg_runtime::leg::LegConfig {
-                clearance_m,
-                track_m,
-            };
+        poses.iter().any(|&legs| {
             crate::collision::RobotParts::new(
-                &WHEELLEG,
+                geometry,
                 scenario.target,
                 (yaw as f32 * 5.0).to_radians(),
                 legs,

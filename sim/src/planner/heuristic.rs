@@ -6,8 +6,8 @@ use super::legs::LEG_COLS;
 use super::legs::{LegLattice, LEG_ROWS};
 use super::moves::Pose;
 use crate::env::Env;
-use crate::generate::passing_legs;
 use crate::generate::Behaviour;
+use crate::generate::SceneRobot;
 use crate::obstacle::ObstacleKind;
 use crate::state::RobotState;
 use crate::state::YAW_STEPS_PER_TURN;
@@ -85,8 +85,8 @@ pub(super) fn heading_steps(need_m: f32, alpha_rad: f32) -> u32 {
 /// ahead calls for.
 ///
 /// A low obstacle (a slab or a bar) on the way is passed by straddling it, lined up with its
-/// length, in the pose the generator documents ([`passing_legs`]: spread and low for a slab,
-/// lifted for a bar). A spread scene needs up to ten track steps before its fence, and the
+/// length, in the robot's passing pose ([`SceneRobot::passing_legs`]: spread and low for a
+/// slab, lifted for a bar). A spread scene needs up to ten track steps before its fence, and the
 /// pose-only [`Heuristic`] cannot see them: it leads the search to the fence early, legs still
 /// narrow and turned to a diagonal heading, and the search then widens over every pose in front
 /// of the fence at every step count (the weighted search ran out of 20,000 expansions on 3 of 4
@@ -135,7 +135,7 @@ impl LegHint {
                 ]
                 .into_iter()
                 .find(|(kind, _)| kind.size_m().2 == b.height_m)?;
-                let (clearance, track) = passing_legs(behaviour);
+                let (clearance, track) = SceneRobot::of(geometry).passing_legs(behaviour);
                 // The side nearer the kind's length: exact for the generator's boxes, and
                 // still right for a perceived one, grown and cut to map cells
                 // ([`crate::local_plan`]).

@@ -446,7 +446,7 @@ mod tests {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(17);
         let (mut checked, mut ends, mut proven, mut nodes) = (0, 0, 0, 0);
         for kind in SceneKind::ALL {
-            for scene in generate_many(kind, &mut rng, 2) {
+            for scene in generate_many(crate::generate::SceneRobot::shipped(), kind, &mut rng, 2) {
                 let env = Env::new(&scene, EnvConfig::default()).unwrap();
                 for weight in [1.0, FALLBACK_WEIGHT] {
                     let config = PlannerConfig {

@@ -62,6 +62,7 @@ fn extras_round_trip_and_empty_ones_leave_the_file_as_it_was() {
             env_stages: vec![0.2, 0.3],
         }),
         failures: Some(vec!["{\"scenarios\": []}".into(), String::new()]),
+        robot: None,
     };
     let bytes = c.to_bytes_with(&extras).unwrap();
     assert!(bytes.len() > plain.len());

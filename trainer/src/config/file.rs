@@ -2,6 +2,7 @@
 //! a resume from a stored config would change.
 
 use super::*;
+use wheelleg_robot::RobotDescription;
 
 /// `run` keys a resumed run may change: its budget, the re-sampling of failed scenes and the
 /// shares of composed and exit scenes (which only change which scenes come next).
@@ -145,13 +146,32 @@ impl TrainConfig {
     /// changes.
     pub fn load(path: &Path) -> Result<TrainConfig, String> {
         let table = load_table(path, 0)?;
-        let config: TrainConfig = toml::Value::Table(table)
+        let mut config: TrainConfig = toml::Value::Table(table)
             .try_into()
             .map_err(|e| format!("config {}: {e}", path.display()))?;
         config
             .validate()
             .map_err(|e| format!("config {}: {e}", path.display()))?;
+        if !config.run.robot.is_empty() {
+            let folder = path.parent().unwrap_or(Path::new(""));
+            config.robot = RobotDescription::load(&folder.join(&config.run.robot))
+                .map_err(|e| format!("config {}: run.robot: {e}", path.display()))?;
+        }
+        config
+            .robot
+            .simulated_geometry()
+            .map_err(|e| format!("config {}: run.robot: {e}", path.display()))?;
         Ok(config)
+    }
+
+    /// Trains for the robot described in `path` (`wheelleg train --robot FILE`), in place of
+    /// the config's `run.robot`.
+    pub fn set_robot(&mut self, path: &Path) -> Result<(), String> {
+        let robot = RobotDescription::load(path)?;
+        robot.simulated_geometry()?;
+        self.run.robot = path.display().to_string();
+        self.robot = robot;
+        Ok(())
     }
 
     /// The config as TOML (stored in every checkpoint to detect mismatched resumes).

@@ -165,6 +165,11 @@ pub struct RunConfig {
     /// One run then does what a run on `scene_kind` continued with the mix does: the shipped
     /// primary's first 10 M env steps on complex scenes alone (configs/shipped.toml).
     pub composed_from_env_steps: u64,
+    /// The robot trained for: a description (robots/NAME.toml), relative to this config file's
+    /// folder; empty, the default, is the shipped robot. `wheelleg train --robot FILE` replaces
+    /// it. Checkpoints, trajectory batches and weights files carry the robot, and a run or a
+    /// stage refuses files of another.
+    pub robot: String,
 }
 
 impl Default for RunConfig {
@@ -190,6 +195,7 @@ impl Default for RunConfig {
             exit_share: 0.0,
             exit_behaviour: "squeeze".into(),
             composed_from_env_steps: 0,
+            robot: String::new(),
         }
     }
 }
@@ -290,6 +296,9 @@ pub struct TrainConfig {
     pub network: NetworkConfig,
     /// The curriculum (secondary policies, randomization, primary policy).
     pub curriculum: CurriculumConfig,
+    /// The robot `run.robot` names, read and checked when the config is loaded.
+    #[serde(skip)]
+    pub robot: wheelleg_robot::RobotDescription,
 }
 
 impl PpoConfig {
@@ -309,6 +318,17 @@ impl PpoConfig {
 }
 
 impl TrainConfig {
+    /// The episode rules of the run's environments: its step limit and invalid reward, on its
+    /// robot.
+    pub fn episode_rules(&self) -> wheelleg_sim::env::EnvConfig {
+        wheelleg_sim::env::EnvConfig {
+            max_steps: self.run.max_episode_steps,
+            invalid_reward: self.run.invalid_reward,
+            geometry: self.robot.robot.geometry,
+            ..wheelleg_sim::env::EnvConfig::default()
+        }
+    }
+
     /// How the training scenes' start yaw is drawn.
     pub fn start_yaw(&self) -> wheelleg_sim::generate::StartYaw {
         wheelleg_sim::generate::StartYaw::within_deg(self.run.start_yaw_within_deg)

@@ -23,6 +23,7 @@ use super::batch_file::{
     fnv1a, BatchFileError, BatchHeader, BatchWriter, Chunk, PackedObstacle, SourceRecord,
     TrajectoryBatch,
 };
+use wheelleg_robot::RobotDescription;
 mod stats;
 
 use super::sweep::{EssentialArea, DEFAULT_MARGIN_M};
@@ -52,8 +53,11 @@ pub struct RandomizeConfig {
     /// Also store each source in its own scene (the ablation "no randomization" uses only
     /// these: `per_trajectory = 0`).
     pub include_original: bool,
-    /// Episode rules of the replays.
+    /// Episode rules of the replays, on the robot's geometry.
     pub env: EnvConfig,
+    /// The robot the trajectories were driven by (its geometry is `env`'s), named in the
+    /// batch's header.
+    pub robot: RobotDescription,
     /// A chunk is written (and synced) once it holds at least this many scenes: the work a
     /// killed generation can lose.
     pub chunk_scenes: usize,
@@ -70,6 +74,7 @@ impl Default for RandomizeConfig {
             essential_margin_m: DEFAULT_MARGIN_M,
             include_original: true,
             env: EnvConfig::default(),
+            robot: RobotDescription::shipped(),
             chunk_scenes: 4096,
         }
     }
@@ -98,7 +103,13 @@ impl RandomizeConfig {
                 ),
             });
         }
+        if self.env.geometry != self.robot.robot.geometry {
+            return Err(BatchFileError::Unstorable {
+                reason: format!("the replays' geometry is not robot '{}''s", self.robot.name),
+            });
+        }
         Ok(BatchHeader {
+            robot: (self.robot != RobotDescription::shipped()).then(|| self.robot.clone()),
             seed: self.seed,
             per_trajectory,
             sources: sources.len() as u64,

@@ -2,7 +2,10 @@
 
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
-use wheelleg_sim::generate::{exit_scene, generate_staged, Behaviour, SceneKind, StartYaw};
+use wheelleg_runtime::robot::RobotGeometry;
+use wheelleg_sim::generate::{
+    exit_scene, generate_staged, Behaviour, SceneKind, SceneRobot, StartYaw,
+};
 use wheelleg_sim::scenario::Scenario;
 
 /// How new scenes are drawn.
@@ -23,16 +26,18 @@ pub struct Scenes {
 }
 
 pub(super) fn new_scene(
+    geometry: &RobotGeometry,
     scenes: Scenes,
     rng: &mut ChaCha8Rng,
     env: usize,
     episode: u64,
 ) -> Scenario {
+    let robot = SceneRobot::of(geometry);
     // Without exit or composed scenes nothing extra is drawn, so such a run sees exactly the
     // scenes it saw before the mixes existed.
     if scenes.exit_share > 0.0 && rng.random_bool(scenes.exit_share.min(1.0)) {
         let name = format!("{}-exit-e{env}-{episode}", scenes.exit_behaviour.name());
-        return exit_scene(scenes.exit_behaviour, scenes.start_yaw, rng, name);
+        return exit_scene(robot, scenes.exit_behaviour, scenes.start_yaw, rng, name);
     }
     // Of the episodes left, so many that `composed_share` of all are composed.
     let composed = if scenes.exit_share > 0.0 {
@@ -47,6 +52,7 @@ pub(super) fn new_scene(
     };
     // At stage 1 this is `generate_with_start`, draw for draw.
     generate_staged(
+        robot,
         kind,
         scenes.start_yaw,
         scenes.stage,

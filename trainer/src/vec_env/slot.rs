@@ -160,7 +160,13 @@ impl EnvSlot {
             let (scenario, stage) = match self.failures.take(&mut self.scene_rng) {
                 Some(failed) => (failed, 1.0),
                 None => (
-                    new_scene(scenes, &mut self.scene_rng, index, self.episodes_started),
+                    new_scene(
+                        &config.geometry,
+                        scenes,
+                        &mut self.scene_rng,
+                        index,
+                        self.episodes_started,
+                    ),
                     scenes.stage,
                 ),
             };

@@ -36,7 +36,12 @@ fn scratch(name: &str) -> PathBuf {
 fn planned(behaviour: Behaviour, seed: u64) -> Trajectory {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let kind = SceneKind::Behaviour(behaviour);
-    let scenario = generate(kind, &mut rng, format!("{}-{seed}", behaviour.name()));
+    let scenario = generate(
+        wheelleg_sim::generate::SceneRobot::shipped(),
+        kind,
+        &mut rng,
+        format!("{}-{seed}", behaviour.name()),
+    );
     let env = Env::new(&scenario, EnvConfig::default()).unwrap();
     let config = PlannerConfig {
         max_expansions: 20_000,

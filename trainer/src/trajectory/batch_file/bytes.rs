@@ -4,9 +4,13 @@ use super::*;
 
 /// The bytes of a file holding only `header`.
 pub fn header_bytes(header: &BatchHeader) -> Result<Vec<u8>, BatchFileError> {
-    let payload = postcard::to_allocvec(header).map_err(|e| BatchFileError::HeaderCorrupt {
+    let encode = |e: postcard::Error| BatchFileError::HeaderCorrupt {
         reason: format!("cannot encode: {e}"),
-    })?;
+    };
+    let mut payload = postcard::to_allocvec(header).map_err(encode)?;
+    if let Some(robot) = &header.robot {
+        payload.extend(postcard::to_allocvec(&robot.to_toml()).map_err(encode)?);
+    }
     let mut out = Vec::with_capacity(PREAMBLE_LEN + payload.len());
     out.extend_from_slice(&MAGIC);
     out.extend_from_slice(&VERSION.to_le_bytes());
@@ -79,19 +83,27 @@ pub fn parse_header(bytes: &[u8]) -> Result<(BatchHeader, usize), BatchFileError
             reason: "CRC-32 mismatch".into(),
         });
     }
-    let header: BatchHeader = match postcard::take_from_bytes(payload) {
+    let corrupt = |reason: String| BatchFileError::HeaderCorrupt { reason };
+    let mut header: BatchHeader = match postcard::take_from_bytes(payload) {
         Ok((header, [])) => header,
-        Ok(_) => {
-            return Err(BatchFileError::HeaderCorrupt {
-                reason: "trailing bytes after the header".into(),
-            })
+        Ok((mut header, rest)) => {
+            // After the fields, a robot other than the shipped one.
+            let (text, tail): (String, &[u8]) =
+                postcard::take_from_bytes(rest).map_err(|e| corrupt(format!("robot: {e}")))?;
+            if !tail.is_empty() {
+                return Err(corrupt("trailing bytes after the header".into()));
+            }
+            header.robot = Some(
+                RobotDescription::from_toml(&text)
+                    .map_err(|e| corrupt(format!("robot description: {e}")))?,
+            );
+            header
         }
-        Err(e) => {
-            return Err(BatchFileError::HeaderCorrupt {
-                reason: e.to_string(),
-            })
-        }
+        Err(e) => return Err(corrupt(e.to_string())),
     };
+    if header.robot == Some(RobotDescription::shipped()) {
+        header.robot = None;
+    }
     if header.new_obstacles_min > header.new_obstacles_max {
         return Err(BatchFileError::HeaderCorrupt {
             reason: "new_obstacles_min > new_obstacles_max".into(),

@@ -31,6 +31,7 @@ use serde::{Deserialize, Serialize};
 use std::fs;
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use wheelleg_robot::RobotDescription;
 use wheelleg_runtime::action::{Action, COUNT};
 use wheelleg_sim::env::EnvConfig;
 use wheelleg_sim::generate::Behaviour;
@@ -97,12 +98,42 @@ pub struct BatchHeader {
     pub give_up_margin_m: f32,
     /// Episode rule: arena margin, m.
     pub arena_margin_m: f32,
+    /// The robot the trajectories were driven by; `None` for the shipped robot. Stored after
+    /// the other fields, as the description's TOML, only when present: a shipped robot's
+    /// header is byte for byte what it was before robots were named.
+    #[serde(skip)]
+    pub robot: Option<RobotDescription>,
 }
 
 impl BatchHeader {
-    /// The episode rules of the batch.
+    /// The robot the trajectories were driven by.
+    pub fn robot(&self) -> RobotDescription {
+        self.robot.clone().unwrap_or_default()
+    }
+
+    /// Refuses a batch made for another robot than `robot`, naming both.
+    pub fn check_robot(&self, robot: &RobotDescription, what: &str) -> Result<(), String> {
+        let made = self.robot();
+        if made == *robot {
+            return Ok(());
+        }
+        Err(format!(
+            "{what} holds trajectories of robot '{}', and this run trains robot '{}'{}: replay \
+             only a robot's own trajectories",
+            made.name,
+            robot.name,
+            if made.name == robot.name {
+                " (same name, another description)"
+            } else {
+                ""
+            }
+        ))
+    }
+
+    /// The episode rules of the batch, on its robot.
     pub fn env_config(&self) -> EnvConfig {
         EnvConfig {
+            geometry: self.robot().robot.geometry,
             max_steps: self.max_steps,
             success_radius_m: self.success_radius_m,
             give_up_margin_m: self.give_up_margin_m,
@@ -139,6 +170,10 @@ impl BatchHeader {
             give_up_margin_m,
             arena_margin_m
         );
+        if self.robot != other.robot {
+            let name = |r: &BatchHeader| r.robot().name;
+            return Some(("robot", name(self), name(other)));
+        }
         None
     }
 }

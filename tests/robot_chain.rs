@@ -1,0 +1,234 @@
+//! A second robot through the whole host chain at smoke size: its description checked, scenes
+//! generated and planned for it, a short training, the export, the evaluation and the demo on
+//! the bus with its own node ids, and every file of one robot refused for the other.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+const STRIDER: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/robots/strider.toml");
+const SMOKE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/configs/smoke.toml");
+
+fn wheelleg(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_wheelleg"))
+        .args(args)
+        .output()
+        .expect("the wheelleg binary runs")
+}
+
+fn ok(args: &[&str]) -> String {
+    let out = wheelleg(args);
+    assert!(
+        out.status.success(),
+        "wheelleg {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn refused(args: &[&str]) -> String {
+    let out = wheelleg(args);
+    assert!(!out.status.success(), "wheelleg {args:?} should fail");
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("wheelleg-chain-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn s(path: &Path) -> &str {
+    path.to_str().unwrap()
+}
+
+#[test]
+fn the_second_robot_goes_through_generate_plan_train_export_eval_and_demo() {
+    let dir = scratch("strider");
+    let report = ok(&["robot", "check", STRIDER, "--json"]);
+    let report: serde_json::Value = serde_json::from_str(&report).unwrap();
+    assert!(report["behaviours"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|b| b["available"] == true));
+
+    // Scenes built for it, each solved by the planner on its geometry.
+    let scenes = dir.join("lift.json");
+    ok(&[
+        "generate",
+        "--robot",
+        STRIDER,
+        "--kind",
+        "lift",
+        "--count",
+        "3",
+        "--seed",
+        "4",
+        "--out",
+        s(&scenes),
+    ]);
+    let plans = ok(&[
+        "plan",
+        "--robot",
+        STRIDER,
+        "--scenarios",
+        s(&scenes),
+        "--json",
+    ]);
+    let plans: serde_json::Value = serde_json::from_str(&plans).unwrap();
+    let plans = plans["results"].as_array().unwrap();
+    assert_eq!(plans.len(), 3);
+    assert!(plans.iter().all(|p| p["solvable"] == true), "{plans:?}");
+    // The shipped robot's scenes are not the strider's: its lift pose is another.
+    let shipped_scenes = dir.join("lift-shipped.json");
+    ok(&[
+        "generate",
+        "--kind",
+        "lift",
+        "--count",
+        "3",
+        "--seed",
+        "4",
+        "--out",
+        s(&shipped_scenes),
+    ]);
+
+    // Two iterations of the smoke recipe on its straight scenes.
+    let run = dir.join("run");
+    ok(&[
+        "train",
+        "baseline",
+        "--config",
+        SMOKE,
+        "--robot",
+        STRIDER,
+        "--out",
+        s(&run),
+        "--seed",
+        "1",
+        "--quiet",
+        "--stop-at-env-steps",
+        "2000",
+    ]);
+    let checkpoint = run.join("checkpoint.ckpt");
+    // Resumed for the shipped robot: refused, naming both.
+    let err = refused(&[
+        "train",
+        "baseline",
+        "--config",
+        SMOKE,
+        "--out",
+        s(&run),
+        "--seed",
+        "1",
+        "--quiet",
+        "--resume",
+    ]);
+    assert!(
+        err.contains("'strider'") && err.contains("'wheelleg'"),
+        "{err}"
+    );
+
+    // Exported: the weights name the robot.
+    let weights = dir.join("strider.wlw");
+    ok(&[
+        "export",
+        "--policy",
+        s(&checkpoint),
+        "--out",
+        s(&weights),
+        "--kind",
+        "straight",
+        "--calibration",
+        "300",
+        "--holdout",
+        "100",
+        "--qat-steps",
+        "0",
+    ]);
+    let inspect = ok(&["inspect", s(&weights)]);
+    assert!(inspect.contains("strider"), "{inspect}");
+
+    // Evaluated on its robot; refused on the shipped one, checkpoint and weights alike.
+    let eval = ok(&[
+        "eval",
+        "--robot",
+        STRIDER,
+        "--policy",
+        s(&weights),
+        "--generated",
+        "2",
+        "--kind",
+        "straight",
+        "--planner-expansions",
+        "0",
+        "--json",
+    ]);
+    let eval: serde_json::Value = serde_json::from_str(&eval).unwrap();
+    assert_eq!(eval["scenarios"].as_array().unwrap().len(), 2);
+    for policy in [&weights, &checkpoint] {
+        let err = refused(&[
+            "eval",
+            "--policy",
+            s(policy),
+            "--generated",
+            "1",
+            "--kind",
+            "straight",
+            "--planner-expansions",
+            "0",
+        ]);
+        assert!(
+            err.contains("'strider'") && err.contains("'wheelleg'"),
+            "{err}"
+        );
+    }
+
+    // The demo on the in-process bus: every frame goes to the strider's nodes (21 to 36).
+    let straight = dir.join("straight.json");
+    ok(&[
+        "generate",
+        "--robot",
+        STRIDER,
+        "--kind",
+        "straight",
+        "--count",
+        "1",
+        "--seed",
+        "2",
+        "--out",
+        s(&straight),
+    ]);
+    let demo = dir.join("demo");
+    let out = wheelleg(&[
+        "demo",
+        "--robot",
+        STRIDER,
+        "--weights",
+        s(&weights),
+        "--scenario",
+        s(&straight),
+        "--out",
+        s(&demo),
+    ]);
+    // A two-iteration policy may not reach the target; the loop must run and log the bus.
+    let log = std::fs::read_to_string(demo.join("bus.log"))
+        .unwrap_or_else(|e| panic!("no bus log ({e}): {}", String::from_utf8_lossy(&out.stderr)));
+    let mut frames = 0;
+    for line in log.lines() {
+        // `(time) iface ID#DATA`: the node id is the CAN id's upper six bits.
+        let id = line
+            .split_whitespace()
+            .nth(2)
+            .unwrap()
+            .split('#')
+            .next()
+            .unwrap();
+        let node = u32::from_str_radix(id, 16).unwrap() >> 5;
+        assert!((21..=36).contains(&node), "{line}");
+        frames += 1;
+    }
+    assert!(frames > 100, "{frames} frames");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
