@@ -1,4 +1,7 @@
-//! Puts memory.x and device.x where cortex-m-rt's link.x finds it, and rebuilds when it or the weights change.
+//! Puts memory.x and device.x where cortex-m-rt's link.x finds it, and the policy's weights file
+//! where the images include it: `weights/policy.wlw`, or the file `WHEELLEG_WEIGHTS` names (a
+//! path relative to the workspace root, or absolute), so that an image carries the weights, and
+//! so the robot, it is built for. Rebuilds when any of them changes.
 use std::{env, fs, path::PathBuf};
 
 fn main() {
@@ -11,5 +14,13 @@ fn main() {
     println!("cargo::rustc-link-search={}", out.display());
     println!("cargo::rerun-if-changed=memory.x");
     println!("cargo::rerun-if-changed=device.x");
-    println!("cargo::rerun-if-changed=../weights/policy.wlw");
+    println!("cargo::rerun-if-env-changed=WHEELLEG_WEIGHTS");
+    let weights = match env::var_os("WHEELLEG_WEIGHTS") {
+        Some(path) => PathBuf::from("..").join(path),
+        None => PathBuf::from("../weights/policy.wlw"),
+    };
+    println!("cargo::rerun-if-changed={}", weights.display());
+    if let Err(error) = fs::copy(&weights, out.join("policy.wlw")) {
+        println!("cargo::error={}: {error}", weights.display());
+    }
 }

@@ -20,6 +20,17 @@ log="$(mktemp -d)/bus.log"
 cargo run --quiet --release -p wheelleg-firmware-sim --example closed_loop_log -- "$log"
 python3 tools/check_dbc.py "$log"
 
+# A second robot's bus: the demo on robots/strider.toml (nodes 21 to 36) writes a log that
+# decodes with the DBC written for that robot.
+strider="$(mktemp -d)"
+cargo build --quiet --release --bin wheelleg
+target/release/wheelleg generate --robot robots/strider.toml --kind straight --count 1 \
+    --seed 3 --out "$strider/scene.json" >/dev/null
+target/release/wheelleg demo --robot robots/strider.toml --planner \
+    --scenario "$strider/scene.json" --out "$strider/demo" >/dev/null
+python3 tools/gen_dbc.py --robot robots/strider.toml >"$strider/strider.dbc"
+python3 tools/check_dbc.py "$strider/demo/bus.log" --project-dbc "$strider/strider.dbc"
+
 # SLCAN: python-can's slcan interface drives a simulated wheel axis through firmware_sim's TCP
 # endpoint. python-can and pyserial are pinned in tools/requirements-slcan.txt and installed in
 # a virtual environment under target/, so the system Python is left alone.

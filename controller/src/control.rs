@@ -12,7 +12,7 @@ use wheelleg_runtime::can::node_map::Axis;
 use wheelleg_runtime::can::protocol::AxisState;
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::motion::{BaseDisplacement, MotionConfig, MotionError, Setpoint, StepMotion};
-use wheelleg_runtime::robot::{Robot, RobotGeometry};
+use wheelleg_runtime::robot::Robot;
 
 /// Transmit queue capacity: the start-up sequence (two frames per axis) and one setpoint, the
 /// most one period queues (the host's rig keeps 64; 320 bytes of RAM less here).

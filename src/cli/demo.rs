@@ -283,9 +283,9 @@ pub fn run(args: Args) -> CliResult {
     if args.controller == "qemu" {
         if robot != RobotDescription::shipped() {
             return Err(format!(
-                "--controller qemu with robot '{}': the firmware image holds the shipped \
-                 robot's weights; run the firmware with the robot's own weights through \
-                 `scripts/mcu.sh` (WHEELLEG_WEIGHTS)",
+                "--controller qemu with robot '{}': the QEMU loop runs the shipped robot's \
+                 image; an image with this robot's weights is built with WHEELLEG_WEIGHTS \
+                 (controller/build.rs)",
                 robot.name
             )
             .into());

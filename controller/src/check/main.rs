@@ -29,10 +29,11 @@ use wheelleg_runtime::model::Kernel;
 use qemu::{tag, Clock, ReplayBoard, ReplayCan, Uart};
 use semihosting::{exit, File, Mode};
 
-/// The shipped weights, in flash, word-aligned so that the kernels may load 4 weights at once.
+/// The policy's weights (weights/policy.wlw, or the file WHEELLEG_WEIGHTS named at build:
+/// build.rs), in flash, word-aligned so that the kernels may load 4 weights at once.
 #[repr(C, align(4))]
 struct Aligned<T: ?Sized>(T);
-static WEIGHTS: &Aligned<[u8]> = &Aligned(*include_bytes!("../../../weights/policy.wlw"));
+static WEIGHTS: &Aligned<[u8]> = &Aligned(*include_bytes!(concat!(env!("OUT_DIR"), "/policy.wlw")));
 
 /// Header of the decisions file: magic, version, records, window (side, cell in um, first
 /// row, rows, first column, columns).

@@ -39,10 +39,11 @@ use observation_link::{Link, Received};
 /// fine window's 10.6 KB, takes 0.05 s at 2 Mbit/s).
 const OBSERVATION_TIMEOUT_PERIODS: u32 = 100;
 
-/// The shipped weights, in flash, word-aligned so that the kernels may load 4 weights at once.
+/// The policy's weights (weights/policy.wlw, or the file WHEELLEG_WEIGHTS named at build:
+/// build.rs), in flash, word-aligned so that the kernels may load 4 weights at once.
 #[repr(C, align(4))]
 struct Aligned<T: ?Sized>(T);
-static WEIGHTS: &Aligned<[u8]> = &Aligned(*include_bytes!("../../../weights/policy.wlw"));
+static WEIGHTS: &Aligned<[u8]> = &Aligned(*include_bytes!(concat!(env!("OUT_DIR"), "/policy.wlw")));
 
 static WORK: Buffer<[i8; WORK_BYTES]> = Buffer::new([0; WORK_BYTES]);
 static ROW: Buffer<[i16; ROW_ELEMENTS]> = Buffer::new([0; ROW_ELEMENTS]);
@@ -257,7 +258,8 @@ fn main() -> ! {
                 let control = match &mut control {
                     Some(control) => control,
                     empty => {
-                        let started = empty.insert(Control::new(&stack.robot(), observation.legs()));
+                        let started =
+                            empty.insert(Control::new(&stack.robot(), observation.legs()));
                         if started.start_up(&mut board).is_err() {
                             started.stop(StopReason::StartupFailed);
                         }

@@ -1,0 +1,251 @@
+//! The recipes users run (configs/shipped.toml, configs/baseline.toml, configs/smoke.toml) are
+//! self-contained: no `extends`, every key written out, and each resolves to exactly the config
+//! recorded here (`TrainConfig::to_toml` of the file as loaded). A change to a recipe, or to a
+//! default a recipe relies on, shows up here as a difference to review.
+//!
+//! Run: `cargo test --release -p wheelleg-trainer --test recipes`.
+
+use std::path::{Path, PathBuf};
+use wheelleg_trainer::config::TrainConfig;
+
+/// configs/shipped.toml as loaded.
+const SHIPPED: &str = r#"[run]
+scene_kind = "complex"
+steps_per_iteration = 10000
+num_envs = 50
+total_env_steps = 30000000
+max_episode_steps = 100
+invalid_reward = -0.1
+checkpoint_interval = 5
+threads = 2
+backend = "flex"
+start_yaw_within_deg = 180.0
+start_stage = 1.0
+start_stage_step = 0.1
+start_stage_success_rate = 0.5
+start_stage_window = 3
+failure_resample_probability = 0.0
+failure_memory_per_env = 8
+composed_share = 0.5
+exit_share = 0.0
+exit_behaviour = "squeeze"
+composed_from_env_steps = 10000000
+robot = ""
+
+[ppo]
+learning_rate = 0.001
+learning_rate_final = 0.0
+anneal_start_env_steps = 26000000
+adam_epsilon = 0.00001
+gamma = 0.97
+gae_lambda = 0.9
+clip_epsilon = 0.2
+policy_coef = 1.0
+value_coef = 0.5
+entropy_coef = 0.003
+epochs = 4
+minibatch_size = 256
+max_grad_norm = 0.5
+normalize_advantages = true
+target_kl = 0.05
+conv_kernel = "native"
+
+[network]
+conv_channels = [16, 32, 32]
+hidden = [128]
+
+[curriculum]
+behaviours = ["straight", "around", "lift", "spread", "squeeze"]
+secondary_steps_per_iteration = 3000
+secondary_env_steps = 500000
+keep_trajectories = 1000
+randomizations = 200
+replay_steps_per_iteration = 2000
+replay_imitation_coef = 0.5
+replay_balance = "behaviour"
+primary_init = "scratch"
+secondary_init_temperature = 10.0
+secondary_entropy_coef = 0.01
+secondary_start_yaw_within_deg = 180.0
+start_stage_behaviours = ["spread", "squeeze"]
+start_stage_initial = 0.0
+start_stage_step = 0.1
+start_stage_success_rate = 0.5
+start_stage_window = 3
+
+[curriculum.secondary_env_steps_by_behaviour]
+lift = 1500000
+squeeze = 1500000
+"#;
+
+/// configs/baseline.toml as loaded.
+const BASELINE: &str = r#"[run]
+scene_kind = "complex"
+steps_per_iteration = 10000
+num_envs = 50
+total_env_steps = 5000000
+max_episode_steps = 100
+invalid_reward = -0.1
+checkpoint_interval = 5
+threads = 2
+backend = "flex"
+start_yaw_within_deg = 180.0
+start_stage = 1.0
+start_stage_step = 0.1
+start_stage_success_rate = 0.5
+start_stage_window = 3
+failure_resample_probability = 0.0
+failure_memory_per_env = 8
+composed_share = 0.0
+exit_share = 0.0
+exit_behaviour = "squeeze"
+composed_from_env_steps = 0
+robot = ""
+
+[ppo]
+learning_rate = 0.001
+anneal_start_env_steps = 0
+adam_epsilon = 0.00001
+gamma = 0.97
+gae_lambda = 0.9
+clip_epsilon = 0.2
+policy_coef = 1.0
+value_coef = 0.5
+entropy_coef = 0.003
+epochs = 4
+minibatch_size = 256
+max_grad_norm = 0.5
+normalize_advantages = true
+target_kl = 0.05
+conv_kernel = "native"
+
+[network]
+conv_channels = [16, 32, 32]
+hidden = [128]
+
+[curriculum]
+behaviours = ["straight", "around", "lift", "spread", "squeeze"]
+secondary_steps_per_iteration = 3000
+secondary_env_steps = 500000
+keep_trajectories = 1000
+randomizations = 200
+replay_steps_per_iteration = 2000
+replay_imitation_coef = 0.0
+replay_balance = "trajectory"
+primary_init = "scratch"
+secondary_init_temperature = 10.0
+secondary_entropy_coef = 0.01
+secondary_start_yaw_within_deg = 180.0
+start_stage_behaviours = ["spread", "squeeze"]
+start_stage_initial = 0.0
+start_stage_step = 0.1
+start_stage_success_rate = 0.5
+start_stage_window = 3
+
+[curriculum.secondary_env_steps_by_behaviour]
+"#;
+
+/// configs/smoke.toml as loaded.
+const SMOKE: &str = r#"[run]
+scene_kind = "straight"
+steps_per_iteration = 1000
+num_envs = 50
+total_env_steps = 40000
+max_episode_steps = 50
+invalid_reward = -0.1
+checkpoint_interval = 5
+threads = 2
+backend = "flex"
+start_yaw_within_deg = 180.0
+start_stage = 1.0
+start_stage_step = 0.1
+start_stage_success_rate = 0.5
+start_stage_window = 3
+failure_resample_probability = 0.0
+failure_memory_per_env = 8
+composed_share = 0.0
+exit_share = 0.0
+exit_behaviour = "squeeze"
+composed_from_env_steps = 0
+robot = ""
+
+[ppo]
+learning_rate = 0.0025
+anneal_start_env_steps = 0
+adam_epsilon = 0.00001
+gamma = 0.95
+gae_lambda = 0.9
+clip_epsilon = 0.2
+policy_coef = 1.0
+value_coef = 0.5
+entropy_coef = 0.0
+epochs = 10
+minibatch_size = 250
+max_grad_norm = 0.5
+normalize_advantages = true
+target_kl = 0.05
+conv_kernel = "native"
+
+[network]
+conv_channels = [16, 32, 32]
+hidden = [128]
+
+[curriculum]
+behaviours = ["straight", "around", "lift", "spread", "squeeze"]
+secondary_steps_per_iteration = 3000
+secondary_env_steps = 300000
+keep_trajectories = 1000
+randomizations = 1000
+replay_steps_per_iteration = 2000
+replay_imitation_coef = 0.0
+replay_balance = "trajectory"
+primary_init = "scratch"
+secondary_init_temperature = 1.0
+secondary_entropy_coef = 0.003
+secondary_start_yaw_within_deg = 180.0
+start_stage_behaviours = []
+start_stage_initial = 0.0
+start_stage_step = 0.1
+start_stage_success_rate = 0.5
+start_stage_window = 3
+
+[curriculum.secondary_env_steps_by_behaviour]
+"#;
+
+/// Each recipe with the config it must resolve to.
+const RECIPES: [(&str, &str); 3] = [
+    ("shipped.toml", SHIPPED),
+    ("baseline.toml", BASELINE),
+    ("smoke.toml", SMOKE),
+];
+
+fn recipe(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../configs")
+        .join(name)
+}
+
+#[test]
+fn each_recipe_resolves_to_its_recorded_config() {
+    for (name, expected) in RECIPES {
+        let loaded = TrainConfig::load(&recipe(name)).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(
+            loaded.to_toml(),
+            expected,
+            "configs/{name} resolves differently"
+        );
+        let recorded = TrainConfig::from_toml(expected).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(loaded, recorded, "configs/{name}");
+    }
+}
+
+#[test]
+fn each_recipe_stands_alone() {
+    for (name, _) in RECIPES {
+        let text = std::fs::read_to_string(recipe(name)).unwrap();
+        assert!(
+            !text.contains("extends"),
+            "configs/{name} must not extend another config: write every key out"
+        );
+    }
+}
