@@ -283,11 +283,11 @@ pub fn check_scenario_json(bytes: &[u8]) {
     let Ok(scenarios) = wheelleg_sim::scenario_file::parse(text, &WHEELLEG) else {
         return;
     };
-    let written = wheelleg_sim::scenario_file::to_json(&scenarios);
+    let written = wheelleg_sim::scenario_file::to_json(&scenarios, &WHEELLEG);
     let reread = wheelleg_sim::scenario_file::parse(&written, &WHEELLEG)
         .unwrap_or_else(|e| panic!("a written scenario file does not read back: {e}\n{written}"));
     assert_eq!(
-        wheelleg_sim::scenario_file::to_json(&reread),
+        wheelleg_sim::scenario_file::to_json(&reread, &WHEELLEG),
         written,
         "writing is not stable after one round trip"
     );
