@@ -31,6 +31,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::rc::Rc;
 
+use embedded_can::{Frame, Id};
 use wheelleg::closed_loop::{ClosedLoop, Driver, DriverError, LoopConfig, StepKind};
 use wheelleg::hil::onboard::{DecisionRecord, Observation, OnboardDriver};
 use wheelleg_firmware_sim::candump::{CandumpWriter, DEFAULT_EPOCH_US};
@@ -267,11 +268,18 @@ struct EpisodeSummary {
     frames: usize,
 }
 
+/// Set in a recorded frame's id for a remote (RTR) frame (the controller's check program reads
+/// it back the same way: `controller/src/check/qemu.rs`).
+const REMOTE_FLAG: u16 = 0x8000;
+
 /// One logged frame: where its line starts in the log, its time, the frame.
 struct Logged {
     offset: usize,
     time_us: u64,
+    /// The standard id, with [`REMOTE_FLAG`] for a remote frame.
     id: u16,
+    /// The DLC (a remote frame's asks for that many bytes and carries none).
+    dlc: u8,
     data: Vec<u8>,
     command: bool,
 }
@@ -284,20 +292,19 @@ fn parse_log(text: &str) -> Result<Vec<Logged>> {
         offset += line.len();
         let entry = wheelleg_firmware_sim::candump::parse_line(line.trim_end(), frames.len() + 1)
             .map_err(|e| format!("bus log: {e:?}"))?;
-        let (_, message) = decode(&entry.frame).map_err(|e| format!("bus log: {e:?}"))?;
-        // The frame's id and payload as candump wrote them: `ID#HEX`.
-        let text = line.trim_end().rsplit(' ').next().unwrap_or_default();
-        let (id, hex) = text.split_once('#').ok_or("bus log: no '#'")?;
-        let id = u16::from_str_radix(id, 16).map_err(|e| format!("bus log id: {e}"))?;
-        let data = (0..hex.len() / 2)
-            .map(|i| u8::from_str_radix(&hex[2 * i..2 * i + 2], 16))
-            .collect::<std::result::Result<Vec<u8>, _>>()
-            .map_err(|e| format!("bus log data: {e}"))?;
+        let frame = &entry.frame;
+        let (_, message) = decode(frame).map_err(|e| format!("bus log: {e:?}"))?;
+        let id = match frame.id() {
+            Id::Standard(id) if frame.is_remote_frame() => id.as_raw() | REMOTE_FLAG,
+            Id::Standard(id) => id.as_raw(),
+            Id::Extended(_) => return Err("bus log: an extended id".into()),
+        };
         frames.push(Logged {
             offset: start,
             time_us: entry.time_us,
             id,
-            data,
+            dlc: frame.dlc() as u8,
+            data: frame.data().to_vec(),
             command: message.is_command(),
         });
     }
@@ -306,7 +313,7 @@ fn parse_log(text: &str) -> Result<Vec<Logged>> {
 
 fn push_frame(out: &mut Vec<u8>, frame: &Logged) {
     out.extend_from_slice(&frame.id.to_le_bytes());
-    out.push(frame.data.len() as u8);
+    out.push(frame.dlc);
     let mut data = [0u8; 8];
     data[..frame.data.len().min(8)].copy_from_slice(&frame.data[..frame.data.len().min(8)]);
     out.extend_from_slice(&data);
@@ -355,9 +362,20 @@ fn record_episode(weights: &[u8], scenes: &[Scenario], out: &Path) -> Result<Epi
         let mut decisions = Vec::new();
         let mut next_decision = recorder.decisions.iter().peekable();
         let (mut ticks, mut frames_sent) = (0usize, 0usize);
+        // A period in which nothing was sent or received leaves no line in the log (the
+        // start-up's roll call waits through such periods): it is recorded empty, so that the
+        // controller's periods line up with the recording's.
+        let period_us = (1.0e6 / LoopConfig::default().rig.motion.control_rate_hz) as u64;
+        let first_us = frames.first().map_or(0, |f| f.time_us);
         let mut at = 0;
         while at < frames.len() {
             let time_us = frames[at].time_us;
+            let period = ((time_us - first_us) as f64 / period_us as f64).round() as usize;
+            while ticks < period {
+                ticks += 1;
+                episode.push(TAG_TICK);
+                episode.push(0);
+            }
             let end = frames[at..]
                 .iter()
                 .position(|f| f.time_us != time_us)

@@ -9,6 +9,8 @@ Installs cantools from PyPI (tools/requirements.txt) if it is missing.
 ODrive's DBC lists every message at node 0, so a frame's id is masked to its low 5 bits (the
 command) before lookup; the high 6 bits are the node id. Estop (0x02) and Clear_Errors (0x18)
 are not in ODrive's DBC: they carry no payload and are checked for an empty payload instead.
+Nor is Get_Version (0x00, ODrive 0.6's, eight single-byte fields): its answers are checked for
+their length.
 With --project-dbc, every frame is also decoded with the project's own DBC (full ids, one message
 per node), and the two decodings must agree.
 
@@ -95,6 +97,11 @@ def main():
             nodes[node] += 1
             if remote:
                 counts["(remote request)"] += 1
+                continue
+            if cmd == 0x00:
+                if len(data) != 8:
+                    errors.append(f"line {lineno}: Get_Version with {len(data)} bytes, not 8")
+                counts["Get_Version"] += 1
                 continue
             if cmd in EMPTY_COMMANDS:
                 if data:

@@ -7,16 +7,19 @@ use embedded_can::Frame;
 use wheelleg_runtime::action::Action;
 use wheelleg_runtime::base::{MecanumBase, Odometry};
 
-use wheelleg_runtime::can::host::{AxisSet, CanError, Commander, FeedbackTracker, TxQueue};
+use wheelleg_runtime::can::host::{
+    AxisSet, CanError, Commander, FeedbackTracker, RollCall, RollCallRefusal, TxQueue,
+    ROLL_CALL_ROUNDS, ROLL_CALL_ROUND_US,
+};
 use wheelleg_runtime::can::node_map::Axis;
 use wheelleg_runtime::can::protocol::AxisState;
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::motion::{BaseDisplacement, MotionConfig, MotionError, Setpoint, StepMotion};
 use wheelleg_runtime::robot::Robot;
 
-/// Transmit queue capacity: the start-up sequence (two frames per axis) and one setpoint, the
-/// most one period queues (the host's rig keeps 64; 320 bytes of RAM less here).
-pub const TX_FRAMES: usize = 48;
+/// Transmit queue capacity: Clear_Errors and the start-up sequence (three frames per axis) and
+/// one setpoint, the most one period queues (the host's rig's too).
+pub const TX_FRAMES: usize = 64;
 /// Hold periods of the start-up sequence: a few heartbeat periods, enough for every axis to
 /// report closed loop (the rig's count).
 pub const STARTUP_TICKS: u32 = 30;
@@ -88,6 +91,9 @@ pub enum ControlError {
     Bus,
     /// Not every axis reached closed loop at start-up.
     StartupFailed,
+    /// The start-up's roll call found a node missing, two devices on one node id, or firmware
+    /// the codec does not speak; nothing was armed.
+    StartupRefused(RollCallRefusal),
 }
 
 impl From<CanError> for ControlError {
@@ -242,8 +248,12 @@ impl<F: Frame> Control<F> {
         self.tick(board, &hold, true)
     }
 
-    /// Arms every axis and holds the start pose until all report closed loop.
+    /// Starts the robot as the host's rig does: the roll call (who is on each node, on what
+    /// firmware), Clear_Errors, then arms every axis and holds the start pose until all report
+    /// closed loop.
     pub fn start_up<B: Board<Frame = F>>(&mut self, board: &mut B) -> Result<(), ControlError> {
+        self.roll_call(board)?;
+        self.commander.queue_clear_errors(&mut self.tx)?;
         self.commander.queue_startup(&mut self.tx)?;
         let hold = Setpoint::hold(&self.robot.geometry, self.legs)?;
         for _ in 0..STARTUP_TICKS {
@@ -259,6 +269,36 @@ impl<F: Frame> Control<F> {
         } else {
             Err(ControlError::StartupFailed)
         }
+    }
+
+    /// [`ROLL_CALL_ROUNDS`] rounds of Get_Version requests to every node, each
+    /// [`ROLL_CALL_ROUND_US`] long, period by period as the rig runs them; nothing but the
+    /// requests is sent, so nothing moves. A node missing, two devices on one node id, or
+    /// firmware the codec does not speak stops the start-up.
+    fn roll_call<B: Board<Frame = F>>(&mut self, board: &mut B) -> Result<(), ControlError> {
+        let tick_us = ((1.0e6 * self.tick_s()) as u64).max(1);
+        let ticks_per_round = ROLL_CALL_ROUND_US.div_ceil(tick_us).max(1);
+        let mut roll_call = RollCall::new(self.robot.can);
+        for _ in 0..ROLL_CALL_ROUNDS {
+            for tick in 0..ticks_per_round {
+                board.wait_for_tick();
+                while let Ok(frame) = board.can().receive() {
+                    self.tracker.receive(&frame, self.now_us);
+                    roll_call.receive(&frame);
+                }
+                if tick == 0 {
+                    roll_call.begin_round();
+                    self.commander.queue_version_requests(&mut self.tx)?;
+                }
+                while let Some(frame) = self.tx.pop() {
+                    send(board.can(), &frame)?;
+                }
+                board.tick_done();
+                self.now_us += tick_us;
+                self.ticks = self.ticks.wrapping_add(1);
+            }
+        }
+        roll_call.verdict().map_err(ControlError::StartupRefused)
     }
 
     /// Drives one decision: its setpoint stream, then [`SETTLE_S`] holding its target. An

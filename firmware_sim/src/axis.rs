@@ -12,22 +12,44 @@
 //! - **Idle**: no torque, so the speed decays to zero with `idle_decay_s` (friction and, for the
 //!   leg joints, the high-ratio gearbox's self-locking): wheels spin down, legs stay where they
 //!   are. This is the "wheels stop, legs hold" safe state the watchdog falls back to.
-//! - **Watchdog**: in closed loop, a setpoint must arrive every `watchdog_timeout_us`; if none
-//!   does, the axis goes idle and latches `WATCHDOG_TIMER_EXPIRED`.
+//! - **Watchdog**: off unless configured, as on an ODrive (`axis.config.enable_watchdog`,
+//!   `watchdog_timeout`). With `watchdog_timeout_us` set, in closed loop a setpoint must be
+//!   accepted every `watchdog_timeout_us` (arming starts the count); if none is, the axis goes
+//!   idle and latches `WATCHDOG_TIMER_EXPIRED`. A client that waits for the heartbeat to show
+//!   closed loop before it streams setpoints thus never sees an unconfigured axis trip.
 //! - **Range checks**: a setpoint beyond the velocity limit or the position limits latches
 //!   `CONTROLLER_FAILED` and idles the axis (an ODrive disarms on a controller error).
 //! - **Estop** latches `ESTOP_REQUESTED` and idles; **Clear_Errors** clears every latched bit.
-//! - **Reports**: encoder estimates and heartbeats at their own periods, plus on request (RTR).
+//! - **Reports**: encoder estimates and heartbeats at their own periods, plus on request (RTR);
+//!   Get_Version on request only, when the axis runs firmware that has it
+//!   ([`AxisConfig::version`]: ODrive 0.6 on; 0.5.x, the default, stays silent to it).
 //! - **Fault injection**: a silent axis keeps executing commands but transmits nothing (a
 //!   broken transmitter); a deaf one hears nothing (with silence: a node off the bus), so it
 //!   runs on its last setpoint until its watchdog idles it, as a real ODrive would.
 
 use wheelleg_runtime::can::protocol::{
-    axis_error, encode, AxisState, CmdId, ControlMode, InputMode, Message, NodeId,
+    axis_error, encode, AxisState, CmdId, ControlMode, InputMode, Message, NodeId, Version,
 };
 use wheelleg_runtime::can::CanFrame;
 
-/// Parameters of one simulated axis (motor side: turns, turns/s).
+/// An ODrive v3.6-56V on firmware 0.5.6, the release whose CANSimple layout the runtime's codec
+/// speaks; it has no Get_Version, so the axes stay silent to it by default
+/// ([`AxisConfig::version`]). Firmware versions set with `--firmware-version` keep its hardware
+/// fields.
+pub const DEFAULT_VERSION: Version = Version {
+    protocol_version: 2,
+    hw_version_major: 3,
+    hw_version_minor: 6,
+    hw_version_variant: 56,
+    fw_version_major: 0,
+    fw_version_minor: 5,
+    fw_version_revision: 6,
+    fw_version_unreleased: 0,
+};
+
+/// Parameters of one simulated axis (motor side: turns, turns/s). [`AxisConfig::JOINT`] and
+/// [`AxisConfig::WHEEL`] have no watchdog, like an ODrive whose watchdog nobody enabled: whoever
+/// drives the axes enables it (`watchdog_timeout_us`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct AxisConfig {
     /// Largest commanded speed; setpoints beyond it are errors.
@@ -42,12 +64,15 @@ pub struct AxisConfig {
     pub pos_limits_turns: Option<[f32; 2]>,
     /// Time constant of the speed decay when idle.
     pub idle_decay_s: f32,
-    /// Watchdog timeout; 0 disables the watchdog.
+    /// Watchdog timeout; 0 (the default, as on an ODrive) disables the watchdog.
     pub watchdog_timeout_us: u64,
     /// Period of encoder estimate reports; 0 disables them.
     pub encoder_period_us: u64,
     /// Period of heartbeats; 0 disables them.
     pub heartbeat_period_us: u64,
+    /// What the axis answers to Get_Version; `None` (the default) for firmware without it,
+    /// ODrive's before 0.6.
+    pub version: Option<Version>,
 }
 
 impl AxisConfig {
@@ -61,9 +86,10 @@ impl AxisConfig {
         pos_gain_per_s: 40.0,
         pos_limits_turns: Some([-8.0, 8.0]),
         idle_decay_s: 0.005,
-        watchdog_timeout_us: 100_000,
+        watchdog_timeout_us: 0,
         encoder_period_us: 10_000,
         heartbeat_period_us: 100_000,
+        version: None,
     };
 
     /// A direct-drive hub wheel: ±10 turns/s (≈3 m/s at 5 cm radius), a 20 ms speed loop, a
@@ -75,9 +101,10 @@ impl AxisConfig {
         pos_gain_per_s: 20.0,
         pos_limits_turns: None,
         idle_decay_s: 0.05,
-        watchdog_timeout_us: 100_000,
+        watchdog_timeout_us: 0,
         encoder_period_us: 10_000,
         heartbeat_period_us: 100_000,
+        version: None,
     };
 }
 
@@ -110,7 +137,8 @@ pub struct SimAxis {
     watchdog_trip_us: Option<u64>,
     next_estimate_us: u64,
     next_heartbeat_us: u64,
-    pending_requests: [bool; 2],
+    /// Requests to answer at the next transmission: heartbeat, encoder estimates, version.
+    pending_requests: [bool; 3],
     silent: bool,
     deaf: bool,
     stats: AxisStats,
@@ -135,7 +163,7 @@ impl SimAxis {
             watchdog_trip_us: None,
             next_estimate_us: 0,
             next_heartbeat_us: 0,
-            pending_requests: [false; 2],
+            pending_requests: [false; 3],
             silent: false,
             deaf: false,
             stats: AxisStats::default(),
@@ -145,6 +173,17 @@ impl SimAxis {
     /// The axis's node id.
     pub fn node(&self) -> NodeId {
         self.node
+    }
+
+    /// The axis's parameters.
+    pub fn config(&self) -> &AxisConfig {
+        &self.config
+    }
+
+    /// The axis's parameters, to change (for example the watchdog timeout, as ODrive's
+    /// configuration is changed over USB); they apply from the next step.
+    pub fn config_mut(&mut self) -> &mut AxisConfig {
+        &mut self.config
     }
 
     /// Current state.
@@ -172,7 +211,8 @@ impl SimAxis {
         self.stats
     }
 
-    /// When the axis last accepted a setpoint or was armed: the watchdog counts from here.
+    /// When the axis last accepted a setpoint or was armed: the watchdog, if configured, counts
+    /// from here.
     pub fn last_setpoint_us(&self) -> u64 {
         self.last_setpoint_us
     }
@@ -194,7 +234,7 @@ impl SimAxis {
     }
 
     /// Makes the axis stop (or resume) receiving: commands for it are lost, so it keeps its
-    /// last setpoint until its watchdog idles it.
+    /// last setpoint until its watchdog idles it (or for good, if it has none).
     pub fn set_deaf(&mut self, deaf: bool) {
         self.deaf = deaf;
     }
@@ -294,6 +334,7 @@ impl SimAxis {
             }
             Message::Request(CmdId::Heartbeat) => self.pending_requests[0] = true,
             Message::Request(CmdId::GetEncoderEstimates) => self.pending_requests[1] = true,
+            Message::Request(CmdId::GetVersion) => self.pending_requests[2] = true,
             // Reports from other axes, or requests this axis does not simulate.
             _ => {}
         }
@@ -345,9 +386,12 @@ impl SimAxis {
             self.config.encoder_period_us,
             now_us,
         );
-        let [hb_req, est_req] = std::mem::take(&mut self.pending_requests);
+        let [hb_req, est_req, version_req] = std::mem::take(&mut self.pending_requests);
         if self.silent {
             return;
+        }
+        if let (true, Some(version)) = (version_req, self.config.version) {
+            out.extend(encode::<CanFrame>(self.node, &Message::Version(version)).ok());
         }
         if hb_due || hb_req {
             let hb = Message::Heartbeat {

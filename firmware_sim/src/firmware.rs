@@ -4,7 +4,7 @@ use crate::axis::{AxisConfig, SimAxis};
 use crate::bus::{BusError, Transport};
 use wheelleg_runtime::base::WheelSpeeds;
 use wheelleg_runtime::can::node_map::{Axis, AxisKind, Joint, NodeMap};
-use wheelleg_runtime::can::protocol::{decode, NodeId};
+use wheelleg_runtime::can::protocol::{decode, NodeId, Version};
 use wheelleg_runtime::can::CanFrame;
 use wheelleg_runtime::leg::{IkError, JointAngles, LegConfig};
 use wheelleg_runtime::robot::{LegId, RobotGeometry};
@@ -70,6 +70,28 @@ impl Firmware {
         Ok(Firmware::new(axes, *map))
     }
 
+    /// Sets every axis's watchdog timeout (0: off, the axes' default). A controller that relies
+    /// on the watchdog to idle the motors when it goes silent sets it, as it would configure
+    /// real ODrives before use.
+    pub fn set_watchdog_timeout_us(&mut self, timeout_us: u64) {
+        for axis in &mut self.axes {
+            axis.config_mut().watchdog_timeout_us = timeout_us;
+        }
+    }
+
+    /// Sets what every axis answers to Get_Version (`None`: firmware without it, 0.5.x).
+    pub fn set_version(&mut self, version: Option<Version>) {
+        for axis in &mut self.axes {
+            axis.config_mut().version = version;
+        }
+    }
+
+    /// Puts one more axis on the bus, for example a second device on a node id already taken
+    /// (both then hear that node's commands and both answer).
+    pub fn add_axis(&mut self, axis: SimAxis) {
+        self.axes.push(axis);
+    }
+
     /// Traffic counters.
     pub fn stats(&self) -> FirmwareStats {
         self.stats
@@ -80,12 +102,12 @@ impl Firmware {
         &self.axes
     }
 
-    /// The axis on `node`.
+    /// The (first) axis on `node`.
     pub fn node(&self, node: NodeId) -> Option<&SimAxis> {
         self.axes.iter().find(|a| a.node() == node)
     }
 
-    /// The axis on `node`, mutable (for fault injection).
+    /// The (first) axis on `node`, mutable (for fault injection).
     pub fn node_mut(&mut self, node: NodeId) -> Option<&mut SimAxis> {
         self.axes.iter_mut().find(|a| a.node() == node)
     }
@@ -136,15 +158,22 @@ impl Firmware {
         self.node_mut(self.map.node_id(axis))
     }
 
-    /// Hands one received frame to its axis.
+    /// Hands one received frame to its axis (to each, if several share the node id, as on a
+    /// real bus).
     pub fn receive(&mut self, frame: &CanFrame, now_us: u64) {
         self.stats.received += 1;
         match decode(frame) {
             Err(_) => self.stats.malformed += 1,
-            Ok((node, message)) => match self.node_mut(node) {
-                Some(axis) => axis.handle(&message, now_us),
-                None => self.stats.foreign += 1,
-            },
+            Ok((node, message)) => {
+                let mut heard = false;
+                for axis in self.axes.iter_mut().filter(|a| a.node() == node) {
+                    axis.handle(&message, now_us);
+                    heard = true;
+                }
+                if !heard {
+                    self.stats.foreign += 1;
+                }
+            }
         }
     }
 

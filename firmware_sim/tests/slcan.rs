@@ -132,7 +132,8 @@ impl Seen {
     }
 }
 
-/// Reads for `duration`, calling `every_20ms` on that period (setpoints inside the watchdog).
+/// Reads for `duration`, calling `every_20ms` on that period (setpoints well inside a 100 ms
+/// watchdog, were one configured).
 fn watch(
     rx: &Receiver<Vec<u8>>,
     seen: &mut Seen,

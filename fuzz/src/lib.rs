@@ -129,6 +129,8 @@ pub fn check_can_frames(data: &[u8]) {
         Ok(firmware) => firmware,
         Err(e) => panic!("the default legs have no IK solution: {e:?}"),
     };
+    // Configured as the closed loop configures it, so the watchdog's paths are fuzzed too.
+    firmware.set_watchdog_timeout_us(100_000);
     let mut loopback = Loopback::default();
     let mut now_us = 0u64;
     let mut heard = 0u64;

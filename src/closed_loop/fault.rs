@@ -163,6 +163,8 @@ impl fmt::Display for LoopError {
                 or_none(describe_axes(health.silent)),
                 or_none(describe_axes(health.errored))
             ),
+            // Already a sentence naming the node, the axis and the reason.
+            LoopError::Rig(e @ RigError::StartupRefused(_)) => write!(f, "{e}"),
             LoopError::Rig(e) => write!(f, "rig: {e}"),
             LoopError::Driver(e) => write!(f, "driver: {e}"),
             LoopError::Finished => f.write_str("the episode is over"),

@@ -30,6 +30,9 @@ use wheelleg_runtime::robot::RobotGeometry;
 pub const PERIOD_US: u64 = 10_000;
 /// The motors' physics step (the rig's).
 pub const PHYSICS_US: u64 = 1_000;
+/// The axes' watchdog, configured as the host's rig configures it: the firmware relies on it to
+/// idle the motors when its frames stop reaching them (a dead CAN link).
+pub const WATCHDOG_TIMEOUT_US: u64 = 100_000;
 
 /// A fault to inject from a given control period on.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -82,10 +85,12 @@ impl Plant {
     pub fn new(geometry: &RobotGeometry, start: LegConfig) -> Result<Plant, IkError> {
         let map = NodeMap::NOMINAL;
         let bus = InProcessBus::default();
+        let mut axes = Firmware::for_robot(geometry, &map, start)?;
+        axes.set_watchdog_timeout_us(WATCHDOG_TIMEOUT_US);
         Ok(Plant {
             geometry: *geometry,
             map,
-            axes: Firmware::for_robot(geometry, &map, start)?,
+            axes,
             adapter: bus.port(),
             axes_port: bus.port(),
             slcan: SlcanAdapter::new(),

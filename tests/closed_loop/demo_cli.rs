@@ -190,7 +190,8 @@ type SlcanMotorStats = (
 );
 
 /// The 16 simulated axes behind an SLCAN endpoint on a free TCP port, stepped in real time at
-/// 1 kHz on a thread (as `firmware_sim --slcan tcp:127.0.0.1:0` runs them) until `stop` is set.
+/// 1 kHz on a thread (as `firmware_sim --slcan tcp:127.0.0.1:0 --watchdog-ms 100` runs them)
+/// until `stop` is set.
 fn motors_behind_slcan(
     stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
 ) -> (String, std::thread::JoinHandle<SlcanMotorStats>) {
@@ -208,6 +209,8 @@ fn motors_behind_slcan(
             track_m: WHEELLEG.default_track_m,
         };
         let mut firmware = Firmware::for_robot(&WHEELLEG, &NodeMap::NOMINAL, legs).unwrap();
+        // The watchdog the in-process rig configures, so both buses behave alike.
+        firmware.set_watchdog_timeout_us(100_000);
         let period = Duration::from_millis(1);
         let t0 = Instant::now();
         let mut next = t0;

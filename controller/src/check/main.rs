@@ -17,7 +17,7 @@ use core::mem::MaybeUninit;
 use core::panic::PanicInfo;
 
 use cortex_m_rt::entry;
-use wheelleg_controller::control::Control;
+use wheelleg_controller::control::{Control, ControlError};
 use wheelleg_controller::link::{read_observation, Buffer};
 use wheelleg_controller::stack::{
     ControllerDecider, DecisionRecord, Observation, Stack, ROW_ELEMENTS, WINDOW_BYTES, WORK_BYTES,
@@ -310,9 +310,12 @@ fn run_episode(
             tag::END => break,
             tag::STARTUP => {
                 let start = clock.now();
-                control
-                    .start_up(&mut board)
-                    .map_err(|_| b"start-up failed".as_slice())?;
+                control.start_up(&mut board).map_err(|e| match e {
+                    ControlError::StartupRefused(_) => {
+                        b"start-up refused by the roll call".as_slice()
+                    }
+                    _ => b"start-up failed".as_slice(),
+                })?;
                 counts.tick_instructions += clock.instructions_since(start);
             }
             tag::DECISION => {

@@ -121,6 +121,10 @@ pub mod tag {
 /// Bytes of one frame in the recording and in the output: id (u16), length, 8 data bytes.
 pub const FRAME_BYTES: usize = 11;
 
+/// Set in a recorded frame's id for a remote (RTR) frame: standard ids use 11 bits, and
+/// `examples/mcu_vectors.rs` records remote frames the same way.
+const REMOTE_FLAG: u16 = 0x8000;
+
 /// A CAN peripheral replaying a recording: `receive` hands out the frames the recorded
 /// period received (read from the recording as they are asked for, so no buffer holds them),
 /// `transmit` writes each frame with its period's index to a file.
@@ -198,8 +202,14 @@ impl ReplayCan {
             return None;
         }
         let [lo, hi, len, data @ ..] = bytes;
-        let frame = StandardId::new(u16::from_le_bytes([lo, hi]))
-            .and_then(|id| CanFrame::new(id, data.get(..usize::from(len)).unwrap_or(&[])));
+        let raw = u16::from_le_bytes([lo, hi]);
+        let frame = StandardId::new(raw & !REMOTE_FLAG).and_then(|id| {
+            if raw & REMOTE_FLAG != 0 {
+                CanFrame::new_remote(id, usize::from(len))
+            } else {
+                CanFrame::new(id, data.get(..usize::from(len)).unwrap_or(&[]))
+            }
+        });
         if frame.is_none() {
             self.desync = true;
         }
@@ -216,6 +226,7 @@ impl embedded_can::nb::Can for ReplayCan {
         let (tick, rest) = bytes.split_at_mut(4);
         tick.copy_from_slice(&self.ticks.to_le_bytes());
         let id = match frame.id() {
+            Id::Standard(id) if frame.is_remote_frame() => id.as_raw() | REMOTE_FLAG,
             Id::Standard(id) => id.as_raw(),
             Id::Extended(_) => u16::MAX,
         };

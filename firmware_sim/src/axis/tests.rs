@@ -1,4 +1,5 @@
 use super::*;
+use embedded_can::Frame;
 
 fn armed(config: AxisConfig, mode: ControlMode) -> SimAxis {
     let mut a = SimAxis::new(NodeId::new(1).unwrap(), config, 0.0);
@@ -12,6 +13,14 @@ fn armed(config: AxisConfig, mode: ControlMode) -> SimAxis {
     a.handle(&Message::SetAxisState(AxisState::ClosedLoopControl), 0);
     assert_eq!(a.state(), AxisState::ClosedLoopControl);
     a
+}
+
+/// `config` with the 100 ms watchdog the project's own loops configure.
+fn watched(config: AxisConfig) -> AxisConfig {
+    AxisConfig {
+        watchdog_timeout_us: 100_000,
+        ..config
+    }
 }
 
 fn run(a: &mut SimAxis, from_us: u64, to_us: u64, feed: Option<Message>) {
@@ -58,7 +67,7 @@ fn position_mode_settles_on_the_target() {
 
 #[test]
 fn watchdog_idles_the_axis_and_the_wheel_spins_down() {
-    let mut a = armed(AxisConfig::WHEEL, ControlMode::Velocity);
+    let mut a = armed(watched(AxisConfig::WHEEL), ControlMode::Velocity);
     let cmd = Message::SetInputVel {
         vel_turns_per_s: 5.0,
         torque_ff_nm: 0.0,
@@ -117,7 +126,7 @@ fn out_of_range_setpoints_and_estop_latch_errors() {
 
 #[test]
 fn a_deaf_axis_runs_on_its_last_setpoint_until_its_watchdog() {
-    let mut a = armed(AxisConfig::WHEEL, ControlMode::Velocity);
+    let mut a = armed(watched(AxisConfig::WHEEL), ControlMode::Velocity);
     let go = Message::SetInputVel {
         vel_turns_per_s: 5.0,
         torque_ff_nm: 0.0,
@@ -155,4 +164,107 @@ fn reports_come_at_their_rates_and_silence_suppresses_them() {
     a.handle(&Message::Request(CmdId::GetEncoderEstimates), t);
     a.poll_tx(t + 100_000, &mut out);
     assert!(out.is_empty());
+}
+
+#[test]
+fn an_unconfigured_axis_never_trips_its_watchdog() {
+    for (config, mode) in [
+        (AxisConfig::WHEEL, ControlMode::Velocity),
+        (AxisConfig::JOINT, ControlMode::Position),
+    ] {
+        assert_eq!(config.watchdog_timeout_us, 0, "off unless configured");
+        let mut a = armed(config, mode);
+        // Armed, then nothing for a minute: a client may wait for the heartbeat to confirm
+        // closed loop before it streams setpoints, however long that takes.
+        run(&mut a, 0, 60_000_000, None);
+        assert_eq!(a.state(), AxisState::ClosedLoopControl);
+        assert_eq!((a.error(), a.stats().watchdog_trips), (0, 0));
+        assert_eq!(a.last_watchdog_trip_us(), None);
+        // Setpoints, then silence again: still no trip.
+        let go = Message::SetInputVel {
+            vel_turns_per_s: 1.0,
+            torque_ff_nm: 0.0,
+        };
+        run(&mut a, 60_000_000, 60_100_000, Some(go));
+        run(&mut a, 60_100_000, 70_000_000, None);
+        assert_eq!(a.state(), AxisState::ClosedLoopControl);
+        assert_eq!(a.error(), 0);
+    }
+}
+
+#[test]
+fn a_configured_watchdog_is_fed_by_setpoints_and_trips_after_its_timeout() {
+    let mut a = armed(AxisConfig::WHEEL, ControlMode::Velocity);
+    a.config_mut().watchdog_timeout_us = 50_000;
+    let go = Message::SetInputVel {
+        vel_turns_per_s: 2.0,
+        torque_ff_nm: 0.0,
+    };
+    // A setpoint every 10 ms for a second: fed, never tripped.
+    run(&mut a, 0, 1_000_000, Some(go));
+    assert_eq!(a.state(), AxisState::ClosedLoopControl);
+    assert_eq!(a.last_setpoint_us(), 1_000_000);
+    // A request is not a setpoint: it does not feed the watchdog.
+    a.handle(&Message::Request(CmdId::GetVersion), 1_020_000);
+    run(&mut a, 1_000_000, 1_050_000, None);
+    assert_eq!(a.state(), AxisState::ClosedLoopControl, "at the timeout");
+    run(&mut a, 1_050_000, 1_051_000, None);
+    assert_eq!(a.state(), AxisState::Idle, "one step past it");
+    assert_eq!(a.error(), axis_error::WATCHDOG_TIMER_EXPIRED);
+    assert_eq!(a.last_watchdog_trip_us(), Some(1_051_000));
+    assert_eq!(a.stats().watchdog_trips, 1);
+    // A refused setpoint does not feed it either: out of range latches an error instead.
+    let mut b = armed(AxisConfig::WHEEL, ControlMode::Velocity);
+    b.config_mut().watchdog_timeout_us = 50_000;
+    b.handle(&go, 10_000);
+    assert_eq!(b.last_setpoint_us(), 10_000);
+    b.handle(
+        &Message::SetInputVel {
+            vel_turns_per_s: 99.0,
+            torque_ff_nm: 0.0,
+        },
+        40_000,
+    );
+    assert_eq!(b.last_setpoint_us(), 10_000);
+}
+
+#[test]
+fn get_version_is_answered_with_the_configured_version() {
+    let mut a = SimAxis::new(NodeId::new(9).unwrap(), AxisConfig::JOINT, 0.0);
+    // 0.5.x by default: no Get_Version, so no answer, asked or not.
+    assert_eq!(a.config().version, None);
+    assert!(DEFAULT_VERSION.speaks_this_codec());
+    let mut out = Vec::new();
+    // Never sent unasked.
+    let mut t = 0;
+    while t < 1_000_000 {
+        a.poll_tx(t, &mut out);
+        t += 1_000;
+    }
+    a.handle(&Message::Request(CmdId::GetVersion), t);
+    a.poll_tx(t, &mut out);
+    assert!(out.iter().all(|f| f.raw_id() != 9 << 5));
+    out.clear();
+    let v0_6_11 = Version {
+        fw_version_minor: 6,
+        fw_version_revision: 11,
+        ..DEFAULT_VERSION
+    };
+    for (version, want) in [
+        (DEFAULT_VERSION, [2, 3, 6, 56, 0, 5, 6, 0]),
+        (v0_6_11, [2, 3, 6, 56, 0, 6, 11, 0]),
+    ] {
+        a.config_mut().version = Some(version);
+        a.handle(&Message::Request(CmdId::GetVersion), t);
+        a.poll_tx(t, &mut out);
+        let answers: Vec<_> = out.drain(..).filter(|f| f.raw_id() == 9 << 5).collect();
+        assert_eq!(answers.len(), 1);
+        assert_eq!(answers[0].data(), &want);
+        t += 1_000;
+    }
+    // Clear_Errors as before: every latched bit goes.
+    a.handle(&Message::SetAxisState(AxisState::EncoderIndexSearch), t);
+    assert_eq!(a.error(), axis_error::INVALID_STATE);
+    a.handle(&Message::ClearErrors, t);
+    assert_eq!(a.error(), 0);
 }

@@ -1,7 +1,9 @@
 //! `firmware_sim`: a robot's 16 simulated ODrive axes as their own process on a SocketCAN
 //! interface or behind an SLCAN endpoint, so the controller or any CAN tool can run against
 //! them exactly as against real motors. The axes are the robot description's (`--robot`,
-//! the shipped robot by default): its node ids, directions and gear ratios.
+//! the shipped robot by default): its node ids, directions and gear ratios. Like ODrives out of
+//! the box, they have no watchdog unless `--watchdog-ms` sets one; they run firmware 0.5.x,
+//! which has no Get_Version, unless `--firmware-version` gives a version to answer it with.
 //!
 //! ```text
 //! sudo ip link add dev vcan0 type vcan && sudo ip link set up vcan0
@@ -9,18 +11,20 @@
 //! firmware_sim --slcan tcp:127.0.0.1:20108     # python-can: socket://127.0.0.1:20108
 //! firmware_sim --slcan pty                     # prints the /dev/pts/N to open
 //! firmware_sim --robot robots/strider.toml --slcan tcp:127.0.0.1:0
+//! firmware_sim --can vcan0 --watchdog-ms 100   # as the closed loop configures its axes
 //! ```
 
 use clap::{ArgGroup, Parser};
 use std::io::{BufWriter, Write};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
+use wheelleg_firmware_sim::axis::DEFAULT_VERSION;
 use wheelleg_firmware_sim::bus::{BusError, Transport};
 use wheelleg_firmware_sim::candump::{CandumpWriter, DEFAULT_EPOCH_US};
 use wheelleg_firmware_sim::firmware::Firmware;
 use wheelleg_firmware_sim::slcan::{EndpointSpec, SlcanEndpoint};
 use wheelleg_robot::RobotDescription;
-use wheelleg_runtime::can::protocol::NodeId;
+use wheelleg_runtime::can::protocol::{NodeId, Version};
 use wheelleg_runtime::can::CanFrame;
 use wheelleg_runtime::leg::LegConfig;
 
@@ -57,6 +61,36 @@ struct Args {
     /// Initial wheel track the legs are at (metres). Default: the robot's default pose.
     #[arg(long)]
     track_m: Option<f32>,
+    /// Axis watchdog: an armed axis that accepts no setpoint for this many milliseconds goes
+    /// idle and latches WATCHDOG_TIMER_EXPIRED. Default: off (0), as on an ODrive whose
+    /// watchdog is not enabled; the project's own closed loop runs its axes with 100.
+    #[arg(long, default_value_t = 0)]
+    watchdog_ms: u64,
+    /// Firmware version every axis answers Get_Version with, MAJOR.MINOR.REVISION. Without
+    /// it the axes run 0.5.x, which has no Get_Version (nor answers it). The project's loops
+    /// speak 0.5.x only and refuse any other at start-up.
+    #[arg(long, value_parser = parse_firmware_version)]
+    firmware_version: Option<Version>,
+}
+
+/// `MAJOR.MINOR.REVISION`, each 0 to 255, as the firmware part of the default version.
+fn parse_firmware_version(s: &str) -> Result<Version, String> {
+    let parts: Vec<&str> = s.split('.').collect();
+    let [major, minor, revision] = parts[..] else {
+        return Err(format!(
+            "{s:?} is not MAJOR.MINOR.REVISION (for example 0.5.6)"
+        ));
+    };
+    let number = |part: &str, what: &str| {
+        part.parse::<u8>()
+            .map_err(|_| format!("{s:?}: the {what} {part:?} is not a number from 0 to 255"))
+    };
+    Ok(Version {
+        fw_version_major: number(major, "major version")?,
+        fw_version_minor: number(minor, "minor version")?,
+        fw_version_revision: number(revision, "revision")?,
+        ..DEFAULT_VERSION
+    })
 }
 
 fn parse_endpoint(s: &str) -> Result<EndpointSpec, String> {
@@ -92,9 +126,25 @@ fn run(args: &Args) -> Result<(), Box<dyn std::error::Error>> {
     };
     let mut firmware = Firmware::for_robot(&robot.geometry, &robot.can, start)
         .map_err(|e| format!("start pose {start:?} unreachable: {e:?}"))?;
+    let watchdog_us = args
+        .watchdog_ms
+        .checked_mul(1_000)
+        .ok_or("--watchdog-ms is too large")?;
+    firmware.set_watchdog_timeout_us(watchdog_us);
+    firmware.set_version(args.firmware_version);
+    let version = args.firmware_version.map_or("0.5.x".to_owned(), |v| {
+        format!(
+            "{}.{}.{}",
+            v.fw_version_major, v.fw_version_minor, v.fw_version_revision
+        )
+    });
     eprintln!(
-        "firmware_sim: robot '{}', nodes {}",
+        "firmware_sim: robot '{}', firmware {version}, watchdog {}, nodes {}",
         description.name,
+        match args.watchdog_ms {
+            0 => "off".to_owned(),
+            ms => format!("{ms} ms"),
+        },
         wheelleg_runtime::can::Axis::ALL
             .iter()
             .map(|&axis| robot.can.node_id(axis).get().to_string())

@@ -4,7 +4,7 @@ use crate::bus::{BusError, Faults};
 use nalgebra::Isometry2;
 use wheelleg_runtime::base::BaseError;
 use wheelleg_runtime::can::bus_load::frame_bits;
-use wheelleg_runtime::can::host::{CanError, Health};
+use wheelleg_runtime::can::host::{CanError, Health, RollCallRefusal};
 use wheelleg_runtime::can::node_map::Axis;
 use wheelleg_runtime::can::CanFrame;
 use wheelleg_runtime::leg::{IkError, LegConfig};
@@ -23,11 +23,16 @@ pub struct RigConfig {
     pub health_timeout_us: u64,
     /// Fault injection on the in-process bus.
     pub faults: Faults,
+    /// Watchdog timeout the rig configures on the in-process axes (0: off, their own default).
+    /// The safety design relies on it: an axis that hears no setpoint for this long idles
+    /// (docs/can-protocol.md, "Safety").
+    pub watchdog_timeout_us: u64,
 }
 
 impl Default for RigConfig {
     /// 100 Hz control, 1 kHz physics, 0.2 s settling, 50 ms silence timeout (5 missed encoder
-    /// estimates at 100 Hz: one lost frame is noise, five in a row is a dead node).
+    /// estimates at 100 Hz: one lost frame is noise, five in a row is a dead node), 100 ms axis
+    /// watchdog (ten control ticks: a hung controller is caught, a late tick is not).
     fn default() -> Self {
         RigConfig {
             motion: MotionConfig::default(),
@@ -35,6 +40,7 @@ impl Default for RigConfig {
             settle_s: 0.2,
             health_timeout_us: 50_000,
             faults: Faults::NONE,
+            watchdog_timeout_us: 100_000,
         }
     }
 }
@@ -54,13 +60,21 @@ pub enum RigError {
     Bus(BusError),
     /// Writing the traffic log failed.
     Log(std::io::Error),
-    /// The axes did not all reach closed loop at start-up.
+    /// The axes did not all reach closed loop at start-up (or nothing at all answered).
     StartupFailed(Health),
+    /// The start-up roll call found a node missing, two devices on one node id, or firmware the
+    /// codec does not speak: nothing was armed.
+    StartupRefused(RollCallRefusal),
 }
 
 impl std::fmt::Display for RigError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{self:?}")
+        match self {
+            RigError::StartupRefused(refusal) => {
+                write!(f, "start-up refused, nothing armed: {refusal}")
+            }
+            other => write!(f, "{other:?}"),
+        }
     }
 }
 
@@ -102,7 +116,8 @@ pub enum TimedFault {
     /// The axis drops off the bus for good: it neither transmits nor receives (a cut cable, a
     /// node in bus-off), so it runs on its last setpoint until its watchdog idles it.
     Disconnect(Axis),
-    /// The controller's transmit path hangs (it keeps listening), as [`Rig::pause_commands`].
+    /// The controller's transmit path hangs (it keeps listening), as
+    /// [`Rig::pause_commands`](super::Rig::pause_commands).
     HangCommands,
 }
 

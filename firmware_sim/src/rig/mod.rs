@@ -8,7 +8,8 @@
 //! joint angles) beside the ideal ones. Whatever a test or the demo does to the loop, it does
 //! through here, so the policy's world and the motors' world meet in one place.
 //!
-//! Safety: every control tick the controller checks [`Health`]. A node silent for longer than
+//! Safety: every control tick the controller checks its
+//! [`Health`](wheelleg_runtime::can::host::Health). A node silent for longer than
 //! `health_timeout_us`, or reporting an error, puts the rig in safe stop for good, reported as
 //! [`StopReason`]. Inside a step the robot decelerates along the step's own path
 //! ([`StepMotion::stop_after`]: all 16 axes, the silent one included, ramp the step's progress
@@ -22,8 +23,17 @@
 //! state every physics step) and can inject a fault at a chosen instant, in the middle of a
 //! motion ([`Rig::schedule`], [`TimedFault`]).
 //!
+//! Start-up ([`Rig::start_up`]) first asks every node of the map who it is (Get_Version) and
+//! refuses to move on a bus with a node missing, two devices on one node id or firmware the
+//! codec does not speak ([`RigError::StartupRefused`]); then Clear_Errors, then arming.
+//!
+//! The in-process axes' watchdog is the rig's to configure, as real ODrives are configured
+//! before use: [`RigConfig::watchdog_timeout_us`] (100 ms by default) idles every axis that
+//! goes that long without a setpoint once armed, which the fault tests rely on.
+//!
 //! Pieces: the rig and its control tick here; settings, errors and reports in `config.rs`;
-//! ground truth and injected faults in `faults.rs`; the safe stop in `safe_stop.rs`.
+//! start-up in `start_up.rs`; ground truth and injected faults in `faults.rs`; the safe stop in
+//! `safe_stop.rs`.
 
 use crate::bus::{Faults, InProcessBus, Port, Transport};
 use crate::candump::CandumpWriter;
@@ -32,9 +42,8 @@ use nalgebra::Isometry2;
 use std::io::Write;
 use wheelleg_runtime::action::Action;
 use wheelleg_runtime::base::{MecanumBase, Odometry};
-use wheelleg_runtime::can::host::{Commander, FeedbackTracker, TxQueue};
+use wheelleg_runtime::can::host::{Commander, FeedbackTracker, RollCall, TxQueue};
 use wheelleg_runtime::can::node_map::Axis;
-use wheelleg_runtime::can::protocol::AxisState;
 use wheelleg_runtime::can::CanFrame;
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::motion::{ideal_step, MotionConfig, Setpoint, StepMotion, StopMotion};
@@ -43,11 +52,14 @@ use wheelleg_runtime::robot::Robot;
 mod config;
 mod faults;
 mod safe_stop;
+mod start_up;
 
 pub use config::{
     MeasuredBusLoad, RigConfig, RigError, StepReport, StopReason, TimedFault, TrafficCounts,
 };
 pub use faults::TrueSample;
+pub use start_up::STARTUP_TICKS;
+pub use wheelleg_runtime::can::host::ROLL_CALL_ROUND_US;
 
 /// Capacity of the controller's transmit queue: two ticks' worth of start-up frames.
 pub const TX_QUEUE_FRAMES: usize = 64;
@@ -100,13 +112,15 @@ impl Rig {
         let bus = InProcessBus::new(config.faults);
         let host = bus.port();
         let firmware_port = bus.port();
+        let mut firmware = Firmware::for_robot(&robot.geometry, &robot.can, start)?;
+        firmware.set_watchdog_timeout_us(config.watchdog_timeout_us);
         Ok(Rig {
             robot: *robot,
             config,
             commander: Commander::new(robot.can),
             tracker: FeedbackTracker::new(robot.can),
             tx: TxQueue::new(),
-            firmware: Firmware::for_robot(&robot.geometry, &robot.can, start)?,
+            firmware,
             bus,
             host: Box::new(host),
             firmware_port: Some(firmware_port),
@@ -131,7 +145,9 @@ impl Rig {
 
     /// A rig whose motors are on `host`'s bus elsewhere (for example `firmware_sim --can vcan0`
     /// in another process, or real ODrives): no local simulation, control ticks paced by the
-    /// wall clock. The remote axes must start with the legs at `start`.
+    /// wall clock. The remote axes must start with the legs at `start`, and their watchdog is
+    /// their own configuration (`firmware_sim --watchdog-ms`, an ODrive's saved
+    /// `watchdog_timeout`): [`RigConfig::watchdog_timeout_us`] cannot reach them.
     pub fn remote(
         robot: &Robot,
         config: RigConfig,
@@ -246,28 +262,6 @@ impl Rig {
         self.stopped_at_us
     }
 
-    /// Arms every axis and holds the start pose until all report closed loop.
-    pub fn start_up(&mut self) -> Result<(), RigError> {
-        self.commander.queue_startup(&mut self.tx)?;
-        let hold = Setpoint::hold(&self.robot.geometry, self.legs)?;
-        // A few heartbeat periods: enough for every axis to report its new state.
-        for _ in 0..30 {
-            self.control_tick(&hold, false)?;
-        }
-        let health = self
-            .tracker
-            .health(self.now_us, self.config.health_timeout_us);
-        let all_armed = Axis::ALL.into_iter().all(|a| {
-            self.tracker
-                .axis(a)
-                .is_some_and(|f| f.axis_state == Some(AxisState::ClosedLoopControl))
-        });
-        if !health.is_ok() || !all_armed {
-            return Err(RigError::StartupFailed(health));
-        }
-        Ok(())
-    }
-
     fn tick_s(&self) -> f32 {
         1.0 / self.config.motion.control_rate_hz
     }
@@ -275,22 +269,7 @@ impl Rig {
     /// One control period: read feedback, integrate odometry, check health, send commands
     /// (the setpoint, or the safe stop), then let the motors run until the next tick.
     fn control_tick(&mut self, setpoint: &Setpoint, supervise: bool) -> Result<(), RigError> {
-        let tick_us = (1e6 * self.tick_s()) as u64;
-        while let Some(frame) = self.host.recv(self.now_us)? {
-            if let Some(log) = &mut self.log {
-                log.log(self.now_us, &frame)?;
-            }
-            self.traffic.count(&frame);
-            self.tracker.receive(&frame, self.now_us);
-        }
-        if let (Some(wheels), Some(legs)) = (
-            self.tracker.wheel_speeds(),
-            self.tracker.leg_config(&self.robot.geometry),
-        ) {
-            let base = MecanumBase::at(&self.robot.geometry, legs)?;
-            self.odometry
-                .integrate_wheels(&base, wheels, self.tick_s())?;
-        }
+        self.read_feedback(None)?;
         if supervise && self.stopped.is_none() {
             let health = self
                 .tracker
@@ -318,14 +297,51 @@ impl Rig {
                 self.commander.queue_setpoint(&mut self.tx, setpoint)?;
                 self.last_sent = Some(*setpoint);
             }
-            while let Some(frame) = self.tx.pop() {
-                if let Some(log) = &mut self.log {
-                    log.log(self.now_us, &frame)?;
-                }
-                self.traffic.count(&frame);
-                self.host.send(&frame, self.now_us)?;
+            self.flush_tx()?;
+        }
+        self.advance_tick()
+    }
+
+    /// Takes in every frame that has arrived (into the tracker and, during the start-up roll
+    /// call, into `roll_call` too) and integrates odometry over the tick.
+    fn read_feedback(&mut self, mut roll_call: Option<&mut RollCall>) -> Result<(), RigError> {
+        while let Some(frame) = self.host.recv(self.now_us)? {
+            if let Some(log) = &mut self.log {
+                log.log(self.now_us, &frame)?;
+            }
+            self.traffic.count(&frame);
+            self.tracker.receive(&frame, self.now_us);
+            if let Some(roll_call) = roll_call.as_deref_mut() {
+                roll_call.receive(&frame);
             }
         }
+        if let (Some(wheels), Some(legs)) = (
+            self.tracker.wheel_speeds(),
+            self.tracker.leg_config(&self.robot.geometry),
+        ) {
+            let base = MecanumBase::at(&self.robot.geometry, legs)?;
+            self.odometry
+                .integrate_wheels(&base, wheels, self.tick_s())?;
+        }
+        Ok(())
+    }
+
+    /// Sends everything queued.
+    fn flush_tx(&mut self) -> Result<(), RigError> {
+        while let Some(frame) = self.tx.pop() {
+            if let Some(log) = &mut self.log {
+                log.log(self.now_us, &frame)?;
+            }
+            self.traffic.count(&frame);
+            self.host.send(&frame, self.now_us)?;
+        }
+        Ok(())
+    }
+
+    /// Lets the motors run until the next control tick: simulated physics on the in-process
+    /// bus, the wall clock otherwise.
+    fn advance_tick(&mut self) -> Result<(), RigError> {
+        let tick_us = (1e6 * self.tick_s()) as u64;
         let end_us = self.now_us + tick_us;
         match (self.firmware_port.is_some(), self.realtime_origin) {
             (true, _) => {

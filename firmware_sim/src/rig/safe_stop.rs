@@ -63,11 +63,12 @@ impl Rig {
         self.control_tick(&hold, false)
     }
 
-    /// Recovers from a stop: Clear_Errors to every axis, then the start-up sequence again. Axes
-    /// re-arm where they are, then move (within their speed limits) to the commanded legs; the
-    /// odometry pose is kept.
+    /// Recovers from a stop: the start-up sequence again ([`Rig::start_up`]: roll call,
+    /// Clear_Errors to every axis, arming). Axes still armed get no setpoint during the roll
+    /// call, so their watchdog may idle them first (the robot is at rest); all re-arm where they
+    /// are, then move (within their speed limits) to the commanded legs; the odometry pose is
+    /// kept.
     pub fn recover(&mut self) -> Result<(), RigError> {
-        self.commander.queue_clear_errors(&mut self.tx)?;
         self.stopped = None;
         self.stopped_at_us = None;
         self.stopping = None;

@@ -125,6 +125,37 @@ impl Axis {
             Axis::Wheel(_) => AxisKind::Wheel,
         }
     }
+
+    /// The axis in words, as the node map's table names it: "front-left hip", "rear-right
+    /// wheel".
+    pub const fn name(self) -> &'static str {
+        use Joint::{Hip, Knee, WheelMount};
+        use LegId::{FrontLeft as FL, FrontRight as FR, RearLeft as RL, RearRight as RR};
+        match self {
+            Axis::Joint(FL, Hip) => "front-left hip",
+            Axis::Joint(FL, Knee) => "front-left knee",
+            Axis::Joint(FL, WheelMount) => "front-left wheel mount",
+            Axis::Joint(FR, Hip) => "front-right hip",
+            Axis::Joint(FR, Knee) => "front-right knee",
+            Axis::Joint(FR, WheelMount) => "front-right wheel mount",
+            Axis::Joint(RL, Hip) => "rear-left hip",
+            Axis::Joint(RL, Knee) => "rear-left knee",
+            Axis::Joint(RL, WheelMount) => "rear-left wheel mount",
+            Axis::Joint(RR, Hip) => "rear-right hip",
+            Axis::Joint(RR, Knee) => "rear-right knee",
+            Axis::Joint(RR, WheelMount) => "rear-right wheel mount",
+            Axis::Wheel(FL) => "front-left wheel",
+            Axis::Wheel(FR) => "front-right wheel",
+            Axis::Wheel(RL) => "rear-left wheel",
+            Axis::Wheel(RR) => "rear-right wheel",
+        }
+    }
+}
+
+impl core::fmt::Display for Axis {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(self.name())
+    }
 }
 
 /// Motor-to-joint conversion of one axis (see the module docs for the convention).

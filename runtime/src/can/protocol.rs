@@ -6,6 +6,7 @@
 //!
 //! | cmd  | message               | direction   | payload                                            |
 //! |------|-----------------------|-------------|----------------------------------------------------|
+//! | 0x00 | Get_Version           | axis → host | u8 each: protocol, hw major.minor.variant, fw major.minor.revision, unreleased |
 //! | 0x01 | Heartbeat             | axis → host | u32 axis_error, u8 axis_state, 3 flag bytes        |
 //! | 0x02 | Estop                 | host → axis | none                                               |
 //! | 0x07 | Set_Axis_State        | host → axis | u32 requested state, 4 zero bytes                  |
@@ -16,6 +17,10 @@
 //! | 0x18 | Clear_Errors          | host → axis | none                                               |
 //!
 //! A remote (RTR) frame with a `Get_*` id asks the axis to send that message now.
+//!
+//! Get_Version is ODrive 0.6's message (its 0.5.x DBC has no cmd 0x00): the host asks every node
+//! for it at start-up and refuses firmware whose heartbeat layout is not the one above
+//! ([`Version::speaks_this_codec`]), since the error bits moved between 0.5.x and 0.6.x.
 //!
 //! Decoding never panics: a frame that is extended, too short, carries an unknown command or an
 //! out-of-range enum value is a [`DecodeError`], which callers count and drop.
@@ -60,6 +65,8 @@ impl NodeId {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[repr(u8)]
 pub enum CmdId {
+    /// Protocol, hardware and firmware version, sent by the axis on request.
+    GetVersion = 0x00,
     /// Axis state and errors, sent periodically by the axis.
     Heartbeat = 0x01,
     /// Emergency stop: the axis disarms and latches `ESTOP_REQUESTED`.
@@ -88,6 +95,7 @@ impl CmdId {
     /// The command with this 5-bit value, if this crate speaks it.
     pub const fn from_raw(raw: u8) -> Option<CmdId> {
         Some(match raw {
+            0x00 => CmdId::GetVersion,
             0x01 => CmdId::Heartbeat,
             0x02 => CmdId::Estop,
             0x03 => CmdId::GetMotorError,
@@ -114,9 +122,95 @@ pub fn frame_id(node: NodeId, cmd: CmdId) -> StandardId {
 /// Largest magnitude the i16 ×1000 feed-forward fields of Set_Input_Pos can carry.
 pub const MAX_FF: f32 = i16::MAX as f32 / 1000.0;
 
+/// Firmware major.minor whose CANSimple layout this codec speaks (the table above).
+pub const SPOKEN_FW_VERSION: (u8, u8) = (0, 5);
+
+/// What an axis answers to Get_Version: the protocol, its hardware and its firmware.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+pub struct Version {
+    /// Version of the CANSimple protocol itself.
+    pub protocol_version: u8,
+    /// Board major version (3 for an ODrive v3.6).
+    pub hw_version_major: u8,
+    /// Board minor version.
+    pub hw_version_minor: u8,
+    /// Board variant (for an ODrive v3.6: its voltage, 24 or 56).
+    pub hw_version_variant: u8,
+    /// Firmware major version.
+    pub fw_version_major: u8,
+    /// Firmware minor version.
+    pub fw_version_minor: u8,
+    /// Firmware revision.
+    pub fw_version_revision: u8,
+    /// Non-zero for a development build between releases.
+    pub fw_version_unreleased: u8,
+}
+
+impl Version {
+    /// Whether the firmware's major.minor is [`SPOKEN_FW_VERSION`]: any revision of it keeps
+    /// the layout and error bits this codec decodes.
+    pub const fn speaks_this_codec(&self) -> bool {
+        self.fw_version_major == SPOKEN_FW_VERSION.0 && self.fw_version_minor == SPOKEN_FW_VERSION.1
+    }
+
+    /// The eight payload bytes, in wire order.
+    pub const fn to_bytes(&self) -> [u8; 8] {
+        [
+            self.protocol_version,
+            self.hw_version_major,
+            self.hw_version_minor,
+            self.hw_version_variant,
+            self.fw_version_major,
+            self.fw_version_minor,
+            self.fw_version_revision,
+            self.fw_version_unreleased,
+        ]
+    }
+
+    /// The version carried by eight payload bytes.
+    pub const fn from_bytes(bytes: [u8; 8]) -> Version {
+        let [protocol, hw_major, hw_minor, hw_variant, fw_major, fw_minor, fw_revision, fw_dev] =
+            bytes;
+        Version {
+            protocol_version: protocol,
+            hw_version_major: hw_major,
+            hw_version_minor: hw_minor,
+            hw_version_variant: hw_variant,
+            fw_version_major: fw_major,
+            fw_version_minor: fw_minor,
+            fw_version_revision: fw_revision,
+            fw_version_unreleased: fw_dev,
+        }
+    }
+}
+
+impl core::fmt::Display for Version {
+    /// `fw 0.5.6 (hw 3.6-56, protocol 2)`; a development build reads `fw 0.5.6-dev`.
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(
+            f,
+            "fw {}.{}.{}{} (hw {}.{}-{}, protocol {})",
+            self.fw_version_major,
+            self.fw_version_minor,
+            self.fw_version_revision,
+            if self.fw_version_unreleased != 0 {
+                "-dev"
+            } else {
+                ""
+            },
+            self.hw_version_major,
+            self.hw_version_minor,
+            self.hw_version_variant,
+            self.protocol_version
+        )
+    }
+}
+
 /// One CANSimple message, without its node id.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Message {
+    /// The axis's protocol, hardware and firmware version (answer to a Get_Version request).
+    Version(Version),
     /// Axis state and latched errors.
     Heartbeat {
         /// Latched axis error bits ([`axis_error`]).
@@ -169,6 +263,7 @@ impl Message {
     /// The message's command id.
     pub fn cmd(&self) -> CmdId {
         match self {
+            Message::Version(_) => CmdId::GetVersion,
             Message::Heartbeat { .. } => CmdId::Heartbeat,
             Message::Estop => CmdId::Estop,
             Message::SetAxisState(_) => CmdId::SetAxisState,
@@ -185,7 +280,7 @@ impl Message {
     pub fn is_command(&self) -> bool {
         !matches!(
             self,
-            Message::Heartbeat { .. } | Message::EncoderEstimates { .. }
+            Message::Version(_) | Message::Heartbeat { .. } | Message::EncoderEstimates { .. }
         )
     }
 }
@@ -278,6 +373,10 @@ pub fn encode<F: Frame>(node: NodeId, message: &Message) -> Result<F, EncodeErro
     let id = frame_id(node, message.cmd());
     let mut buf = [0u8; 8];
     let len = match *message {
+        Message::Version(version) => {
+            put(&mut buf, 0, &version.to_bytes());
+            8
+        }
         Message::Heartbeat {
             axis_error,
             axis_state,
@@ -349,7 +448,8 @@ pub fn decode<F: Frame>(frame: &F) -> Result<(NodeId, Message), DecodeError> {
     let cmd = CmdId::from_raw(cmd_raw).ok_or(DecodeError::UnknownCommand(cmd_raw))?;
     if frame.is_remote_frame() {
         return match cmd {
-            CmdId::Heartbeat
+            CmdId::GetVersion
+            | CmdId::Heartbeat
             | CmdId::GetEncoderEstimates
             | CmdId::GetMotorError
             | CmdId::GetEncoderError
@@ -369,6 +469,14 @@ pub fn decode<F: Frame>(frame: &F) -> Result<(NodeId, Message), DecodeError> {
         }
     };
     let message = match cmd {
+        CmdId::GetVersion => {
+            need(8)?;
+            let mut bytes = [0u8; 8];
+            if let Some(src) = data.get(..8) {
+                bytes.copy_from_slice(src);
+            }
+            Message::Version(Version::from_bytes(bytes))
+        }
         CmdId::Heartbeat => {
             need(5)?;
             let state = data.get(4).copied().unwrap_or(0);

@@ -52,7 +52,9 @@ fn message() -> impl Strategy<Value = Message> {
             }
         }),
         Just(Message::ClearErrors),
+        any::<[u8; 8]>().prop_map(|b| Message::Version(Version::from_bytes(b))),
         prop::sample::select(vec![
+            CmdId::GetVersion,
             CmdId::Heartbeat,
             CmdId::GetEncoderEstimates,
             CmdId::GetMotorError,

@@ -16,7 +16,7 @@ use proptest::prelude::*;
 use wheelleg_runtime::base::{BaseVelocity, MecanumBase, WheelSpeeds};
 use wheelleg_runtime::can::node_map::{Axis, NodeMap};
 use wheelleg_runtime::can::protocol::{
-    decode, encode, AxisState, CmdId, ControlMode, EncodeError, InputMode, Message, NodeId,
+    decode, encode, AxisState, CmdId, ControlMode, EncodeError, InputMode, Message, NodeId, Version,
 };
 use wheelleg_runtime::can::slcan;
 use wheelleg_runtime::can::CanFrame;

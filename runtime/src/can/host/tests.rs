@@ -1,6 +1,6 @@
 use super::*;
 use crate::can::frame::CanFrame;
-use crate::can::protocol::{axis_error, NodeId};
+use crate::can::protocol::{axis_error, CmdId, NodeId, Version};
 use crate::robot::WHEELLEG;
 
 fn estimate(axis: Axis, pos_turns: f32, vel_turns_per_s: f32) -> CanFrame {
@@ -160,4 +160,199 @@ fn safe_stop_stops_wheels_and_holds_measured_joints() {
             }
         );
     }
+}
+
+const V0_5_6: Version = Version {
+    protocol_version: 2,
+    hw_version_major: 3,
+    hw_version_minor: 6,
+    hw_version_variant: 56,
+    fw_version_major: 0,
+    fw_version_minor: 5,
+    fw_version_revision: 6,
+    fw_version_unreleased: 0,
+};
+
+fn version_answer(axis: Axis, version: Version) -> CanFrame {
+    encode(NodeMap::NOMINAL.node_id(axis), &Message::Version(version)).unwrap()
+}
+
+/// A roll call of `rounds` rounds in which every axis answers `answers(axis)` times per round
+/// with `version(axis)`.
+fn roll_call(
+    rounds: u8,
+    answers: impl Fn(Axis, u8) -> u8,
+    version: impl Fn(Axis) -> Version,
+) -> RollCall {
+    let mut roll = RollCall::new(NodeMap::NOMINAL);
+    for round in 0..rounds {
+        roll.begin_round();
+        for axis in Axis::ALL {
+            for _ in 0..answers(axis, round) {
+                assert_eq!(
+                    roll.receive(&version_answer(axis, version(axis))),
+                    Some(axis)
+                );
+            }
+        }
+    }
+    roll
+}
+
+#[test]
+fn version_requests_are_one_remote_frame_per_node() {
+    let commander = Commander::new(NodeMap::NOMINAL);
+    let mut q: TxQueue<CanFrame, 16> = TxQueue::new();
+    commander.queue_version_requests(&mut q).unwrap();
+    assert_eq!(q.len(), 16);
+    for axis in Axis::ALL {
+        let f = q.pop().unwrap();
+        assert!(f.is_remote_frame());
+        assert_eq!(
+            decode(&f).unwrap(),
+            (
+                NodeMap::NOMINAL.node_id(axis),
+                Message::Request(CmdId::GetVersion)
+            )
+        );
+    }
+}
+
+#[test]
+fn a_full_roll_call_of_0_5_firmware_passes_and_the_tracker_keeps_the_versions() {
+    let roll = roll_call(ROLL_CALL_ROUNDS, |_, _| 1, |_| V0_5_6);
+    assert_eq!(roll.verdict(), Ok(()));
+    assert_eq!(roll.answered(), AxisSet(0xFFFF));
+    let mut tracker = FeedbackTracker::new(NodeMap::NOMINAL);
+    let wheel = Axis::Wheel(LegId::RearRight);
+    assert_eq!(
+        tracker.receive(&version_answer(wheel, V0_5_6), 5),
+        Received::Accepted(wheel)
+    );
+    assert_eq!(tracker.axis(wheel).unwrap().version, Some(V0_5_6));
+    assert_eq!(tracker.stats().unexpected, 0);
+}
+
+#[test]
+fn a_missing_node_is_refused_by_name() {
+    let knee = Axis::Joint(LegId::FrontRight, Joint::Knee);
+    let mut roll = roll_call(ROLL_CALL_ROUNDS, |a, _| u8::from(a != knee), |_| V0_5_6);
+    let refusal = roll.verdict().unwrap_err();
+    assert_eq!(
+        refusal,
+        RollCallRefusal {
+            axis: knee,
+            node: NodeId::new(5).unwrap(),
+            problem: RollCallProblem::Missing,
+        }
+    );
+    let shown = text(refusal);
+    assert!(
+        shown.starts_with("node 5 (front-right knee): missing"),
+        "{shown}"
+    );
+    // A node that sends heartbeats but never answers Get_Version runs 0.5.x, which has none:
+    // accepted.
+    let hb: CanFrame = encode(
+        NodeMap::NOMINAL.node_id(knee),
+        &Message::Heartbeat {
+            axis_error: 0,
+            axis_state: AxisState::Idle,
+        },
+    )
+    .unwrap();
+    assert_eq!(roll.receive(&hb), None);
+    assert_eq!(roll.verdict(), Ok(()));
+}
+
+#[test]
+fn two_answers_to_every_request_are_two_devices_on_one_id() {
+    let hip = Axis::Joint(LegId::RearLeft, Joint::Hip);
+    let twice = |a: Axis, _| if a == hip { 2 } else { 1 };
+    let refusal = roll_call(ROLL_CALL_ROUNDS, twice, |_| V0_5_6)
+        .verdict()
+        .unwrap_err();
+    assert_eq!(
+        (refusal.axis, refusal.node.get(), refusal.problem),
+        (hip, 7, RollCallProblem::TwoDevices)
+    );
+    assert!(text(refusal).contains("node 7 (rear-left hip): answered Get_Version twice"));
+    // One round is enough to tell, when it is the only one.
+    assert_eq!(
+        roll_call(1, twice, |_| V0_5_6)
+            .verdict()
+            .unwrap_err()
+            .problem,
+        RollCallProblem::TwoDevices
+    );
+    // Two devices with different firmware differ in what they say, even once each.
+    let other = Version {
+        fw_version_revision: 4,
+        ..V0_5_6
+    };
+    let mut roll = roll_call(ROLL_CALL_ROUNDS, |_, _| 1, |_| V0_5_6);
+    roll.receive(&version_answer(hip, other));
+    assert_eq!(
+        roll.verdict().unwrap_err().problem,
+        RollCallProblem::TwoDevices
+    );
+}
+
+#[test]
+fn a_bus_that_repeats_or_loses_some_frames_is_not_a_fault() {
+    // Round 0: one answer doubled (a bus repeat); round 1: another lost; every node still
+    // answered once per request at least once.
+    let wheel = Axis::Wheel(LegId::FrontLeft);
+    let roll = roll_call(
+        ROLL_CALL_ROUNDS,
+        |a, round| match (a == wheel, round) {
+            (true, 0) => 2,
+            (true, 1) => 0,
+            _ => 1,
+        },
+        |_| V0_5_6,
+    );
+    assert_eq!(roll.verdict(), Ok(()));
+}
+
+#[test]
+fn firmware_0_6_is_refused_by_name() {
+    let wheel = Axis::Wheel(LegId::FrontRight);
+    let v0_6_11 = Version {
+        fw_version_minor: 6,
+        fw_version_revision: 11,
+        ..V0_5_6
+    };
+    let refusal = roll_call(
+        ROLL_CALL_ROUNDS,
+        |_, _| 1,
+        |a| if a == wheel { v0_6_11 } else { V0_5_6 },
+    )
+    .verdict()
+    .unwrap_err();
+    assert_eq!(
+        (refusal.node.get(), refusal.problem),
+        (14, RollCallProblem::UnsupportedFirmware(v0_6_11))
+    );
+    let shown = text(refusal);
+    assert!(
+        shown.starts_with("node 14 (front-right wheel): reports fw 0.6.11"),
+        "{shown}"
+    );
+    // Any 0.5 revision keeps the layout.
+    let v0_5_0 = Version {
+        fw_version_revision: 0,
+        ..V0_5_6
+    };
+    assert_eq!(
+        roll_call(ROLL_CALL_ROUNDS, |_, _| 1, |_| v0_5_0).verdict(),
+        Ok(())
+    );
+}
+
+/// `x` formatted on the stack: the crate has no `alloc`, so no `to_string`.
+fn text(x: impl core::fmt::Display) -> heapless::String<256> {
+    let mut s = heapless::String::new();
+    core::fmt::write(&mut s, format_args!("{x}")).unwrap();
+    s
 }

@@ -44,11 +44,84 @@ fn every_message_round_trips() {
         },
         Message::ClearErrors,
         Message::Request(CmdId::GetEncoderEstimates),
+        Message::Version(V0_5_6),
+        Message::Request(CmdId::GetVersion),
     ];
     for msg in messages {
         let frame: CanFrame = encode(node(63), &msg).unwrap();
         assert_eq!(decode(&frame).unwrap(), (node(63), msg));
     }
+}
+
+const V0_5_6: Version = Version {
+    protocol_version: 2,
+    hw_version_major: 3,
+    hw_version_minor: 6,
+    hw_version_variant: 56,
+    fw_version_major: 0,
+    fw_version_minor: 5,
+    fw_version_revision: 6,
+    fw_version_unreleased: 0,
+};
+
+#[test]
+fn get_version_matches_odrive_0_6_layout() {
+    let frame: CanFrame = encode(node(7), &Message::Version(V0_5_6)).unwrap();
+    assert_eq!(frame.raw_id(), 7 << 5);
+    assert!(!frame.is_remote_frame());
+    // One byte each: protocol, hardware major.minor-variant, firmware major.minor.revision,
+    // unreleased flag.
+    assert_eq!(frame.data(), &[2, 3, 6, 56, 0, 5, 6, 0]);
+    assert_eq!(decode(&frame).unwrap(), (node(7), Message::Version(V0_5_6)));
+    assert!(V0_5_6.speaks_this_codec());
+    let v0_6_11 = Version {
+        fw_version_minor: 6,
+        fw_version_revision: 11,
+        ..V0_5_6
+    };
+    assert!(!v0_6_11.speaks_this_codec());
+    assert!(!Version {
+        fw_version_major: 1,
+        ..V0_5_6
+    }
+    .speaks_this_codec());
+    assert_eq!(text(v0_6_11).as_str(), "fw 0.6.11 (hw 3.6-56, protocol 2)");
+}
+
+#[test]
+fn get_version_is_requested_with_a_remote_frame() {
+    let request: CanFrame = encode(node(12), &Message::Request(CmdId::GetVersion)).unwrap();
+    assert!(request.is_remote_frame());
+    assert_eq!(request.raw_id(), 12 << 5);
+    assert_eq!(request.dlc(), 8);
+    assert!(request.data().is_empty());
+    assert_eq!(
+        decode(&request).unwrap(),
+        (node(12), Message::Request(CmdId::GetVersion))
+    );
+    assert!(Message::Request(CmdId::GetVersion).is_command());
+    assert!(!Message::Version(V0_5_6).is_command());
+}
+
+#[test]
+fn a_short_get_version_answer_is_an_error() {
+    for len in 0..8 {
+        let frame = CanFrame::standard(4 << 5, &[0; 8][..len]).unwrap();
+        assert_eq!(
+            decode(&frame),
+            Err(DecodeError::TooShort {
+                cmd: CmdId::GetVersion,
+                len: len as u8
+            })
+        );
+    }
+}
+
+/// `x` formatted on the stack: the crate has no `alloc`, so no `to_string`.
+fn text(x: impl core::fmt::Display) -> heapless::String<256> {
+    let mut s = heapless::String::new();
+    core::fmt::write(&mut s, format_args!("{x}")).unwrap();
+    s
 }
 
 #[test]
