@@ -148,7 +148,7 @@ nice -n 10 cargo build --quiet --release --bin wheelleg >&2
 hil=true
 set +e
 "$root/target/release/wheelleg" demo --controller qemu --firmware "$elf" \
-    --scenario eval/heldout-complex-s1000000.json --out "$work/episode" >"$work/episode.txt" 2>&1
+    --scenarios eval/heldout-complex-s1000000.json --out "$work/episode" >"$work/episode.txt" 2>&1
 episode_status=$?
 set -e
 cat "$work/episode.txt" >&2

@@ -27,7 +27,7 @@ cargo build --quiet --release --bin wheelleg
 target/release/wheelleg generate --robot robots/strider.toml --kind straight --count 1 \
     --seed 3 --out "$strider/scene.json" >/dev/null
 target/release/wheelleg demo --robot robots/strider.toml --planner \
-    --scenario "$strider/scene.json" --out "$strider/demo" >/dev/null
+    --scenarios "$strider/scene.json" --out "$strider/demo" >/dev/null
 python3 tools/gen_dbc.py --robot robots/strider.toml >"$strider/strider.dbc"
 python3 tools/check_dbc.py "$strider/demo/bus.log" --project-dbc "$strider/strider.dbc"
 

@@ -352,7 +352,7 @@ fn a_reader_that_goes_away_ends_the_output_quietly() {
             "500",
             "--kind",
             "straight",
-            "--planner-expansions",
+            "--max-expansions",
             "0",
             "--json",
         ])
@@ -519,7 +519,7 @@ fn a_policy_is_refused_for_a_robot_it_was_not_trained_for() {
             weights.to_str().unwrap(),
             "--scenarios",
             scenes.to_str().unwrap(),
-            "--planner-expansions",
+            "--max-expansions",
             "0",
             "--json",
         ])
@@ -555,7 +555,7 @@ fn a_policy_is_refused_for_a_robot_it_was_not_trained_for() {
     );
     let out = wheelleg(&[
         "demo",
-        "--weights",
+        "--policy",
         other.to_str().unwrap(),
         "--out",
         dir.join("demo").to_str().unwrap(),

@@ -75,10 +75,10 @@ fn relevance_writes_the_figure_and_one_figure_per_obstacle() {
         "relevance",
         "--policy",
         policy.to_str().unwrap(),
-        "--scenario",
+        "--scenarios",
         scenes.to_str().unwrap(),
-        "--index",
-        "1",
+        "--name",
+        "complex-1",
         "--out",
         png.to_str().unwrap(),
         "--json",
@@ -131,30 +131,30 @@ fn relevance_refuses_bad_input_clearly() {
     ]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     let png = dir.join("r.png");
-    let run = |policy: &str, index: &str| {
+    let run = |policy: &str, name: &str| {
         wheelleg(&[
             "relevance",
             "--policy",
             policy,
-            "--scenario",
+            "--scenarios",
             scenes.to_str().unwrap(),
-            "--index",
-            index,
+            "--name",
+            name,
             "--out",
             png.to_str().unwrap(),
         ])
     };
-    let out = run(policy.to_str().unwrap(), "3");
+    let out = run(policy.to_str().unwrap(), "straight-3");
     assert!(!out.status.success());
     assert!(
-        text(&out.stderr).contains("out of range"),
+        text(&out.stderr).contains("no scenario of that name"),
         "{}",
         text(&out.stderr)
     );
 
     let junk = dir.join("junk.ckpt");
     std::fs::write(&junk, b"not a checkpoint at all, just text").unwrap();
-    let out = run(junk.to_str().unwrap(), "0");
+    let out = run(junk.to_str().unwrap(), "straight-0");
     assert!(!out.status.success());
     assert!(text(&out.stderr).contains("magic"), "{}", text(&out.stderr));
 }

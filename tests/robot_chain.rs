@@ -161,7 +161,7 @@ fn the_second_robot_goes_through_generate_plan_train_export_eval_and_demo() {
         "2",
         "--kind",
         "straight",
-        "--planner-expansions",
+        "--max-expansions",
         "0",
         "--json",
     ]);
@@ -176,7 +176,7 @@ fn the_second_robot_goes_through_generate_plan_train_export_eval_and_demo() {
             "1",
             "--kind",
             "straight",
-            "--planner-expansions",
+            "--max-expansions",
             "0",
         ]);
         assert!(
@@ -205,9 +205,9 @@ fn the_second_robot_goes_through_generate_plan_train_export_eval_and_demo() {
         "demo",
         "--robot",
         STRIDER,
-        "--weights",
+        "--policy",
         s(&weights),
-        "--scenario",
+        "--scenarios",
         s(&straight),
         "--out",
         s(&demo),

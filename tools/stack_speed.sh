@@ -63,7 +63,7 @@ PY
 run() { # version, chunk; writes the chunk's JSON, prints "CPU-seconds wall-seconds"
     /usr/bin/time -f "%U %S %e" -o "$out/time.$1" \
         "$out/wheelleg.$1" eval --policy "$policy" --scenarios "$out/chunk-$2.json" \
-        --stack full --planner-expansions 0 --json ${EVAL_ARGS:-} >"$out/$1.chunk-$2.json"
+        --stack full --max-expansions 0 --json ${EVAL_ARGS:-} >"$out/$1.chunk-$2.json"
     awk '{ printf "%.2f %.2f\n", $1 + $2, $3 }' "$out/time.$1"
 }
 old_cpu=0 new_cpu=0 old_wall=0 new_wall=0

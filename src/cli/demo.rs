@@ -1,4 +1,4 @@
-//! `wheelleg demo [--scenario FILE] [--weights FILE | --planner] [--stack policy|robot|full] [--can IFACE |
+//! `wheelleg demo [--scenarios FILE [--name NAME]] [--policy FILE | --planner] [--stack policy|robot|full] [--can IFACE |
 //! slcan:tcp:HOST:PORT] [--controller host|qemu] [--out DIR] [--seed S]`: the closed loop (world -> policy or planner -> CAN -> motors -> measured motion
 //! -> world) on one scene, with a picture of the achieved path and the bus traffic as a
 //! `candump -L` log. The shipped policy is built into the binary, so the demo drives the same
@@ -41,7 +41,7 @@ use wheelleg_sim::scenario::Scenario;
 use wheelleg_stack::policy::Int8Policy;
 
 /// The shipped int8 policy (`weights/policy.wlw`, its model card beside it), built into the
-/// binary: the demo's driver when neither `--weights` nor `--planner` is given.
+/// binary: the demo's driver when neither `--policy` nor `--planner` is given.
 pub const SHIPPED_WEIGHTS: &[u8] = include_bytes!("../../weights/policy.wlw");
 
 /// How the shipped weights are named in the demo's report.
@@ -60,14 +60,14 @@ const SCENE_CHOICE_EXPANSIONS: usize = 5_000;
 pub struct Args {
     /// Scenario file (JSON); the first scenario, or the one named by --name. Default: a
     /// generated composed scene, a leg behaviour amid clutter (see --seed).
-    #[arg(long)]
-    scenario: Option<PathBuf>,
-    /// Name of the scenario to run from --scenario.
-    #[arg(long, requires = "scenario")]
+    #[arg(long, alias = "scenario")]
+    scenarios: Option<PathBuf>,
+    /// Name of the scenario to run from --scenarios.
+    #[arg(long, requires = "scenarios")]
     name: Option<String>,
-    /// Policy weights (.wlw). Default: the shipped policy, built into the binary.
-    #[arg(long, conflicts_with = "planner")]
-    weights: Option<PathBuf>,
+    /// The policy: a weights file (.wlw). Default: the shipped policy, built into the binary.
+    #[arg(long, alias = "weights", conflicts_with = "planner")]
+    policy: Option<PathBuf>,
     /// Drive by the exact planner's action sequence instead of a policy (see
     /// --max-expansions; proving a hard scene can take minutes).
     #[arg(long)]
@@ -129,7 +129,7 @@ fn scene(
     planner: &PlannerConfig,
 ) -> Result<(Scenario, String), String> {
     let geometry = env_config.geometry;
-    if let Some(path) = &args.scenario {
+    if let Some(path) = &args.scenarios {
         let scenarios = wheelleg_sim::scenario_file::load(path, &geometry)
             .map_err(|e| format!("{}: {e}", path.display()))?;
         let chosen = match &args.name {
@@ -178,16 +178,16 @@ fn scene(
 type Weights = (Cow<'static, [u8]>, String);
 
 /// The policy's weights and how to name them, or `None` when the planner drives. A file named
-/// by `--weights` must exist: a missing one is an error, never a silent change of driver.
+/// by `--policy` must exist: a missing one is an error, never a silent change of driver.
 fn weights(args: &Args) -> Result<Option<Weights>, String> {
     if args.planner {
         return Ok(None);
     }
-    match &args.weights {
+    match &args.policy {
         Some(path) if path.is_file() => std::fs::read(path)
             .map(|bytes| Some((Cow::Owned(bytes), path.display().to_string())))
             .map_err(|e| format!("cannot read {}: {e}", path.display())),
-        Some(path) => Err(format!("--weights {}: no such file", path.display())),
+        Some(path) => Err(format!("--policy {}: no such file", path.display())),
         None => Ok(Some((
             Cow::Borrowed(SHIPPED_WEIGHTS),
             SHIPPED_LABEL.to_owned(),

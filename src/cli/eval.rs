@@ -1,6 +1,6 @@
 //! `wheelleg eval --policy CKPT|WEIGHTS (--scenarios FILE | --generated N --kind K) --seed S [--json]
 //! [--stack policy|robot|full] [--rule untried|argmax|sample] [layer options, shared with demo]
-//! [--planner-expansions N | --planner-results PLAN.json]`.
+//! [--max-expansions N | --planner-results PLAN.json]`.
 
 use super::robot::RobotArg;
 use super::stack_args::StackArgs;
@@ -48,11 +48,11 @@ pub struct Args {
           value_parser = ["untried", "argmax", "sample"])]
     rule: String,
     /// Planner budget per scenario (expanded states) for the shortest-path ratio; 0 skips it.
-    #[arg(long, default_value_t = 20_000)]
-    planner_expansions: usize,
+    #[arg(long, alias = "planner-expansions", default_value_t = 20_000)]
+    max_expansions: usize,
     /// Shortest paths already found by `wheelleg plan --json` on the same scenarios (a file);
     /// the planner is then not run, so one planner pass serves every policy.
-    #[arg(long, conflicts_with = "planner_expansions")]
+    #[arg(long, conflicts_with = "max_expansions")]
     planner_results: Option<PathBuf>,
     /// The decision stack.
     #[command(flatten)]
@@ -111,7 +111,7 @@ pub fn run(args: Args) -> CliResult {
     stack.check()?;
     let options = EvalOptions {
         stack,
-        planner_expansions: args.planner_expansions,
+        planner_expansions: args.max_expansions,
         known_shortest,
         env_config: EnvConfig {
             geometry,

@@ -1,4 +1,4 @@
-//! `wheelleg relevance --policy CKPT --scenario FILE [--index I] --out relevance.png [--json]`:
+//! `wheelleg relevance --policy CKPT --scenarios FILE [--name NAME] --out relevance.png [--json]`:
 //! the paper's relevance figure. Rolls the float policy (by the robot's decision rule) in one
 //! scene, then once with each obstacle removed, measures how far the trajectory moves (symmetric mean closest-point
 //! distance between the paths, trainer::trajectory::relevance), prints the figures and draws
@@ -19,11 +19,11 @@ pub struct Args {
     #[arg(long)]
     policy: PathBuf,
     /// Scenario file (JSON).
+    #[arg(long, alias = "scenario")]
+    scenarios: PathBuf,
+    /// Name of the scenario to use from --scenarios; the first one when not given.
     #[arg(long)]
-    scenario: PathBuf,
-    /// Which scenario of the file (0-based).
-    #[arg(long, default_value_t = 0)]
-    index: usize,
+    name: Option<String>,
     /// The PNG to write.
     #[arg(long)]
     out: PathBuf,
@@ -38,15 +38,18 @@ pub struct Args {
 /// Runs `relevance`.
 pub fn run(args: Args) -> CliResult {
     let (description, geometry) = args.robot.simulated()?;
-    let scenarios = wheelleg_sim::scenario_file::load(&args.scenario, &geometry)?;
-    let scenario = scenarios.get(args.index).ok_or_else(|| {
-        format!(
-            "--index {} is out of range: {} holds {} scenario(s)",
-            args.index,
-            args.scenario.display(),
-            scenarios.len()
-        )
-    })?;
+    let scenarios = wheelleg_sim::scenario_file::load(&args.scenarios, &geometry)?;
+    let scenario = match &args.name {
+        Some(name) => scenarios.iter().find(|s| &s.name == name).ok_or_else(|| {
+            format!(
+                "--name {name:?}: {} holds no scenario of that name",
+                args.scenarios.display()
+            )
+        })?,
+        None => scenarios
+            .first()
+            .ok_or_else(|| format!("{}: contains no scenario", args.scenarios.display()))?,
+    };
     let network = wheelleg_trainer::checkpoint::load_policy(&args.policy)?;
     wheelleg_trainer::network::check_policy_shape(&network)
         .map_err(|e| format!("{}: {e}", args.policy.display()))?;

@@ -57,7 +57,7 @@ fn demo_binary_writes_the_path_and_the_bus_log() {
 
     // The same with a (random) weights file: the policy drives, the loop runs to the end.
     std::fs::write(dir.join("random.wlw"), random_policy_bytes(3)).unwrap();
-    let out = demo(&dir, &["--out", "policy-out", "--weights", "random.wlw"]);
+    let out = demo(&dir, &["--out", "policy-out", "--policy", "random.wlw"]);
     let stdout = text(&out.stdout);
     eprintln!("{stdout}{}", text(&out.stderr));
     assert!(out.status.success());
@@ -70,13 +70,7 @@ fn demo_binary_writes_the_path_and_the_bus_log() {
     assert!(dir.join("policy-out/path.png").is_file());
     let out = demo(
         &dir,
-        &[
-            "--out",
-            "unguarded",
-            "--weights",
-            "random.wlw",
-            "--no-guard",
-        ],
+        &["--out", "unguarded", "--policy", "random.wlw", "--no-guard"],
     );
     let stdout = text(&out.stdout);
     assert!(out.status.success());
@@ -119,8 +113,8 @@ fn demo_binary_refuses_bad_input_with_a_clear_message() {
             &["--can", "vcan-missing0"],
             &["vcan-missing0", "firmware_sim"],
         ),
-        (&["--weights", "nope.wlw"], &["nope.wlw", "no such file"]),
-        (&["--scenario", "missing.json"], &["missing.json"]),
+        (&["--policy", "nope.wlw"], &["nope.wlw", "no such file"]),
+        (&["--scenarios", "missing.json"], &["missing.json"]),
         (
             &["--silent-node", "40", "--silent-at-step", "1"],
             &["--silent-node 40"],
@@ -147,15 +141,15 @@ fn demo_binary_refuses_bad_input_with_a_clear_message() {
         }
     }
     // Two drivers named at once is a usage error (clap's exit status 2), naming both.
-    let out = demo(&dir, &["--weights", "nope.wlw", "--planner"]);
+    let out = demo(&dir, &["--policy", "nope.wlw", "--planner"]);
     let stderr = text(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{stderr}");
     assert!(
-        stderr.contains("--weights") && stderr.contains("--planner"),
+        stderr.contains("--policy") && stderr.contains("--planner"),
         "{stderr}"
     );
     std::fs::write(dir.join("garbage.wlw"), b"not weights").unwrap();
-    let out = demo(&dir, &["--weights", "garbage.wlw"]);
+    let out = demo(&dir, &["--policy", "garbage.wlw"]);
     let stderr = text(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{stderr}");
     assert!(

@@ -23,8 +23,8 @@ pub(super) fn run_qemu(args: &Args, scenario: &Scenario, origin: &str) -> CliRes
         ),
         (args.planner, "--planner"),
         (
-            args.weights.is_some(),
-            "--weights (the firmware's policy is built into its image)",
+            args.policy.is_some(),
+            "--policy (the firmware's policy is built into its image)",
         ),
         (
             !args.stack.is_robot_default(),
