@@ -285,7 +285,13 @@ fn bad_scenario_files_fail_every_command_with_the_reason() {
     }
     let out = wheelleg(&["generate", "--kind", "maze", "--out", file_arg]);
     assert!(!out.status.success());
-    assert!(text(&out.stderr).contains("unknown scene kind"));
+    // Refused naming the flag and the kinds there are.
+    let message = text(&out.stderr);
+    assert!(
+        message.contains("invalid value 'maze' for '--kind")
+            && message.contains("straight, around, lift, spread, squeeze, complex, composed"),
+        "{message}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

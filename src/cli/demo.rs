@@ -55,6 +55,15 @@ const MAX_SCENE_DRAWS: u32 = 20;
 /// while proving one unsolvable can take minutes, so a draw that needs more is skipped.
 const SCENE_CHOICE_EXPANSIONS: usize = 5_000;
 
+/// Where the robot's controller runs (`--controller`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum ControllerArg {
+    /// In this process: the host's control loop.
+    Host,
+    /// The controller firmware in QEMU.
+    Qemu,
+}
+
 /// Arguments of `demo`.
 #[derive(clap::Args)]
 pub struct Args {
@@ -82,9 +91,8 @@ pub struct Args {
     /// controller firmware's production image in QEMU's mps2-an386, its observation link and
     /// SLCAN adapter link on two UARTs, the simulated motors behind the adapter;
     /// docs/controller.md). The firmware drives with its built-in policy, guard and arrival.
-    #[arg(long, value_name = "WHERE", default_value = "host",
-          value_parser = ["host", "qemu"])]
-    controller: String,
+    #[arg(long, value_name = "WHERE", value_enum, default_value_t = ControllerArg::Host)]
+    controller: ControllerArg,
     /// The firmware image for --controller qemu. Default: the production image of
     /// controller/, built when missing.
     #[arg(long, value_name = "ELF")]
@@ -280,7 +288,7 @@ pub fn run(args: Args) -> CliResult {
         ..LoopConfig::default().env
     };
     let (scenario, origin) = scene(&args, env_config, &planner)?;
-    if args.controller == "qemu" {
+    if args.controller == ControllerArg::Qemu {
         if robot != RobotDescription::shipped() {
             return Err(format!(
                 "--controller qemu with robot '{}': the QEMU loop runs the shipped robot's \

@@ -30,9 +30,9 @@ pub struct Args {
     /// Evaluate on this many generated scenes (needs --kind).
     #[arg(long, requires = "kind")]
     generated: Option<usize>,
-    /// Kind of generated scenes: straight, around, lift, spread, squeeze, complex, composed.
-    #[arg(long)]
-    kind: Option<String>,
+    /// Kind of generated scenes.
+    #[arg(long, value_enum)]
+    kind: Option<super::generate::KindArg>,
     /// Seed of scene generation and stochastic actions (use seeds not used in training).
     #[arg(long, default_value_t = 1_000_000)]
     seed: u64,
@@ -44,9 +44,8 @@ pub struct Args {
     /// probable choice, even when that action was just refused) or `sample` (a draw from each
     /// head, the training rule). argmax and sample only with `--stack policy` (docs/results.md,
     /// "Decision rule").
-    #[arg(long, value_name = "RULE", default_value = "untried",
-          value_parser = ["untried", "argmax", "sample"])]
-    rule: String,
+    #[arg(long, value_name = "RULE", value_enum, default_value_t = RuleArg::Untried)]
+    rule: RuleArg,
     /// Planner budget per scenario (expanded states) for the shortest-path ratio; 0 skips it.
     #[arg(long, alias = "planner-expansions", default_value_t = 20_000)]
     max_expansions: usize,
@@ -62,13 +61,24 @@ pub struct Args {
     robot: RobotArg,
 }
 
+/// How the policy's heads become one action (`--rule`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum RuleArg {
+    /// The most probable action not yet taken at this observation: what the robot runs.
+    Untried,
+    /// Each head's most probable choice, even when that action was just refused.
+    Argmax,
+    /// A draw from each head: the training rule.
+    Sample,
+}
+
 /// Runs `eval`.
 pub fn run(args: Args) -> CliResult {
     let (robot, geometry) = args.robot.simulated()?;
     let scenarios = match (&args.scenarios, args.generated, &args.kind) {
         (Some(file), _, _) => wheelleg_sim::scenario_file::load(file, &geometry)?,
         (None, Some(n), Some(kind)) => {
-            let kind = super::generate::parse_kind(kind).map_err(|e| format!("--kind: {e}"))?;
+            let kind = kind.scene_kind();
             let scene_robot = SceneRobot::of(&geometry);
             super::generate::scene_kind_for(scene_robot, kind, &robot.name)?;
             generate_many(
@@ -95,16 +105,17 @@ pub fn run(args: Args) -> CliResult {
         None => None,
     };
     let mut stack = args.stack.config()?;
-    stack.rule = match args.rule.as_str() {
-        "argmax" => DecisionRule::Argmax,
-        "sample" => DecisionRule::Sample,
-        _ => DecisionRule::Untried,
+    stack.rule = match args.rule {
+        RuleArg::Argmax => DecisionRule::Argmax,
+        RuleArg::Sample => DecisionRule::Sample,
+        RuleArg::Untried => DecisionRule::Untried,
     };
     if stack.rule != DecisionRule::Untried && args.stack.preset()? != Preset::Policy {
         return Err(format!(
             "--rule {}: only with --stack policy (the guard, arrival and the look-ahead build on \
              the untried rule's memory of what it took)",
-            args.rule
+            clap::ValueEnum::to_possible_value(&args.rule)
+                .map_or_else(String::new, |v| v.get_name().to_owned())
         )
         .into());
     }

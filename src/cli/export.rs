@@ -11,6 +11,15 @@ use wheelleg_trainer::network::BackendKind;
 use wheelleg_trainer::quantize::qat::RECOMMENDED_STEPS;
 use wheelleg_trainer::quantize::{ActionRange, Agreement, QatOptions, RangeMethod};
 
+/// What sets the action head's output range (`--action-range`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum ActionRangeArg {
+    /// Each head's two largest logits: what decides the argmax the robot acts on.
+    Contenders,
+    /// Every logit.
+    AllLogits,
+}
+
 /// Arguments of `export`.
 #[derive(clap::Args)]
 pub struct Args {
@@ -34,11 +43,11 @@ pub struct Args {
     range: String,
     /// Action head range from `contenders` (each head's two largest logits: what decides the
     /// argmax the robot acts on) or `all-logits`.
-    #[arg(long, default_value = "contenders")]
-    action_range: String,
-    /// Scenes of the rollouts: straight, around, lift, spread, squeeze, complex, composed.
-    #[arg(long, default_value = "complex")]
-    kind: String,
+    #[arg(long, value_enum, default_value_t = ActionRangeArg::Contenders)]
+    action_range: ActionRangeArg,
+    /// Scenes of the rollouts.
+    #[arg(long, value_enum, default_value_t = super::generate::KindArg::Complex)]
+    kind: super::generate::KindArg,
     /// Quantization-aware fine-tuning steps before quantizing (0: plain post-training
     /// quantization of the checkpoint).
     #[arg(long, default_value_t = RECOMMENDED_STEPS)]
@@ -93,18 +102,13 @@ fn parse_range(text: &str) -> Result<RangeMethod, String> {
 
 /// Runs `export`.
 pub fn run(args: Args) -> CliResult {
-    let kind = super::generate::parse_kind(&args.kind).map_err(|e| format!("--kind: {e}"))?;
+    let kind = args.kind.scene_kind();
     if args.calibration == 0 || args.holdout == 0 {
         return Err("--calibration and --holdout must be at least 1".into());
     }
-    let action_range = match args.action_range.as_str() {
-        "contenders" => ActionRange::Contenders,
-        "all-logits" => ActionRange::AllLogits,
-        other => {
-            return Err(
-                format!("--action-range {other:?}: expected contenders or all-logits").into(),
-            )
-        }
+    let action_range = match args.action_range {
+        ActionRangeArg::Contenders => ActionRange::Contenders,
+        ActionRangeArg::AllLogits => ActionRange::AllLogits,
     };
     if args.qat_steps > 0
         && (args.qat_seed == args.seed || Some(args.qat_seed) == args.seed.checked_add(1))

@@ -9,9 +9,9 @@ use wheelleg_sim::generate::{generate_many, Behaviour, SceneKind, SceneRobot};
 /// Arguments of `generate`.
 #[derive(clap::Args)]
 pub struct Args {
-    /// Scene kind: straight, around, lift, spread, squeeze, complex or composed.
-    #[arg(long)]
-    kind: String,
+    /// Scene kind.
+    #[arg(long, value_enum)]
+    kind: KindArg,
     /// Number of scenes.
     #[arg(long, default_value_t = 10)]
     count: usize,
@@ -28,7 +28,7 @@ pub struct Args {
 
 /// Runs `generate`.
 pub fn run(args: Args) -> CliResult {
-    let kind = parse_kind(&args.kind)?;
+    let kind = args.kind.scene_kind();
     let (description, geometry) = args.robot.simulated()?;
     let robot = SceneRobot::new(&geometry);
     scene_kind_for(&robot, kind, &description.name)?;
@@ -44,15 +44,38 @@ pub fn run(args: Args) -> CliResult {
     Ok(())
 }
 
-/// Parses a scene kind name, listing the valid ones when it is not one.
-pub fn parse_kind(name: &str) -> Result<SceneKind, String> {
-    SceneKind::from_name(name).ok_or_else(|| {
-        let names: Vec<&str> = SceneKind::ALL.iter().map(|k| k.name()).collect();
-        format!(
-            "unknown scene kind {name:?}; expected one of {}",
-            names.join(", ")
-        )
-    })
+/// A scene kind on the command line (`--kind`): the generators' [`SceneKind`] by its name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum KindArg {
+    /// Nothing in the way.
+    Straight,
+    /// One block, or two side by side, to drive around.
+    Around,
+    /// A fence of bars: lift the body over one.
+    Lift,
+    /// A fence with a slab: spread the legs over it.
+    Spread,
+    /// A fence of blocks with one narrow gap: squeeze through.
+    Squeeze,
+    /// One to eight obstacles of any kind.
+    Complex,
+    /// One or two fences amid clutter.
+    Composed,
+}
+
+impl KindArg {
+    /// The generators' scene kind.
+    pub fn scene_kind(self) -> SceneKind {
+        match self {
+            KindArg::Straight => SceneKind::Behaviour(Behaviour::Straight),
+            KindArg::Around => SceneKind::Behaviour(Behaviour::Around),
+            KindArg::Lift => SceneKind::Behaviour(Behaviour::LiftOver),
+            KindArg::Spread => SceneKind::Behaviour(Behaviour::SpreadOver),
+            KindArg::Squeeze => SceneKind::Behaviour(Behaviour::Squeeze),
+            KindArg::Complex => SceneKind::Complex,
+            KindArg::Composed => SceneKind::Composed,
+        }
+    }
 }
 
 /// Refuses a scene kind whose fence asks a behaviour `robot` lacks (composed scenes: when it has
