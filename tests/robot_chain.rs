@@ -52,6 +52,10 @@ fn the_second_robot_goes_through_generate_plan_train_export_eval_and_demo() {
         .unwrap()
         .iter()
         .all(|b| b["available"] == true));
+    // Each scene fence's passing pose, fitted to it (`sim/src/generate/fit.rs`).
+    let fences = &report["fences"];
+    assert_eq!(fences["lift"]["clearance_steps"], 2, "{fences}");
+    assert_eq!(fences["squeeze"]["track_steps"], -10, "{fences}");
 
     // Scenes built for it, each solved by the planner on its geometry.
     let scenes = dir.join("lift.json");

@@ -32,21 +32,6 @@ use wheelleg_runtime::can::protocol::{
 };
 use wheelleg_runtime::can::CanFrame;
 
-/// An ODrive v3.6-56V on firmware 0.5.6, the release whose CANSimple layout the runtime's codec
-/// speaks; it has no Get_Version, so the axes stay silent to it by default
-/// ([`AxisConfig::version`]). Firmware versions set with `--firmware-version` keep its hardware
-/// fields.
-pub const DEFAULT_VERSION: Version = Version {
-    protocol_version: 2,
-    hw_version_major: 3,
-    hw_version_minor: 6,
-    hw_version_variant: 56,
-    fw_version_major: 0,
-    fw_version_minor: 5,
-    fw_version_revision: 6,
-    fw_version_unreleased: 0,
-};
-
 /// Parameters of one simulated axis (motor side: turns, turns/s). [`AxisConfig::JOINT`] and
 /// [`AxisConfig::WHEEL`] have no watchdog, like an ODrive whose watchdog nobody enabled: whoever
 /// drives the axes enables it (`watchdog_timeout_us`).

@@ -5,7 +5,7 @@
 
 use std::io::Write;
 use std::sync::{Arc, Mutex};
-use wheelleg_firmware_sim::axis::{AxisConfig, SimAxis, DEFAULT_VERSION};
+use wheelleg_firmware_sim::axis::{AxisConfig, SimAxis};
 use wheelleg_firmware_sim::candump::{parse_log, CandumpWriter, DEFAULT_EPOCH_US};
 use wheelleg_firmware_sim::rig::{Rig, RigConfig, RigError};
 use wheelleg_runtime::can::host::{RollCallProblem, RollCallRefusal};
@@ -70,9 +70,9 @@ fn two_devices_on_one_node_id_are_refused() {
     // Firmware that answers Get_Version (0.5.x has none, so two 0.5.x boards on one id are
     // not told apart this way), and a second board left on node 4: it answers every request
     // too.
-    rig.firmware_mut().set_version(Some(DEFAULT_VERSION));
+    rig.firmware_mut().set_version(Some(Version::ODRIVE_0_5_6));
     let second = AxisConfig {
-        version: Some(DEFAULT_VERSION),
+        version: Some(Version::ODRIVE_0_5_6),
         ..AxisConfig::JOINT
     };
     rig.firmware_mut().add_axis(SimAxis::new(node, second, 0.0));
@@ -91,7 +91,7 @@ fn firmware_0_6_is_refused_by_name() {
     let v0_6_11 = Version {
         fw_version_minor: 6,
         fw_version_revision: 11,
-        ..DEFAULT_VERSION
+        ..Version::ODRIVE_0_5_6
     };
     rig.firmware_mut()
         .axis_mut(wheel)

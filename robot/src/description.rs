@@ -81,29 +81,34 @@ impl RobotDescription {
     /// the same name, geometry, action lattice, CAN wiring and bit rate. The error names both
     /// robots and what differs; `what` names the file for the message.
     pub fn accepts(&self, trained: &TrainedFor<'_>, what: &str) -> Result<(), String> {
-        if trained.name != self.name {
-            return Err(format!(
+        match self.difference(trained) {
+            Some("name") => Err(format!(
                 "{what} was trained for robot '{}', and this run drives robot '{}': a policy \
                  drives only the robot it was trained for",
                 trained.name, self.name
-            ));
-        }
-        let differs = if trained.robot.geometry != self.robot.geometry {
-            Some("geometry")
-        } else if trained.robot.actions != self.robot.actions {
-            Some("action lattice")
-        } else if trained.robot.can != self.robot.can || trained.bit_rate_bps != self.bit_rate_bps {
-            Some("CAN wiring")
-        } else {
-            None
-        };
-        match differs {
+            )),
             Some(part) => Err(format!(
                 "{what} was trained for a robot '{}' whose {part} differs from this run's robot \
                  '{}': a policy drives only the robot it was trained for",
                 trained.name, self.name
             )),
             None => Ok(()),
+        }
+    }
+
+    /// What tells `other` from this robot, the first of `name`, `geometry`, `action lattice`
+    /// and `CAN wiring` that differs; `None` when they are the same robot.
+    pub fn difference(&self, other: &TrainedFor<'_>) -> Option<&'static str> {
+        if other.name != self.name {
+            Some("name")
+        } else if other.robot.geometry != self.robot.geometry {
+            Some("geometry")
+        } else if other.robot.actions != self.robot.actions {
+            Some("action lattice")
+        } else if other.robot.can != self.robot.can || other.bit_rate_bps != self.bit_rate_bps {
+            Some("CAN wiring")
+        } else {
+            None
         }
     }
 

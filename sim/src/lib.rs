@@ -33,6 +33,46 @@ pub mod state;
 
 use std::io::Write;
 use std::path::Path;
+use std::sync::{Mutex, OnceLock};
+use wheelleg_runtime::robot::{RobotGeometry, WHEELLEG};
+
+/// Values worked out once per robot geometry: the shipped robot's, and every other's met so far.
+pub(crate) struct PerGeometry<T: 'static> {
+    shipped: OnceLock<T>,
+    others: Mutex<Vec<(RobotGeometry, &'static T)>>,
+}
+
+impl<T: Send + Sync + 'static> PerGeometry<T> {
+    /// An empty cache, for a `static`.
+    pub(crate) const fn new() -> Self {
+        PerGeometry {
+            shipped: OnceLock::new(),
+            others: Mutex::new(Vec::new()),
+        }
+    }
+
+    /// The value for `geometry`, built by `build` on first use. Values live as long as the
+    /// program: a run simulates one robot or a few, and a step must not wait on a value's
+    /// lifetime. The shipped robot's is reached without a lock.
+    pub(crate) fn get(
+        &'static self,
+        geometry: &RobotGeometry,
+        build: impl FnOnce(&RobotGeometry) -> T,
+    ) -> &'static T {
+        if *geometry == WHEELLEG {
+            return self.shipped.get_or_init(|| build(&WHEELLEG));
+        }
+        // A poisoned lock only means another thread panicked mid-insert: the list still holds
+        // finished values.
+        let mut others = self.others.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some((_, value)) = others.iter().find(|(g, _)| g == geometry) {
+            return value;
+        }
+        let value: &'static T = Box::leak(Box::new(build(geometry)));
+        others.push((*geometry, value));
+        value
+    }
+}
 
 /// Writes `bytes` to `path` atomically: into a temporary file beside it (so the rename stays
 /// on one file system), synced, then renamed over the target. A crash leaves either the old

@@ -80,7 +80,13 @@ pub fn run(args: Args) -> CliResult {
         (None, Some(n), Some(kind)) => {
             let kind = kind.scene_kind();
             let scene_robot = SceneRobot::of(&geometry);
-            super::generate::scene_kind_for(scene_robot, kind, &robot.name)?;
+            scene_robot.has_kind(kind).map_err(|why| {
+                format!(
+                    "no {} scenes for robot '{}': {why}",
+                    kind.name(),
+                    robot.name
+                )
+            })?;
             generate_many(
                 scene_robot,
                 kind,

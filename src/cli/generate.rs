@@ -31,7 +31,13 @@ pub fn run(args: Args) -> CliResult {
     let kind = args.kind.scene_kind();
     let (description, geometry) = args.robot.simulated()?;
     let robot = SceneRobot::new(&geometry);
-    scene_kind_for(&robot, kind, &description.name)?;
+    robot.has_kind(kind).map_err(|why| {
+        format!(
+            "no {} scenes for robot '{}': {why}",
+            kind.name(),
+            description.name
+        )
+    })?;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(args.seed);
     let scenarios = generate_many(&robot, kind, &mut rng, args.count);
     wheelleg_sim::scenario_file::save(&args.out, &scenarios, &geometry)?;
@@ -75,30 +81,5 @@ impl KindArg {
             KindArg::Complex => SceneKind::Complex,
             KindArg::Composed => SceneKind::Composed,
         }
-    }
-}
-
-/// Refuses a scene kind whose fence asks a behaviour `robot` lacks (composed scenes: when it has
-/// no fence at all), saying why.
-pub fn scene_kind_for(robot: &SceneRobot, kind: SceneKind, name: &str) -> Result<(), String> {
-    let why = match kind {
-        SceneKind::Behaviour(b) => robot.has(b).err(),
-        SceneKind::Composed => {
-            let fences = [
-                Behaviour::LiftOver,
-                Behaviour::SpreadOver,
-                Behaviour::Squeeze,
-            ];
-            (!fences.iter().any(|&b| robot.has(b).is_ok()))
-                .then(|| "it has none of the lift, spread and squeeze fences".to_string())
-        }
-        SceneKind::Complex => None,
-    };
-    match why {
-        Some(why) => Err(format!(
-            "no {} scenes for robot '{name}': {why}",
-            kind.name()
-        )),
-        None => Ok(()),
     }
 }

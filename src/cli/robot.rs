@@ -6,6 +6,7 @@ use wheelleg_robot::reach::reach;
 use wheelleg_robot::urdf;
 use wheelleg_robot::RobotDescription;
 use wheelleg_runtime::robot::RobotGeometry;
+use wheelleg_sim::generate::{Behaviour, SceneRobot, FENCE_MARGIN_M};
 
 /// `--robot FILE`, the robot a command simulates, plans for or drives: the shipped robot
 /// (`robots/wheelleg.toml`, compiled in) when not given.
@@ -33,6 +34,10 @@ impl RobotArg {
         Ok((description, geometry))
     }
 }
+
+/// How one scene fence fits a robot: its passing pose in (clearance, track) steps, or why the
+/// fence is left out.
+type FenceFit = Result<(i32, i32), String>;
 
 /// Arguments of `robot`.
 #[derive(clap::Args)]
@@ -109,10 +114,55 @@ pub fn run(args: Args) -> CliResult {
                     .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
                 eprintln!("wrote {}", path.display());
             }
+            // How the scene generators' fences fit it (for a robot the simulator can run).
+            let fences: Vec<(&str, FenceFit)> = match description.simulated_geometry() {
+                Ok(geometry) => {
+                    let fit = SceneRobot::new(&geometry);
+                    [
+                        Behaviour::LiftOver,
+                        Behaviour::SpreadOver,
+                        Behaviour::Squeeze,
+                    ]
+                    .into_iter()
+                    .map(|b| (b.name(), fit.has(b).map(|()| fit.passing_legs(b))))
+                    .collect()
+                }
+                Err(why) => vec![("all", Err(why))],
+            };
             if json {
-                outln!("{}", serde_json::to_string(&report)?);
+                let mut value = serde_json::to_value(&report)?;
+                value["fences"] = fences
+                    .iter()
+                    .map(|(name, fit)| {
+                        let fit = match fit {
+                            Ok((c, t)) => {
+                                serde_json::json!({"clearance_steps": c, "track_steps": t})
+                            }
+                            Err(why) => serde_json::json!({"left_out": why}),
+                        };
+                        ((*name).to_owned(), fit)
+                    })
+                    .collect::<serde_json::Map<_, _>>()
+                    .into();
+                outln!("{}", serde_json::to_string(&value)?);
             } else {
                 outln!("{}", report.to_text().trim_end());
+                outln!(
+                    "scene fences (the pose each is passed in; found with {:.0} mm to spare, \
+                     the shipped robot's as designed):",
+                    FENCE_MARGIN_M * 1000.0
+                );
+                let robot = &description.robot;
+                for (name, fit) in &fences {
+                    match fit {
+                        Ok((c, t)) => outln!(
+                            "  {name:<8} {c:+} clearance, {t:+} track steps (clearance {:.0} mm, track {:.0} mm)",
+                            1000.0 * (robot.geometry.default_clearance_m + *c as f32 * robot.actions.clearance_step_m),
+                            1000.0 * (robot.geometry.default_track_m + *t as f32 * robot.actions.track_step_m),
+                        ),
+                        Err(why) => outln!("  {name:<8} left out: {why}"),
+                    }
+                }
             }
             Ok(())
         }

@@ -14,7 +14,6 @@ use wheelleg_runtime::guard::{CollisionGuard, HeightMapRef};
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::model::DefaultPolicy;
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, HEIGHT_MAP_SIDE, STATE_LEN};
-use wheelleg_runtime::robot::Robot;
 use wheelleg_sim::env::{Env, GuardMap, Observation};
 use wheelleg_sim::local_plan::LastMetres;
 use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig};
@@ -109,9 +108,6 @@ impl Driver for PlannerDriver {
 pub struct PolicyDriver<'a> {
     policy: DefaultPolicy<'a>,
     label: String,
-    /// The robot the weights were trained for: its guard geometry and action lattice.
-    robot: Robot,
-    robot_name: String,
     observation: Observation,
     /// Never repeats an action already taken at the same observation (see
     /// `wheelleg_runtime::decision`).
@@ -152,8 +148,7 @@ impl<'a> PolicyDriver<'a> {
         }
         let policy = DefaultPolicy::from_bytes(bytes).map_err(|e| unusable(&e))?;
         // As on the controller, the robot is the one the weights name.
-        let trained = policy.model().trained_for;
-        let (robot, robot_name) = (trained.robot, trained.name.to_owned());
+        let robot = policy.model().trained_for.robot;
         let lookahead = match stack.lookahead {
             Some(config) => Some((
                 Lookahead::new(config),
@@ -164,8 +159,6 @@ impl<'a> PolicyDriver<'a> {
         Ok(PolicyDriver {
             policy,
             label: label.to_owned(),
-            robot,
-            robot_name,
             observation: Observation::default(),
             decider: Decider::new(),
             guard: stack.guard.map(|g| CollisionGuard::new(&robot, g.margin_m)),
@@ -230,11 +223,12 @@ impl Driver for PolicyDriver<'_> {
     }
 
     fn decide(&mut self, env: &Env) -> Result<Action, DriverError> {
-        if *env.geometry() != self.robot.geometry {
+        let trained = self.policy.model().trained_for;
+        if *env.geometry() != trained.robot.geometry {
             return Err(DriverError(format!(
                 "{} was trained for robot '{}', and the world simulates another robot's \
                  geometry: a policy drives only the robot it was trained for",
-                self.label, self.robot_name
+                self.label, trained.name
             )));
         }
         if let Some(action) = self.planned_step(env) {
@@ -270,10 +264,9 @@ impl Driver for PolicyDriver<'_> {
                     track_m: state_mm[1] as f32 * 1.0e-3,
                 },
             }),
-            arrival: self
-                .stack
-                .arrival
-                .then(|| Arrival::from_state_mm(&state_mm, success_radius_m, &self.robot.actions)),
+            arrival: self.stack.arrival.then(|| {
+                Arrival::from_state_mm(&state_mm, success_radius_m, &trained.robot.actions)
+            }),
         };
         let logits = &outputs.action_logits;
         let Some((lookahead, policy)) = &mut self.lookahead else {

@@ -108,16 +108,14 @@ pub fn train_stage(
     config.validate()?;
     let run = &config.run;
     let kind = SceneKind::from_name(&run.scene_kind).ok_or("bad run.scene_kind")?;
-    if let SceneKind::Behaviour(behaviour) = kind {
-        wheelleg_sim::generate::SceneRobot::of(&config.robot.robot.geometry)
-            .has(behaviour)
-            .map_err(|why| {
-                format!(
-                    "run.scene_kind {}: robot '{}' has no such scenes: {why}",
-                    run.scene_kind, config.robot.name
-                )
-            })?;
-    }
+    wheelleg_sim::generate::SceneRobot::of(&config.robot.robot.geometry)
+        .has_kind(kind)
+        .map_err(|why| {
+            format!(
+                "run.scene_kind {}: robot '{}' has no such scenes: {why}",
+                run.scene_kind, config.robot.name
+            )
+        })?;
     let device = BackendKind::from_name(&run.backend)?.device()?;
     std::fs::create_dir_all(&opts.out)
         .map_err(|e| format!("cannot create {}: {e}", opts.out.display()))?;

@@ -233,7 +233,7 @@ fn get_version_is_answered_with_the_configured_version() {
     let mut a = SimAxis::new(NodeId::new(9).unwrap(), AxisConfig::JOINT, 0.0);
     // 0.5.x by default: no Get_Version, so no answer, asked or not.
     assert_eq!(a.config().version, None);
-    assert!(DEFAULT_VERSION.speaks_this_codec());
+    assert!(Version::ODRIVE_0_5_6.speaks_this_codec());
     let mut out = Vec::new();
     // Never sent unasked.
     let mut t = 0;
@@ -248,10 +248,10 @@ fn get_version_is_answered_with_the_configured_version() {
     let v0_6_11 = Version {
         fw_version_minor: 6,
         fw_version_revision: 11,
-        ..DEFAULT_VERSION
+        ..Version::ODRIVE_0_5_6
     };
     for (version, want) in [
-        (DEFAULT_VERSION, [2, 3, 6, 56, 0, 5, 6, 0]),
+        (Version::ODRIVE_0_5_6, [2, 3, 6, 56, 0, 5, 6, 0]),
         (v0_6_11, [2, 3, 6, 56, 0, 6, 11, 0]),
     ] {
         a.config_mut().version = Some(version);

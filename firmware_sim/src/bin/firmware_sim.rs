@@ -18,7 +18,6 @@ use clap::{ArgGroup, Parser};
 use std::io::{BufWriter, Write};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
-use wheelleg_firmware_sim::axis::DEFAULT_VERSION;
 use wheelleg_firmware_sim::bus::{BusError, Transport};
 use wheelleg_firmware_sim::candump::{CandumpWriter, DEFAULT_EPOCH_US};
 use wheelleg_firmware_sim::firmware::Firmware;
@@ -89,7 +88,7 @@ fn parse_firmware_version(s: &str) -> Result<Version, String> {
         fw_version_major: number(major, "major version")?,
         fw_version_minor: number(minor, "minor version")?,
         fw_version_revision: number(revision, "revision")?,
-        ..DEFAULT_VERSION
+        ..Version::ODRIVE_0_5_6
     })
 }
 

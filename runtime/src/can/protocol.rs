@@ -147,6 +147,19 @@ pub struct Version {
 }
 
 impl Version {
+    /// An ODrive v3.6-56V on firmware 0.5.6, the release whose layout this codec speaks (which
+    /// itself has no Get_Version: tools that simulate a newer board start from it).
+    pub const ODRIVE_0_5_6: Version = Version {
+        protocol_version: 2,
+        hw_version_major: 3,
+        hw_version_minor: 6,
+        hw_version_variant: 56,
+        fw_version_major: 0,
+        fw_version_minor: 5,
+        fw_version_revision: 6,
+        fw_version_unreleased: 0,
+    };
+
     /// Whether the firmware's major.minor is [`SPOKEN_FW_VERSION`]: any revision of it keeps
     /// the layout and error bits this codec decodes.
     pub const fn speaks_this_codec(&self) -> bool {

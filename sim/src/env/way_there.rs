@@ -9,7 +9,7 @@ use crate::state::RobotState;
 use nalgebra::Point2;
 use wheelleg_runtime::action::YAW_STEP_DEG;
 use wheelleg_runtime::leg::{IkError, LegConfig};
-use wheelleg_runtime::robot::{RobotGeometry, WHEELLEG};
+use wheelleg_runtime::robot::RobotGeometry;
 
 /// Pieces the knee's curved path is measured in by [`Env::motion_bound_m`].
 const LEG_PATH_PIECES: u32 = 16;
@@ -358,24 +358,10 @@ struct LegMotionTable {
 }
 
 impl LegMotionTable {
-    /// The table for `geometry`, built on first use. Tables live as long as the program: a
-    /// run simulates one robot or a few, and a step must not wait on a table's lifetime.
+    /// The table for `geometry`, built on first use.
     fn for_geometry(geometry: &RobotGeometry) -> &'static LegMotionTable {
-        static SHIPPED: std::sync::OnceLock<LegMotionTable> = std::sync::OnceLock::new();
-        type Tables = Vec<(RobotGeometry, &'static LegMotionTable)>;
-        static OTHERS: std::sync::Mutex<Tables> = std::sync::Mutex::new(Vec::new());
-        if *geometry == WHEELLEG {
-            return SHIPPED.get_or_init(|| LegMotionTable::new(&WHEELLEG));
-        }
-        // A poisoned lock only means another thread panicked mid-insert: the list is still
-        // a list of finished tables.
-        let mut others = OTHERS.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some((_, table)) = others.iter().find(|(g, _)| g == geometry) {
-            return table;
-        }
-        let table: &'static LegMotionTable = Box::leak(Box::new(LegMotionTable::new(geometry)));
-        others.push((*geometry, table));
-        table
+        static TABLES: crate::PerGeometry<LegMotionTable> = crate::PerGeometry::new();
+        TABLES.get(geometry, LegMotionTable::new)
     }
 
     fn new(geometry: &RobotGeometry) -> Self {

@@ -184,7 +184,7 @@ pub(super) fn composed_scene(
     // Fences of a behaviour the robot lacks are drawn again (no draw is repeated for a robot
     // that has every fence, so the shipped robot's scenes stay as they were); a robot with no
     // fence at all gets them as drawn, and its callers refuse composed scenes.
-    let any_fence = SINGLE_FENCES.iter().any(|&b| robot.has(b).is_ok());
+    let any_fence = robot.has_a_fence();
     let variant = loop {
         let variant = ComposedVariant::draw(rng);
         if !any_fence || variant.fences.iter().all(|&b| robot.has(b).is_ok()) {

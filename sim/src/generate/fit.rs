@@ -68,27 +68,14 @@ impl SceneRobot {
 
     /// The shipped robot's fit, worked out once.
     pub fn shipped() -> &'static SceneRobot {
-        static SHIPPED: std::sync::OnceLock<SceneRobot> = std::sync::OnceLock::new();
-        SHIPPED.get_or_init(|| SceneRobot::new(&WHEELLEG))
+        SceneRobot::of(&WHEELLEG)
     }
 
-    /// The fit for `geometry`, worked out on first use and kept for the program's life (a run
-    /// serves one robot or a few; the planner asks for it on every search).
+    /// The fit for `geometry`, worked out on first use and kept for the program's life (the
+    /// planner asks for it on every search, the trainer on every episode).
     pub fn of(geometry: &RobotGeometry) -> &'static SceneRobot {
-        if *geometry == WHEELLEG {
-            return SceneRobot::shipped();
-        }
-        static OTHERS: std::sync::Mutex<Vec<&'static SceneRobot>> =
-            std::sync::Mutex::new(Vec::new());
-        // A poisoned lock only means another thread panicked mid-insert: the list still holds
-        // finished fits.
-        let mut others = OTHERS.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(fit) = others.iter().find(|f| f.geometry == *geometry) {
-            return fit;
-        }
-        let fit: &'static SceneRobot = Box::leak(Box::new(SceneRobot::new(geometry)));
-        others.push(fit);
-        fit
+        static FITS: crate::PerGeometry<SceneRobot> = crate::PerGeometry::new();
+        FITS.get(geometry, SceneRobot::new)
     }
 
     /// The robot's geometry.
@@ -100,6 +87,23 @@ impl SceneRobot {
     /// why not, in figures.
     pub fn has(&self, behaviour: Behaviour) -> Result<(), String> {
         self.fence(behaviour).map(|_| ())
+    }
+
+    /// Whether the generators can build scenes of `kind` for this robot: a behaviour's when
+    /// the robot has it, composed ones when it has at least one fence, complex ones always.
+    pub fn has_kind(&self, kind: super::SceneKind) -> Result<(), String> {
+        match kind {
+            super::SceneKind::Behaviour(b) => self.has(b),
+            super::SceneKind::Composed if !self.has_a_fence() => {
+                Err("it has none of the lift, spread and squeeze fences".into())
+            }
+            super::SceneKind::Composed | super::SceneKind::Complex => Ok(()),
+        }
+    }
+
+    /// Whether any of the lift, spread and squeeze fences is built for this robot.
+    pub(super) fn has_a_fence(&self) -> bool {
+        self.fences.iter().any(Result::is_ok)
     }
 
     /// The leg pose (clearance steps, track steps from the default) in which the robot, lined

@@ -124,6 +124,7 @@ impl LegHint {
         // The wheels reach this far ahead of the body centre: they meet the obstacle when the
         // centre is this close to it, so the legs must be ready by then.
         let reach_m = geometry.hip_x_m + geometry.wheel_radius_m;
+        let fit = SceneRobot::of(geometry);
         let zones = env
             .obstacles()
             .boxes()
@@ -135,7 +136,7 @@ impl LegHint {
                 ]
                 .into_iter()
                 .find(|(kind, _)| kind.size_m().2 == b.height_m)?;
-                let (clearance, track) = SceneRobot::of(geometry).passing_legs(behaviour);
+                let (clearance, track) = fit.passing_legs(behaviour);
                 // The side nearer the kind's length: exact for the generator's boxes, and
                 // still right for a perceived one, grown and cut to map cells
                 // ([`crate::local_plan`]).

@@ -189,3 +189,39 @@ fn a_failed_or_off_grid_source_is_rejected_and_counted() {
     );
     assert_eq!(TrajectoryBatch::load(&out).unwrap().len(), 0);
 }
+
+#[test]
+fn a_batch_names_its_robot_and_is_refused_for_another() {
+    use wheelleg_robot::RobotDescription;
+    use wheelleg_trainer::trajectory::batch_file::{header_bytes, parse_header};
+    let strider = RobotDescription::load(
+        &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../robots/strider.toml"),
+    )
+    .unwrap();
+    let shipped_header = small_chunks().header(&sources()).unwrap();
+    // The shipped robot's header holds no robot record: its bytes are as before robots.
+    let shipped_bytes = header_bytes(&shipped_header).unwrap();
+    let header = wheelleg_trainer::trajectory::batch_file::BatchHeader {
+        robot: Some(strider.clone()),
+        ..shipped_header.clone()
+    };
+    let bytes = header_bytes(&header).unwrap();
+    assert!(bytes.len() > shipped_bytes.len());
+    let (back, _) = parse_header(&bytes).unwrap();
+    assert_eq!(back, header);
+    assert_eq!(back.env_config().geometry, strider.robot.geometry);
+    assert!(back.check_robot(&strider, "batch.wltb").is_ok());
+    let err = back
+        .check_robot(&RobotDescription::shipped(), "batch.wltb")
+        .unwrap_err();
+    assert!(
+        err.contains("robot 'strider'") && err.contains("robot 'wheelleg'"),
+        "{err}"
+    );
+    let err = parse_header(&shipped_bytes)
+        .unwrap()
+        .0
+        .check_robot(&strider, "batch.wltb")
+        .unwrap_err();
+    assert!(err.contains("the name differs"), "{err}");
+}

@@ -162,16 +162,7 @@ fn safe_stop_stops_wheels_and_holds_measured_joints() {
     }
 }
 
-const V0_5_6: Version = Version {
-    protocol_version: 2,
-    hw_version_major: 3,
-    hw_version_minor: 6,
-    hw_version_variant: 56,
-    fw_version_major: 0,
-    fw_version_minor: 5,
-    fw_version_revision: 6,
-    fw_version_unreleased: 0,
-};
+const V0_5_6: Version = Version::ODRIVE_0_5_6;
 
 fn version_answer(axis: Axis, version: Version) -> CanFrame {
     encode(NodeMap::NOMINAL.node_id(axis), &Message::Version(version)).unwrap()

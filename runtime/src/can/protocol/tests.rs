@@ -53,16 +53,7 @@ fn every_message_round_trips() {
     }
 }
 
-const V0_5_6: Version = Version {
-    protocol_version: 2,
-    hw_version_major: 3,
-    hw_version_minor: 6,
-    hw_version_variant: 56,
-    fw_version_major: 0,
-    fw_version_minor: 5,
-    fw_version_revision: 6,
-    fw_version_unreleased: 0,
-};
+const V0_5_6: Version = Version::ODRIVE_0_5_6;
 
 #[test]
 fn get_version_matches_odrive_0_6_layout() {

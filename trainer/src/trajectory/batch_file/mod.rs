@@ -114,20 +114,14 @@ impl BatchHeader {
     /// Refuses a batch made for another robot than `robot`, naming both.
     pub fn check_robot(&self, robot: &RobotDescription, what: &str) -> Result<(), String> {
         let made = self.robot();
-        if made == *robot {
-            return Ok(());
+        match robot.difference(&made.trained_for()) {
+            None => Ok(()),
+            Some(part) => Err(format!(
+                "{what} holds trajectories of robot '{}', and this run trains robot '{}' (the \
+                 {part} differs): replay only a robot's own trajectories",
+                made.name, robot.name
+            )),
         }
-        Err(format!(
-            "{what} holds trajectories of robot '{}', and this run trains robot '{}'{}: replay \
-             only a robot's own trajectories",
-            made.name,
-            robot.name,
-            if made.name == robot.name {
-                " (same name, another description)"
-            } else {
-                ""
-            }
-        ))
     }
 
     /// The episode rules of the batch, on its robot.
