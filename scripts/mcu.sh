@@ -95,6 +95,13 @@ section() {
         awk -v name="$1" '$1 == name {print $5}' | head -1)"
     echo $((16#${hex:-0}))
 }
+# Where a section starts in memory.
+address() {
+    local hex
+    hex="$(readelf -S --wide "${2:-$elf}" | sed -n 's/^ *\[ *[0-9]*\] *//p' |
+        awk -v name="$1" '$1 == name {print $3}' | head -1)"
+    echo $((16#${hex:-0}))
+}
 check_flash=0
 for name in .vector_table .text .rodata .data; do
     check_flash=$((check_flash + $(section "$name" "$check_elf")))
@@ -158,10 +165,11 @@ if [ "$episode_status" -ne 0 ] || ! grep -q "^result: *SUCCESS" "$work/episode.t
     [ -z "$production_ram" ] || [ -z "$production_stack" ]; then
     log "error: the production image's episode in the loop failed, or reported no RAM"
     hil=false
-    production_ram=$((data + bss + uninit + stack))
+    production_ram=$(($(address .uninit) + uninit - $(address .data) + stack))
     production_stack=$stack
 fi
-statics=$((data + bss + uninit))
+# The statics' RAM: from .data's start to .uninit's end, the alignment gaps between them included.
+statics=$(($(address .uninit) + uninit - $(address .data)))
 if [ "$hil" = true ] && [ "$production_ram" -ne $((statics + production_stack)) ]; then
     log "error: the loop's statics ($((production_ram - production_stack)) B) are not the ELF's ($statics B)"
     hil=false

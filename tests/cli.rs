@@ -571,3 +571,25 @@ fn a_policy_is_refused_for_a_robot_it_was_not_trained_for() {
     assert!(err.contains("trained for robot 'strider'"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn firmware_loop_flags_are_refused_without_the_firmware_in_the_loop() {
+    for flags in [
+        &["--clock", "emulated"][..],
+        &["--inject-decision-ms", "500"][..],
+        &["--json"][..],
+    ] {
+        let mut args = vec!["demo", "--out"];
+        let dir = scratch("demo-flags");
+        let dir_arg = dir.to_str().unwrap().to_owned();
+        args.push(&dir_arg);
+        args.extend_from_slice(flags);
+        let out = wheelleg(&args);
+        assert!(!out.status.success(), "{flags:?} was taken");
+        let stderr = text(&out.stderr);
+        assert!(
+            stderr.contains(flags[0]) && stderr.contains("--controller qemu"),
+            "{flags:?}: {stderr}"
+        );
+    }
+}

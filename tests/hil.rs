@@ -11,13 +11,18 @@
 //!   firmware's RAM in use (statics and its painted stack) fits 128 KiB, and its busiest control
 //!   period (SysTick-timed work, read from its RAM) fits 10 ms at 170 MHz;
 //! - each fault brings the robot to the safe state (wheels stopped, legs held) within the
-//!   firmware's timeout, and the firmware says why.
+//!   firmware's timeout, and the firmware says why;
+//! - on the emulated clock (QEMU's instruction clock, which the firmware's decisions cost as
+//!   on a board), the same scenes reach the same outcomes with every control period's
+//!   setpoints on the bus within 1 ms of their due time and no axis watchdog tripping; a
+//!   decision made 500 ms slow is abandoned at its deadline while the robot holds (legs
+//!   within 0.5 mm, wheels stopped), and the robot goes on; the faults as in lockstep.
 
 use std::path::{Path, PathBuf};
 
 use wheelleg::closed_loop::{ClosedLoop, Driver, LoopConfig};
 use wheelleg::hil::onboard::OnboardDriver;
-use wheelleg::hil::plant::PlantFault;
+use wheelleg::hil::plant::{PlantClock, PlantFault};
 use wheelleg::hil::wire::stop_reason;
 use wheelleg::hil::{
     find_or_build_image, qemu_available, Faults, Hil, HilEpisode, LinkFault, PERIOD_BUDGET_CYCLES,
@@ -49,19 +54,28 @@ fn scenes() -> Vec<Scenario> {
     wheelleg_sim::scenario_file::parse(&json, &WHEELLEG).expect("scenes parse")
 }
 
-/// The image, or `None` (with the SKIPPED line) when QEMU is missing.
-fn image(test: &str) -> Option<PathBuf> {
+/// Both clocks the loop runs on.
+const CLOCKS: [PlantClock; 2] = [PlantClock::Lockstep, PlantClock::Emulated];
+
+/// The image for `clock`, or `None` (with the SKIPPED line) when QEMU is missing.
+fn image(test: &str, clock: PlantClock) -> Option<PathBuf> {
     if !qemu_available() {
         println!("SKIPPED {test}: qemu-system-arm is missing (bash scripts/embedded-toolchain.sh)");
         return None;
     }
-    Some(find_or_build_image(None).unwrap_or_else(|e| panic!("{e}")))
+    Some(find_or_build_image(None, clock).unwrap_or_else(|e| panic!("{e}")))
 }
 
-fn run(image: &Path, scene: &Scenario, faults: &Faults, log: Option<&Path>) -> (Hil, HilEpisode) {
+fn run(
+    image: &Path,
+    clock: PlantClock,
+    scene: &Scenario,
+    faults: &Faults,
+    log: Option<&Path>,
+) -> (Hil, HilEpisode) {
     let mut env = Env::new(scene, EnvConfig::default()).expect("scene");
     let legs = env.state().leg_config(env.geometry());
-    let mut hil = Hil::start(image, legs).unwrap_or_else(|e| panic!("{e}"));
+    let mut hil = Hil::start(image, legs, clock).unwrap_or_else(|e| panic!("{e}"));
     if let Some(path) = log {
         let file = std::fs::File::create(path).expect("log file");
         let writer: Box<dyn std::io::Write + Send> = Box::new(std::io::BufWriter::new(file));
@@ -77,7 +91,10 @@ fn run(image: &Path, scene: &Scenario, faults: &Faults, log: Option<&Path>) -> (
 
 #[test]
 fn firmware_in_the_loop_reaches_the_in_process_outcomes() {
-    let Some(image) = image("firmware_in_the_loop_reaches_the_in_process_outcomes") else {
+    let Some(image) = image(
+        "firmware_in_the_loop_reaches_the_in_process_outcomes",
+        PlantClock::Lockstep,
+    ) else {
         return;
     };
     let count: usize = std::env::var("WHEELLEG_HIL_SCENES")
@@ -94,16 +111,15 @@ fn firmware_in_the_loop_reaches_the_in_process_outcomes() {
     let mut differs = Vec::new();
     let mut worst_period = 0;
     for scene in scenes().iter().skip(skip).take(count) {
-        let mut driver = OnboardDriver::new(&weights).expect("stack");
-        let mut host = ClosedLoop::in_process(scene, LoopConfig::default()).expect("loop");
-        host.start().expect("start-up");
-        while !host.is_done() {
-            let action = driver.decide(host.env()).expect("decision");
-            host.step(action).expect("step");
-        }
-        let expected = host.finish().expect("finish");
+        let expected = in_process_outcome(scene, &weights);
         let log = out.join(format!("{}.log", scene.name));
-        let (mut hil, got) = run(&image, scene, &Faults::default(), Some(&log));
+        let (mut hil, got) = run(
+            &image,
+            PlantClock::Lockstep,
+            scene,
+            &Faults::default(),
+            Some(&log),
+        );
         let ram = hil.ram_use().unwrap_or_else(|e| panic!("{e}"));
         let busiest = hil
             .busiest_period_instructions()
@@ -129,9 +145,9 @@ fn firmware_in_the_loop_reaches_the_in_process_outcomes() {
             "{}: host {:?} {} decisions {} collisions; firmware {:?} {} decisions {} collisions, \
              RAM {} bytes (stack {}), busiest period {busiest} instructions",
             scene.name,
-            expected.status,
-            expected.steps,
-            expected.collisions,
+            expected.0,
+            expected.1,
+            expected.2,
             got.status,
             got.steps,
             got.collisions,
@@ -140,10 +156,7 @@ fn firmware_in_the_loop_reaches_the_in_process_outcomes() {
         );
         // Printed as it comes: a run over many scenes shows its progress.
         println!("{line}");
-        if got.fault.is_some()
-            || (got.status, got.collisions, got.steps)
-                != (expected.status, expected.collisions, expected.steps)
-        {
+        if got.fault.is_some() || (got.status, got.steps, got.collisions) != expected {
             differs.push(format!("{line}; fault {:?}", got.fault));
         }
         let checked = std::process::Command::new("python3")
@@ -182,12 +195,39 @@ fn expect_stop(
     within: u32,
     since: impl Fn(&HilEpisode) -> u32,
     motors_reachable: bool,
+) -> Vec<HilEpisode> {
+    CLOCKS
+        .into_iter()
+        .map(|clock| {
+            let test = format!("{test} ({clock:?} clock)");
+            expect_stop_on(
+                &test,
+                clock,
+                &faults,
+                reason,
+                within,
+                &since,
+                motors_reachable,
+            )
+        })
+        .collect()
+}
+
+/// [`expect_stop`] on one clock.
+fn expect_stop_on(
+    test: &str,
+    clock: PlantClock,
+    faults: &Faults,
+    reason: u8,
+    within: u32,
+    since: &impl Fn(&HilEpisode) -> u32,
+    motors_reachable: bool,
 ) -> HilEpisode {
-    let Some(image) = image(test) else {
+    let Some(image) = image(test, clock) else {
         return empty_episode();
     };
     let scene = scenes().into_iter().next().expect("a scene");
-    let (hil, episode) = run(&image, &scene, &faults, None);
+    let (hil, episode) = run(&image, clock, &scene, faults, None);
     let stop = episode
         .stop
         .unwrap_or_else(|| panic!("{test}: no safe stop: {:?}", episode.report));
@@ -251,6 +291,11 @@ fn empty_episode() -> HilEpisode {
         rejected: 1,
         last_step_tick: None,
         injected: Vec::new(),
+        deadline_misses: 0,
+        held: None,
+        periods: 0,
+        timing: Default::default(),
+        watchdog_trips: 0,
     }
 }
 
@@ -268,7 +313,7 @@ fn after_last_step(episode: &HilEpisode) -> u32 {
 #[test]
 fn a_silent_axis_stops_the_robot_within_the_health_timeout() {
     let knee = Axis::Joint(LegId::ALL[1], Joint::Knee);
-    let episode = expect_stop(
+    let episodes = expect_stop(
         "a_silent_axis_stops_the_robot_within_the_health_timeout",
         Faults {
             plant: vec![(2, PlantFault::SilentAxis(knee))],
@@ -279,7 +324,7 @@ fn a_silent_axis_stops_the_robot_within_the_health_timeout() {
         injected_period,
         true,
     );
-    if let Some(stop) = episode.stop {
+    for stop in episodes.iter().filter_map(|e| e.stop) {
         assert!(stop.axes.contains(knee), "{stop}");
     }
 }
@@ -333,7 +378,7 @@ fn a_stalled_observation_link_stops_the_robot_within_its_timeout() {
 
 #[test]
 fn corrupt_observation_frames_are_refused_and_stop_the_robot() {
-    let episode = expect_stop(
+    let episodes = expect_stop(
         "corrupt_observation_frames_are_refused_and_stop_the_robot",
         Faults {
             link: Some(LinkFault::CorruptAt(3)),
@@ -344,5 +389,134 @@ fn corrupt_observation_frames_are_refused_and_stop_the_robot() {
         after_last_step,
         true,
     );
-    assert!(episode.rejected > 0, "no frame was refused");
+    assert!(
+        episodes.iter().all(|e| e.rejected > 0),
+        "no frame was refused"
+    );
+}
+
+/// The in-process closed loop's outcome of `scene` with the same on-board stack.
+fn in_process_outcome(scene: &Scenario, weights: &[u8]) -> (wheelleg_sim::env::Status, u32, u32) {
+    let mut driver = OnboardDriver::new(weights).expect("stack");
+    let mut host = ClosedLoop::in_process(scene, LoopConfig::default()).expect("loop");
+    host.start().expect("start-up");
+    while !host.is_done() {
+        let action = driver.decide(host.env()).expect("decision");
+        host.step(action).expect("step");
+    }
+    let expected = host.finish().expect("finish");
+    (expected.status, expected.steps, expected.collisions)
+}
+
+#[test]
+fn on_the_emulated_clock_every_period_is_on_time_and_the_outcomes_hold() {
+    let test = "on_the_emulated_clock_every_period_is_on_time_and_the_outcomes_hold";
+    let Some(image) = image(test, PlantClock::Emulated) else {
+        return;
+    };
+    let count: usize = std::env::var("WHEELLEG_HIL_SCENES")
+        .ok()
+        .and_then(|n| n.parse().ok())
+        .unwrap_or(2);
+    let skip: usize = std::env::var("WHEELLEG_HIL_SKIP")
+        .ok()
+        .and_then(|n| n.parse().ok())
+        .unwrap_or(0);
+    let weights = std::fs::read(root().join("weights/policy.wlw")).expect("weights");
+    let mut differs = Vec::new();
+    let (mut periods, mut worst_lateness_us) = (0, 0);
+    for scene in scenes().iter().skip(skip).take(count) {
+        let expected = in_process_outcome(scene, &weights);
+        let (hil, got) = run(
+            &image,
+            PlantClock::Emulated,
+            scene,
+            &Faults::default(),
+            None,
+        );
+        hil.shutdown().expect("shutdown");
+        let report = &got.report;
+        let line = format!(
+            "{}: host {:?} {} decisions {} collisions; firmware {:?} {} decisions {} \
+             collisions; {} periods, {} late (worst {:.3} ms), {} watchdog trips, {} deadlines \
+             missed",
+            scene.name,
+            expected.0,
+            expected.1,
+            expected.2,
+            report.status,
+            report.steps,
+            report.collisions,
+            got.timing.periods,
+            got.timing.late,
+            got.timing.worst_lateness_us as f64 * 1e-3,
+            got.watchdog_trips,
+            got.deadline_misses
+        );
+        println!("{line}");
+        periods += got.timing.periods;
+        worst_lateness_us = worst_lateness_us.max(got.timing.worst_lateness_us);
+        let outcome = (report.status, report.steps, report.collisions);
+        if report.fault.is_some()
+            || outcome != expected
+            || got.timing.periods < 100
+            || got.timing.late > 0
+            || got.watchdog_trips > 0
+        {
+            differs.push(format!("{line}; fault {:?}", report.fault));
+        }
+    }
+    println!(
+        "emulated clock over {count} scenes: {periods} periods, the latest {:.3} ms after its \
+         due time",
+        worst_lateness_us as f64 * 1e-3
+    );
+    assert!(
+        differs.is_empty(),
+        "{} of {count} scenes late, tripped or off the host's outcomes:\n{}",
+        differs.len(),
+        differs.join("\n")
+    );
+}
+
+#[test]
+fn a_slow_decision_holds_the_robot_and_then_it_goes_on() {
+    let test = "a_slow_decision_holds_the_robot_and_then_it_goes_on";
+    let Some(image) = image(test, PlantClock::Emulated) else {
+        return;
+    };
+    let weights = std::fs::read(root().join("weights/policy.wlw")).expect("weights");
+    let scene = scenes().into_iter().next().expect("a scene");
+    let expected = in_process_outcome(&scene, &weights);
+    // 500 ms in the second decision (the first starts the robot up): past the 100 ms deadline.
+    let faults = Faults {
+        slow_decision: Some((2, 500)),
+        ..Faults::default()
+    };
+    let (hil, got) = run(&image, PlantClock::Emulated, &scene, &faults, None);
+    hil.shutdown().expect("shutdown");
+    let held = got.held.expect("the slow decision was watched");
+    println!(
+        "{test}: held {} periods, legs moved {:.4} mm, wheels at most {:.5} turns/s; {} \
+         deadline missed; {} late periods, {} watchdog trips; {:?} in {} decisions",
+        held.steps / 10,
+        1e3 * held.max_leg_change_m,
+        held.max_wheel_speed_sum,
+        got.deadline_misses,
+        got.timing.late,
+        got.watchdog_trips,
+        got.report.status,
+        got.report.steps
+    );
+    assert!(held.steps >= 450, "{test}: watched only {} ms", held.steps);
+    assert!(held.max_leg_change_m < 0.0005, "{test}: {held:?}");
+    assert!(held.max_wheel_speed_sum < 0.05, "{test}: {held:?}");
+    assert_eq!(got.deadline_misses, 1, "{test}");
+    assert_eq!((got.timing.late, got.watchdog_trips), (0, 0), "{test}");
+    assert_eq!(got.report.fault, None, "{test}");
+    assert_eq!(
+        (got.report.status, got.report.steps, got.report.collisions),
+        expected,
+        "{test}"
+    );
 }

@@ -5,17 +5,24 @@
 //! - [`stack`]: one decision: the int8 policy on the observation, the decision rule, the
 //!   collision guard on the fine window and the arrival rule;
 //! - [`control`]: the 100 Hz loop that drives a decision: setpoints to 16 ODrive axes over CAN,
-//!   their feedback in, odometry and health, behind the [`control::Board`] trait.
+//!   their feedback in, odometry and health, behind the [`control::Board`] trait, one period
+//!   at a time so that a firmware runs it from a timer interrupt above the decision.
 //!
+//! Beside them: [`wire`], the observation link's frames (COBS, CRC-16, `postcard`), both ends;
+//! [`link`], the once-only static buffers; `semihosting` (Arm targets), the emulator's files.
 //!
-//! - [`wire`]: the observation link's frames (COBS, CRC-16, `postcard`), both ends.
-//!
-//! Two programs for QEMU's mps2-an386 (Cortex-M4F): the production image `src/production/`
-//! (what flash is measured on) and the check image `src/check/` (scripts/mcu.sh's vectors,
-//! counts and kernel comparison); docs/controller.md says how to build, run and flash them.
+//! Programs: for QEMU's mps2-an386 (Cortex-M4F), the production image `src/production/` (what
+//! flash is measured on) and the check image `src/check/` (scripts/mcu.sh's vectors, counts
+//! and kernel comparison); for a NUCLEO-G474RE, `board/`. docs/controller.md says how to
+//! build, run and flash them.
 #![no_std]
 
-pub mod control;
+/// The 100 Hz control loop (the `wheelleg-control` crate, `control/`), under the path the
+/// images and `board/` name it by.
+pub use wheelleg_control as control;
 pub mod link;
+pub mod report;
+#[cfg(target_arch = "arm")]
+pub mod semihosting;
 pub mod stack;
 pub mod wire;

@@ -59,6 +59,13 @@ pub enum ToController<'a> {
     /// The last step ran into something (the world refused it): back out of it along its
     /// inverse motion to where it started.
     Collided,
+    /// A bring-up test of the real-time loop: the next decision first spends `ms`
+    /// milliseconds busy (as a slow decision would), and the robot must hold through them.
+    /// Nothing is answered.
+    DelayNextDecision {
+        /// The time to spend, in milliseconds.
+        ms: u32,
+    },
 }
 
 /// What the controller sends the perception computer.
@@ -105,6 +112,12 @@ pub enum FromController {
     Rejected {
         /// [`WireError::code`].
         error: u8,
+    },
+    /// The decision ran past its deadline and was abandoned: no step, the robot holds. The
+    /// next observation is decided afresh.
+    DeadlineMissed {
+        /// The control periods the decision ran before it was abandoned.
+        periods: u32,
     },
 }
 

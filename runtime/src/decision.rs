@@ -135,28 +135,47 @@ impl<const STATES: usize> Decider<STATES> {
         levels: usize,
         mut allowed: impl FnMut(usize, Action) -> bool,
     ) -> Checked {
+        let decided = self.choose_checked_in_time(key, logits, levels, |level, action| {
+            Some(allowed(level, action))
+        });
+        // `allowed` never runs out of time, so a decision always comes; the fallback only
+        // keeps the types honest.
+        decided.unwrap_or(Checked {
+            action: Action::IDLE,
+            level: None,
+            checks: 0,
+        })
+    }
+
+    /// [`Decider::choose_checked`] with a deadline: `allowed` answers `None` once the time
+    /// for this decision is up, and the decision is abandoned (`None`) with nothing
+    /// remembered, so that the same observation decided again later meets the same
+    /// candidates. A controller bounds its decisions' time this way: each candidate costs
+    /// one check, and a check refused or passed before the deadline counts as usual.
+    pub fn choose_checked_in_time<L: Copy + Into<f32>>(
+        &mut self,
+        key: ObservationKey,
+        logits: &[L; DIMS * CHOICES],
+        levels: usize,
+        mut allowed: impl FnMut(usize, Action) -> Option<bool>,
+    ) -> Option<Checked> {
         let mut checks = 0;
-        let taken = match self.slot(key) {
-            Some(taken) => {
-                if count(taken) >= COUNT {
-                    *taken = [0; WORDS];
-                }
-                *taken
-            }
-            None => [0; WORDS],
+        let taken = match self.find(key).and_then(|slot| self.taken.get(slot)) {
+            Some(taken) if count(taken) < COUNT => *taken,
+            _ => [0; WORDS],
         };
         for level in 0..levels {
             let mut excluded = taken;
             while count(&excluded) < COUNT {
                 let candidate = best_untaken(&excluded, logits);
                 checks += 1;
-                if allowed(level, candidate) {
-                    self.mark_taken(key, candidate);
-                    return Checked {
+                if allowed(level, candidate)? {
+                    self.remember_taken(key, candidate);
+                    return Some(Checked {
                         action: candidate,
                         level: Some(level),
                         checks,
-                    };
+                    });
                 }
                 let index = candidate.index();
                 if let Some(word) = excluded.get_mut(index / 32) {
@@ -165,12 +184,12 @@ impl<const STATES: usize> Decider<STATES> {
             }
         }
         let action = best_untaken(&taken, logits);
-        self.mark_taken(key, action);
-        Checked {
+        self.remember_taken(key, action);
+        Some(Checked {
             action,
             level: None,
             checks,
-        }
+        })
     }
 
     /// Remembers `action` as taken at observation `key`, as if [`Decider::choose`] had chosen
@@ -186,17 +205,6 @@ impl<const STATES: usize> Decider<STATES> {
             if let Some(word) = taken.get_mut(index / 32) {
                 *word |= 1 << (index % 32);
             }
-        }
-    }
-
-    fn mark_taken(&mut self, key: ObservationKey, action: Action) {
-        let index = action.index();
-        if let Some(word) = self
-            .find(key)
-            .and_then(|slot| self.taken.get_mut(slot))
-            .and_then(|taken| taken.get_mut(index / 32))
-        {
-            *word |= 1 << (index % 32);
         }
     }
 

@@ -64,6 +64,15 @@ pub enum ControllerArg {
     Qemu,
 }
 
+/// The motors' clock in the firmware's loop (`--clock`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum ClockArg {
+    /// One control period per status poll of the firmware.
+    Lockstep,
+    /// QEMU's instruction clock, stamped by the firmware.
+    Emulated,
+}
+
 /// Arguments of `demo`.
 #[derive(clap::Args)]
 pub struct Args {
@@ -94,9 +103,26 @@ pub struct Args {
     #[arg(long, value_name = "WHERE", value_enum, default_value_t = ControllerArg::Host)]
     controller: ControllerArg,
     /// The firmware image for --controller qemu. Default: the production image of
-    /// controller/, built when missing.
+    /// controller/ for the --clock, built when missing.
     #[arg(long, value_name = "ELF")]
     firmware: Option<PathBuf>,
+    /// With --controller qemu, what the motors' time follows: `lockstep` (one control period
+    /// per poll of the firmware, however fast QEMU runs) or `emulated` (QEMU's instruction
+    /// clock at 250 M instructions/s, which the firmware's decisions cost as on a board; the
+    /// image is built with its `emulated-clock` feature).
+    #[arg(long, value_enum, default_value_t = ClockArg::Lockstep)]
+    clock: ClockArg,
+    /// With --controller qemu, a slow decision: the firmware spends this many milliseconds
+    /// busy in one decision (see --inject-at-step), and must hold the robot through them.
+    #[arg(long, value_name = "MS")]
+    inject_decision_ms: Option<u32>,
+    /// ...in this decision (1-based; the first starts the robot up).
+    #[arg(long, default_value_t = 2, requires = "inject_decision_ms")]
+    inject_at_step: u32,
+    /// With --controller qemu, print one JSON object (result, decisions, periods, timing,
+    /// watchdog trips, the hold through a slow decision) instead of the report.
+    #[arg(long)]
+    json: bool,
     /// Output directory for path.png and bus.log (created if missing).
     #[arg(long, default_value = "out/demo")]
     out: PathBuf,
@@ -259,6 +285,19 @@ fn closed_loop(
 
 /// Runs `demo`.
 pub fn run(args: Args) -> CliResult {
+    let qemu_only = [
+        (args.clock != ClockArg::Lockstep, "--clock"),
+        (args.inject_decision_ms.is_some(), "--inject-decision-ms"),
+        (args.json, "--json"),
+    ];
+    if let Some((_, flag)) = qemu_only
+        .iter()
+        .find(|(given, _)| *given && args.controller == ControllerArg::Host)
+    {
+        return Err(
+            format!("{flag} applies to the firmware in the loop: add --controller qemu").into(),
+        );
+    }
     let planner = PlannerConfig {
         max_expansions: args.max_expansions,
         ..PlannerConfig::default()

@@ -1,6 +1,7 @@
 //! One episode through the firmware: observations and windows out, decisions and step reports
 //! in, the world moved as the in-process loop moves it, and the faults injected on the way.
 
+use super::plant::{HoldWatch, PeriodTiming};
 use super::*;
 use wheelleg_runtime::robot::Robot;
 
@@ -19,8 +20,18 @@ impl Hil {
         let mut last_step_tick = None;
         let mut first = true;
         let mut plant_faults = faults.plant.clone();
+        let mut slow_decision = faults.slow_decision;
+        let (mut deadline_misses, mut held) = (0u32, None);
         while !env.status().is_done() && fault.is_none() {
             let decision = env.steps() + 1;
+            let slow = match slow_decision {
+                Some((at, ms)) if at == decision => {
+                    slow_decision = None;
+                    self.send(ToController::DelayNextDecision { ms }, false)?;
+                    true
+                }
+                _ => false,
+            };
             let (stall, corrupt) = match faults.link {
                 Some(LinkFault::StallAt(at)) => (decision >= at, false),
                 Some(LinkFault::CorruptAt(at)) => (false, decision >= at),
@@ -91,17 +102,35 @@ impl Hil {
                 }
             }
             let window = self.window_bytes(env);
+            if slow {
+                self.plant().begin_watch();
+            }
             self.send(
                 ToController::Window {
                     heights_mm_le: &window,
                 },
                 false,
             )?;
-            let action = match self.answer(&mut rejected)? {
+            let answer = self.answer(&mut rejected)?;
+            if slow {
+                held = self.plant().end_watch();
+            }
+            let action = match answer {
                 FromController::Decision { action, .. } => Action::from_index(usize::from(action))
                     .ok_or_else(|| {
                         HilError::Protocol(format!("the firmware decided on action {action}"))
                     })?,
+                // Abandoned: the robot held; the same state is observed and decided again.
+                FromController::DeadlineMissed { .. } => {
+                    deadline_misses += 1;
+                    if deadline_misses > MAX_DEADLINE_MISSES {
+                        return Err(HilError::Protocol(format!(
+                            "the firmware missed its decision deadline {deadline_misses} \
+                             times in one episode"
+                        )));
+                    }
+                    continue;
+                }
                 other => {
                     return Err(HilError::Protocol(format!(
                         "expected a decision, got {other:?}"
@@ -225,6 +254,11 @@ impl Hil {
             rejected,
             last_step_tick,
             injected: plant.injected().to_vec(),
+            deadline_misses,
+            held,
+            periods: plant.polls(),
+            timing: plant.timing(),
+            watchdog_trips: plant.watchdog_trips(),
         })
     }
 
@@ -248,7 +282,20 @@ pub struct HilEpisode {
     pub last_step_tick: Option<u32>,
     /// The CAN side's faults, with the control period each took effect in.
     pub injected: Vec<(u64, PlantFault)>,
+    /// Decisions the firmware abandoned at their deadline (each decided again).
+    pub deadline_misses: u32,
+    /// The robot while the slow decision ran ([`Faults::slow_decision`]), if one was asked.
+    pub held: Option<HoldWatch>,
+    /// The firmware's control periods (its status polls of the CAN adapter).
+    pub periods: u64,
+    /// The periods against their due times, on the emulated clock.
+    pub timing: PeriodTiming,
+    /// Watchdog expiries of the axes.
+    pub watchdog_trips: u32,
 }
+
+/// Abandoned decisions an episode tolerates before the loop gives up on the firmware.
+const MAX_DEADLINE_MISSES: u32 = 10;
 
 fn finished() -> HilError {
     HilError::Protocol("the world's episode ended before the firmware's".into())

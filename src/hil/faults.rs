@@ -23,6 +23,10 @@ pub struct Faults {
     /// On the CAN side, from a decision (1-based) on: injected at the first control period the
     /// firmware polls after that decision was taken (so in the middle of its step).
     pub plant: Vec<(u32, PlantFault)>,
+    /// A slow decision: before this decision (1-based), the firmware is told to spend this
+    /// many milliseconds busy in it (`DelayNextDecision`), as a slow decision would; the robot
+    /// must hold through them.
+    pub slow_decision: Option<(u32, u32)>,
 }
 
 /// Why the firmware stopped the robot, as it reported it.

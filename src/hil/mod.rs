@@ -28,7 +28,7 @@ pub mod wire;
 
 pub use episode::HilEpisode;
 pub use faults::{ControllerStop, Faults, LinkFault};
-pub use qemu::{default_image, find_or_build_image, qemu_available, BUILD_COMMAND};
+pub use qemu::{default_image, find_or_build_image, image_for, qemu_available, BUILD_COMMAND};
 
 use std::io::{Read, Write};
 use std::net::{TcpListener, TcpStream};
@@ -52,7 +52,7 @@ use wheelleg_sim::height_map::MapGrid;
 use crate::closed_loop::driver::observation_mm;
 use crate::closed_loop::{EpisodeReport, Fault, StepError, Tolerance, Tracking, BITRATE_BPS};
 use memory::{RamLayout, RamUse};
-use plant::{Plant, PlantFault};
+use plant::{Plant, PlantClock, PlantFault};
 use qemu::qemu_command;
 use wire::{FromController, ToController};
 
@@ -118,6 +118,27 @@ pub struct Hil {
     window: WindowBounds,
     fine: Vec<f32>,
     sim_observation: SimObservation,
+    clock: PlantClock,
+}
+
+/// QEMU's instruction clock for `clock`: in lockstep 1 ns per instruction with idle time
+/// skipped, so that a period costs only what the firmware executes; on the emulated clock
+/// 4 ns per instruction (250 M instructions/s, the power of two nearest above the reference
+/// part's 170 MHz at about one cycle per instruction), idle time skipped too: the firmware's
+/// periods wait for the host only in the adapter's FIFO, which costs the clock nothing.
+fn icount(clock: PlantClock) -> &'static str {
+    match clock {
+        PlantClock::Lockstep => "shift=0,sleep=off",
+        PlantClock::Emulated => "shift=2,sleep=off",
+    }
+}
+
+/// Instructions per SysTick count (25 MHz) on `clock`'s instruction clock ([`icount`]).
+pub fn instructions_per_systick_count(clock: PlantClock) -> u64 {
+    match clock {
+        PlantClock::Lockstep => memory::INSTRUCTIONS_PER_SYSTICK_COUNT,
+        PlantClock::Emulated => memory::INSTRUCTIONS_PER_SYSTICK_COUNT / 4,
+    }
 }
 
 fn listener() -> Result<(TcpListener, u16), HilError> {
@@ -159,13 +180,15 @@ fn accept(listener: &TcpListener, qemu: &mut Child, what: &str) -> Result<TcpStr
 }
 
 impl Hil {
-    /// Starts `image` in QEMU with the motors' legs at `start`.
-    pub fn start(image: &Path, start: LegConfig) -> Result<Hil, HilError> {
+    /// Starts `image` in QEMU with the motors' legs at `start`, the motors' time on `clock`
+    /// (an image built for it: [`image_for`]).
+    pub fn start(image: &Path, start: LegConfig, clock: PlantClock) -> Result<Hil, HilError> {
         if !qemu_available() {
             return Err(HilError::NoQemu);
         }
-        let plant = Plant::new(&WHEELLEG, start)
+        let mut plant = Plant::new(&WHEELLEG, start)
             .map_err(|e| HilError::Io(format!("the start legs have no IK solution: {e:?}")))?;
+        plant.set_clock(clock);
         let (obs_listener, obs_port) = listener()?;
         let (can_listener, can_port) = listener()?;
         let (monitor_listener, monitor_port) = listener()?;
@@ -192,6 +215,13 @@ impl Hil {
         // instructions of polling). QEMU therefore runs at a lower priority than the host
         // (`nice`, where the machine has it): the host's threads preempt it when their bytes
         // are due.
+        // On the emulated clock the adapter's bytes reach the firmware through a FIFO it reads
+        // by semihosting (docs/controller.md, "The emulated clock"): made here, opened here
+        // for reading and writing so that neither end's open waits for the other.
+        let fifo = match clock {
+            PlantClock::Lockstep => None,
+            PlantClock::Emulated => Some(make_fifo(&scratch.join(ADAPTER_FIFO))?),
+        };
         let mut qemu = qemu_command()
             .args(["-machine", "mps2-an386", "-display", "none"])
             .args([
@@ -207,8 +237,10 @@ impl Hil {
                 paint.display(),
                 layout.stack_limit
             ))
-            .args(["-icount", "shift=0,sleep=off", "-kernel"])
+            .args(semihosting(clock))
+            .args(["-icount", icount(clock), "-kernel"])
             .arg(image)
+            .current_dir(&scratch)
             .stdin(Stdio::null())
             .stdout(Stdio::null())
             .stderr(Stdio::piped())
@@ -222,7 +254,7 @@ impl Hil {
         let can = accept(&can_listener, &mut qemu, "CAN adapter link (UART 2)")?;
         let plant = Arc::new(Mutex::new(plant));
         let shared = Arc::clone(&plant);
-        let can = std::thread::spawn(move || serve_can(can, shared));
+        let can = std::thread::spawn(move || serve_can(can, fifo, shared));
         let window = CollisionGuard::new(&Robot::WHEELLEG, DEFAULT_MARGIN_M)
             .fine_window(MapGrid::GUARD_FINE.side, MapGrid::GUARD_FINE.cell_m);
         let mut hil = Hil {
@@ -237,6 +269,7 @@ impl Hil {
             window,
             fine: vec![0.0; MapGrid::GUARD_FINE.cells()],
             sim_observation: SimObservation::default(),
+            clock,
         };
         // The monitor's greeting ends in its first prompt.
         hil.monitor_prompt()?;
@@ -285,7 +318,7 @@ impl Hil {
     pub fn busiest_period_instructions(&mut self) -> Result<u64, HilError> {
         let bytes = self.save_ram(self.layout.busiest_period_counts, 4)?;
         let counts = u32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]);
-        Ok(u64::from(counts) * memory::INSTRUCTIONS_PER_SYSTICK_COUNT)
+        Ok(u64::from(counts) * instructions_per_systick_count(self.clock))
     }
 
     /// `len` bytes of the firmware's RAM from `address`, saved by QEMU's monitor.
@@ -434,8 +467,42 @@ impl Drop for Hil {
     }
 }
 
-/// The adapter's side of the CAN UART: the firmware's lines to the plant, its answers back.
-fn serve_can(mut stream: TcpStream, plant: Arc<Mutex<Plant>>) -> Result<(), String> {
+/// The FIFO of the emulated clock's adapter bytes, in QEMU's working folder (the firmware's
+/// `Emulated::FIFO`).
+const ADAPTER_FIFO: &str = "adapter.fifo";
+
+/// Makes the FIFO at `path` and opens it for reading and writing (Linux opens a FIFO so
+/// without waiting for a reader; the host only writes).
+fn make_fifo(path: &Path) -> Result<std::fs::File, HilError> {
+    let made = std::process::Command::new("mkfifo")
+        .arg(path)
+        .status()
+        .map_err(io("running mkfifo"))?;
+    if !made.success() {
+        return Err(HilError::Io(format!("mkfifo {} failed", path.display())));
+    }
+    std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .open(path)
+        .map_err(io("opening the adapter's FIFO"))
+}
+
+/// QEMU's semihosting for `clock`: the emulated clock's image reads its adapter's bytes by it.
+fn semihosting(clock: PlantClock) -> &'static [&'static str] {
+    match clock {
+        PlantClock::Lockstep => &[],
+        PlantClock::Emulated => &["-semihosting-config", "enable=on,target=native"],
+    }
+}
+
+/// The adapter's side of the CAN UART: the firmware's lines to the plant, its answers back
+/// (into the `fifo` on the emulated clock).
+fn serve_can(
+    mut stream: TcpStream,
+    mut fifo: Option<std::fs::File>,
+    plant: Arc<Mutex<Plant>>,
+) -> Result<(), String> {
     let mut buf = [0u8; 4096];
     loop {
         let n = match stream.read(&mut buf) {
@@ -450,7 +517,11 @@ fn serve_can(mut stream: TcpStream, plant: Arc<Mutex<Plant>>) -> Result<(), Stri
             .unwrap_or_else(|e| e.into_inner())
             .feed(&buf[..n])
             .map_err(|e| format!("the CAN adapter: {e}"))?;
-        if !out.is_empty() && stream.write_all(&out).is_err() {
+        let written = match fifo.as_mut() {
+            Some(fifo) => fifo.write_all(&out),
+            None => stream.write_all(&out),
+        };
+        if !out.is_empty() && written.is_err() {
             return Ok(());
         }
     }

@@ -1,12 +1,20 @@
 //! The motors of the firmware in the loop: the 16 simulated ODrive axes on an in-process bus,
 //! behind an SLCAN adapter that the firmware drives over its CAN UART.
 //!
-//! Time is the firmware's: the firmware starts every control period with the adapter's status
-//! poll (`F`), and the adapter answers it only after it has run the motors for the period that
-//! ended (ten 1 ms physics steps, as the host's rig does) and sent the firmware every frame the
-//! axes put on the bus in it. So the motors and the firmware move in lockstep, one period per
-//! poll, however fast QEMU runs, and the frames are those of the host's closed loop: the
-//! firmware's frames go on the bus when their lines arrive, in the period they were sent.
+//! Two clocks ([`PlantClock`]). In **lockstep** time is the firmware's: the firmware starts
+//! every control period with the adapter's status poll (`F`), and the adapter answers it only
+//! after it has run the motors for the period that ended (ten 1 ms physics steps, as the host's
+//! rig does) and sent the firmware every frame the axes put on the bus in it. So the motors and
+//! the firmware move in lockstep, one period per poll, however fast QEMU runs, and the frames
+//! are those of the host's closed loop: the firmware's frames go on the bus when their lines
+//! arrive, in the period they were sent.
+//!
+//! On the **emulated** clock time is QEMU's: the firmware built with its `emulated-clock`
+//! feature stamps each period's frames with a hardware timer's count (`@` and 8 hex digits of
+//! its 25 MHz ticks), a clock that runs on QEMU's instruction count (`-icount`), whatever the
+//! firmware is doing. The motors and their watchdogs advance to each stamp before they take
+//! the frames after it, so a period the firmware sends late, or not at all, costs the motors
+//! time as on a board; each stamp is checked against its period's due time ([`PeriodTiming`]).
 //!
 //! Faults are injected here, at a chosen period: an axis goes silent, the link drops frame
 //! lines towards the firmware, or the adapter stops answering altogether.
@@ -33,6 +41,45 @@ pub const PHYSICS_US: u64 = 1_000;
 /// The axes' watchdog, configured as the host's rig configures it: the firmware relies on it to
 /// idle the motors when its frames stop reaching them (a dead CAN link).
 pub const WATCHDOG_TIMEOUT_US: u64 = 100_000;
+
+/// What the motors' time follows.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum PlantClock {
+    /// One control period per status poll of the firmware.
+    #[default]
+    Lockstep,
+    /// The firmware's stamps of QEMU's clock (an image built with `emulated-clock`).
+    Emulated,
+}
+
+/// A period whose setpoints reach the bus later than this after its due time is late.
+pub const LATE_AFTER_US: u64 = 1_000;
+
+/// The firmware's control periods on the emulated clock: each stamped period's setpoints
+/// against its due time (the first stamp's time plus whole periods).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PeriodTiming {
+    /// Periods stamped.
+    pub periods: u64,
+    /// Periods due whose setpoints came more than [`LATE_AFTER_US`] late, or never.
+    pub late: u64,
+    /// The latest a period's setpoints came, after its due time, in microseconds.
+    pub worst_lateness_us: u64,
+}
+
+/// The robot while held (the firmware between two steps, deciding): how far the true legs
+/// moved from where the watch began, and how fast the wheels turned at most.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct HoldWatch {
+    /// Legs (clearance and track, by forward kinematics of the true joints) where it began.
+    pub start: Option<LegConfig>,
+    /// The largest change of clearance or track since, in metres.
+    pub max_leg_change_m: f32,
+    /// The largest sum of the wheels' absolute speeds, turns/s.
+    pub max_wheel_speed_sum: f32,
+    /// Physics steps watched (1 ms each).
+    pub steps: u64,
+}
 
 /// A fault to inject from a given control period on.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -78,6 +125,16 @@ pub struct Plant {
     dead: bool,
     /// The first period of each fault injected, as it took effect.
     injected: Vec<(u64, PlantFault)>,
+    clock: PlantClock,
+    /// The emulated clock's stamps so far, unwrapped: the last one's raw count and the total.
+    stamp: Option<(u32, u64)>,
+    /// The first stamp's time (the motors' clock starts there), the first setpoints' time on
+    /// the motors' clock, and the last stamped period's index from it.
+    first_stamp_us: Option<u64>,
+    first_setpoints_us: Option<u64>,
+    last_period: Option<u64>,
+    timing: PeriodTiming,
+    watch: Option<HoldWatch>,
 }
 
 impl Plant {
@@ -106,7 +163,46 @@ impl Plant {
             rng: 0x5EED,
             dead: false,
             injected: Vec::new(),
+            clock: PlantClock::Lockstep,
+            stamp: None,
+            first_stamp_us: None,
+            first_setpoints_us: None,
+            last_period: None,
+            timing: PeriodTiming::default(),
+            watch: None,
         })
+    }
+
+    /// Runs the motors on `clock` from now on (before the firmware starts).
+    pub fn set_clock(&mut self, clock: PlantClock) {
+        self.clock = clock;
+    }
+
+    /// The firmware's periods on the emulated clock so far.
+    pub fn timing(&self) -> PeriodTiming {
+        self.timing
+    }
+
+    /// Watchdog expiries of all axes so far.
+    pub fn watchdog_trips(&self) -> u32 {
+        self.axes
+            .axes()
+            .iter()
+            .map(|a| a.stats().watchdog_trips)
+            .sum()
+    }
+
+    /// Begins watching the robot held (see [`HoldWatch`]); [`Self::end_watch`] ends it.
+    pub fn begin_watch(&mut self) {
+        self.watch = Some(HoldWatch {
+            start: self.true_legs(),
+            ..HoldWatch::default()
+        });
+    }
+
+    /// Ends the watch begun last, with what it saw.
+    pub fn end_watch(&mut self) -> Option<HoldWatch> {
+        self.watch.take()
     }
 
     /// Logs every frame on the bus in `candump -L` format from now on.
@@ -179,10 +275,12 @@ impl Plant {
         }
     }
 
-    /// Takes bytes the firmware sent on its CAN UART; returns what the adapter answers.
+    /// Takes bytes the firmware sent on its CAN UART; returns what the adapter answers (on the
+    /// emulated clock, with a zero byte after each period's stamp: see [`PlantClock`]).
     pub fn feed(&mut self, bytes: &[u8]) -> std::io::Result<Vec<u8>> {
+        let mut out = Vec::new();
         for &byte in bytes {
-            if self.dead {
+            if self.dead && self.clock == PlantClock::Lockstep {
                 continue;
             }
             self.line.push(byte);
@@ -190,6 +288,25 @@ impl Plant {
                 continue;
             }
             let line = std::mem::take(&mut self.line);
+            match line.first() {
+                Some(b'@') => {
+                    let at_us = self.stamped(&line)?;
+                    self.advance_to(at_us)?;
+                    if !self.dead {
+                        self.deliver()?;
+                        self.drain_output(&mut out);
+                    }
+                    out.push(0);
+                    continue;
+                }
+                Some(b'!') => {
+                    let at_us = self.stamped(&line)?;
+                    self.check_lateness(at_us);
+                    self.advance_to(at_us)?;
+                    continue;
+                }
+                _ => {}
+            }
             if line.as_slice() == b"F\r" {
                 self.period()?;
             }
@@ -203,10 +320,17 @@ impl Plant {
                     .send(&frame, self.now_us)
                     .map_err(std::io::Error::other)?;
             }
+            self.drain_output(&mut out);
         }
-        let out = self.slcan.pending_output().to_vec();
-        self.slcan.consume_output(out.len());
         Ok(out)
+    }
+
+    /// Moves the adapter's answers so far into `out`.
+    fn drain_output(&mut self, out: &mut Vec<u8>) {
+        let pending = self.slcan.pending_output();
+        out.extend_from_slice(pending);
+        let len = pending.len();
+        self.slcan.consume_output(len);
     }
 
     fn count(&mut self, frame: &CanFrame) -> std::io::Result<()> {
@@ -245,25 +369,20 @@ impl Plant {
                 PlantFault::DeadLink => self.dead = true,
             }
         }
-        if period == 0 {
+        // On the emulated clock the motors follow the stamps, and the bus's frames go to the
+        // firmware at each period's start stamp.
+        if self.clock == PlantClock::Emulated || period == 0 {
             return Ok(());
         }
-        let dt_s = PHYSICS_US as f32 * 1e-6;
-        let end_us = self.now_us + PERIOD_US;
-        while self.now_us < end_us {
-            self.now_us += PHYSICS_US;
-            self.axes
-                .run(&mut self.axes_port, self.now_us, dt_s)
-                .map_err(std::io::Error::other)?;
-            if let (Some(legs), Some(wheels)) = (self.true_legs(), self.true_wheel_speeds()) {
-                if let Ok(base) = MecanumBase::at(&self.geometry, legs) {
-                    let _ = self.truth.integrate_wheels(&base, wheels, dt_s);
-                }
-            }
-        }
+        self.advance_to(self.now_us + PERIOD_US)?;
         if self.dead {
             return Ok(());
         }
+        self.deliver()
+    }
+
+    /// The frames the axes put on the bus so far, to the firmware (less those a fault drops).
+    fn deliver(&mut self) -> std::io::Result<()> {
         while let Some(frame) = self
             .adapter
             .recv(self.now_us)
@@ -278,6 +397,94 @@ impl Plant {
             }
         }
         Ok(())
+    }
+
+    /// Runs the motors in whole physics steps up to `end_us`.
+    fn advance_to(&mut self, end_us: u64) -> std::io::Result<()> {
+        let dt_s = PHYSICS_US as f32 * 1e-6;
+        while self.now_us + PHYSICS_US <= end_us {
+            self.now_us += PHYSICS_US;
+            self.axes
+                .run(&mut self.axes_port, self.now_us, dt_s)
+                .map_err(std::io::Error::other)?;
+            let legs = self.true_legs();
+            if let (Some(legs), Some(wheels)) = (legs, self.true_wheel_speeds()) {
+                if let Ok(base) = MecanumBase::at(&self.geometry, legs) {
+                    let _ = self.truth.integrate_wheels(&base, wheels, dt_s);
+                }
+            }
+            if let Some(watch) = self.watch.as_mut() {
+                watch.steps += 1;
+                if let (Some(start), Some(legs)) = (watch.start, legs) {
+                    let change_m = (legs.clearance_m - start.clearance_m)
+                        .abs()
+                        .max((legs.track_m - start.track_m).abs());
+                    watch.max_leg_change_m = watch.max_leg_change_m.max(change_m);
+                }
+                let wheels = wheelleg_firmware_sim::rig::true_wheel_speed_sum(&self.axes);
+                watch.max_wheel_speed_sum = watch.max_wheel_speed_sum.max(wheels);
+            }
+        }
+        Ok(())
+    }
+
+    /// The time of a stamp line of the emulated clock, on the motors' clock (which starts with
+    /// the firmware's first stamp: until then the axes sat idle, and a real bus's frames of
+    /// that time would be long gone).
+    fn stamped(&mut self, line: &[u8]) -> std::io::Result<u64> {
+        let counts = std::str::from_utf8(line.get(1..9).unwrap_or(&[]))
+            .ok()
+            .and_then(|hex| u32::from_str_radix(hex, 16).ok())
+            .ok_or_else(|| {
+                std::io::Error::other(format!(
+                    "a stamp line that is no stamp: {:?}",
+                    String::from_utf8_lossy(line)
+                ))
+            })?;
+        if self.clock != PlantClock::Emulated {
+            return Err(std::io::Error::other(
+                "a stamped period in lockstep: the image is built for the emulated clock",
+            ));
+        }
+        // Timer 0 counts 25 MHz ticks and wraps after 172 s.
+        let total = match self.stamp {
+            Some((last, total)) => total + u64::from(counts.wrapping_sub(last)),
+            None => u64::from(counts),
+        };
+        self.stamp = Some((counts, total));
+        let stamp_us = total / 25;
+        let first_us = *self.first_stamp_us.get_or_insert(stamp_us);
+        Ok(stamp_us - first_us)
+    }
+
+    /// Checks the setpoints stamped at `at_us` against their period's due time. The first
+    /// period's setpoints are the reference (a period's come a little after its interrupt),
+    /// and a stamp is its period's when within half a period of its due time: one more than
+    /// half a period late reads as the next period's, the one between counted as skipped.
+    fn check_lateness(&mut self, at_us: u64) {
+        let first_us = *self.first_setpoints_us.get_or_insert(at_us);
+        let since_us = at_us.saturating_sub(first_us);
+        let period = (since_us + PERIOD_US / 2) / PERIOD_US;
+        let lateness_us = since_us.saturating_sub(period * PERIOD_US);
+        // Periods between the last stamped one and this one sent no setpoints at all.
+        let skipped = self
+            .last_period
+            .map_or(0, |last| period.saturating_sub(last + 1));
+        if skipped > 0 {
+            self.timing.late += skipped;
+            self.timing.worst_lateness_us = self
+                .timing
+                .worst_lateness_us
+                .max(lateness_us + skipped * PERIOD_US);
+        }
+        if self.last_period != Some(period) {
+            self.timing.periods += 1;
+            if lateness_us > LATE_AFTER_US {
+                self.timing.late += 1;
+            }
+            self.timing.worst_lateness_us = self.timing.worst_lateness_us.max(lateness_us);
+        }
+        self.last_period = Some(period);
     }
 
     /// SplitMix64, seeded: the dropped lines are the same every run.

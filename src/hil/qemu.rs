@@ -4,17 +4,47 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
+use super::plant::PlantClock;
 use super::HilError;
 
 /// The production image, where `cargo +nightly build --release` in `controller/` puts it.
 pub fn default_image() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("controller/target/thumbv7em-none-eabihf/release/wheelleg-controller")
+    image_for(PlantClock::Lockstep)
 }
+
+/// The production image for `clock`: the emulated clock's is built with the `emulated-clock`
+/// feature into its own target folder ([`build_command`]).
+pub fn image_for(clock: PlantClock) -> PathBuf {
+    let target = match clock {
+        PlantClock::Lockstep => "target",
+        PlantClock::Emulated => EMULATED_TARGET,
+    };
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("controller")
+        .join(target)
+        .join("thumbv7em-none-eabihf/release/wheelleg-controller")
+}
+
+/// The emulated clock's image's target folder, under `controller/`.
+const EMULATED_TARGET: &str = "target/emulated-clock";
 
 /// The command that builds the production image.
 pub const BUILD_COMMAND: &str =
     "cd controller && cargo +nightly build --release --bin wheelleg-controller";
+
+/// The arguments of `cargo +nightly` in `controller/` that build the image for `clock`.
+pub fn build_command(clock: PlantClock) -> Vec<&'static str> {
+    let mut args = vec!["build", "--release", "--bin", "wheelleg-controller"];
+    if clock == PlantClock::Emulated {
+        args.extend([
+            "--features",
+            "emulated-clock",
+            "--target-dir",
+            EMULATED_TARGET,
+        ]);
+    }
+    args
+}
 
 /// How much lower than the host's QEMU's scheduling priority is (`nice` increment).
 const QEMU_NICE_INCREMENT: &str = "5";
@@ -50,9 +80,9 @@ pub fn qemu_available() -> bool {
         .is_ok_and(|s| s.success())
 }
 
-/// The firmware image at `path`, built first when it is the default one and missing.
-pub fn find_or_build_image(path: Option<&Path>) -> Result<PathBuf, HilError> {
-    let image = path.map_or_else(default_image, Path::to_path_buf);
+/// The firmware image at `path`, or the default one for `clock`, built first when missing.
+pub fn find_or_build_image(path: Option<&Path>, clock: PlantClock) -> Result<PathBuf, HilError> {
+    let image = path.map_or_else(|| image_for(clock), Path::to_path_buf);
     if image.is_file() {
         return Ok(image);
     }
@@ -61,13 +91,8 @@ pub fn find_or_build_image(path: Option<&Path>) -> Result<PathBuf, HilError> {
     }
     let controller = Path::new(env!("CARGO_MANIFEST_DIR")).join("controller");
     let built = Command::new("cargo")
-        .args([
-            "+nightly",
-            "build",
-            "--release",
-            "--bin",
-            "wheelleg-controller",
-        ])
+        .arg("+nightly")
+        .args(build_command(clock))
         .current_dir(&controller)
         .stdout(Stdio::null())
         .status();

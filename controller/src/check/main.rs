@@ -10,7 +10,6 @@
 
 mod kernels;
 mod qemu;
-mod semihosting;
 
 use core::arch::asm;
 use core::mem::MaybeUninit;
@@ -27,7 +26,7 @@ use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::model::Kernel;
 
 use qemu::{tag, Clock, ReplayBoard, ReplayCan, Uart};
-use semihosting::{exit, File, Mode};
+use wheelleg_controller::semihosting::{exit, File, Mode};
 
 /// The policy's weights (weights/policy.wlw, or the file WHEELLEG_WEIGHTS named at build:
 /// build.rs), in flash, word-aligned so that the kernels may load 4 weights at once.

@@ -8,7 +8,7 @@ use embedded_can::{Frame, Id, StandardId};
 use wheelleg_controller::control::Board;
 use wheelleg_runtime::can::CanFrame;
 
-use crate::semihosting::File;
+use wheelleg_controller::semihosting::File;
 
 const UART0: usize = 0x4000_4000;
 const UART_DATA: usize = UART0;

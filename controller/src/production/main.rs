@@ -5,39 +5,49 @@
 //!
 //! Its links are a real robot's: the observation link from the perception computer on CMSDK
 //! UART 1 (COBS-framed, CRC-checked `postcard` messages: `wire`), and an SLCAN (Lawicel) CAN
-//! adapter on UART 2 with the ODrive bus behind it; SysTick paces the 100 Hz period. Each
-//! period starts with the adapter's status poll (`F`), whose answer ends the period's
-//! received frames; an adapter that stops answering is a lost CAN link. Between steps the
-//! robot is held, and an observation link silent (or only corrupt) for
-//! [`OBSERVATION_TIMEOUT_PERIODS`] puts it in safe stop. A board's HAL puts its FDCAN driver
-//! and timer in place of the adapter and SysTick (docs/controller.md).
+//! adapter on UART 2 with the ODrive bus behind it (`board.rs`).
+//!
+//! Two priorities: the 100 Hz control period runs in SysTick's interrupt (`period.rs`), above
+//! the decision, which runs here in thread mode; so every period holds the robot, or streams
+//! its step, however long the core decides. A decision has [`DECISION_DEADLINE_MS`] from its
+//! fine window's arrival; past it, it is abandoned and the host told. An observation link
+//! silent (or only corrupt) for [`OBSERVATION_TIMEOUT_PERIODS`] between steps puts the robot
+//! in safe stop. A board's HAL puts its FDCAN driver and timer in place of the adapter and
+//! SysTick (docs/controller.md).
 #![no_std]
 #![no_main]
 
 mod board;
 mod observation_link;
+mod period;
 
 use core::arch::asm;
 use core::mem::MaybeUninit;
 use core::panic::PanicInfo;
+use core::sync::atomic::Ordering;
 
 use cortex_m_rt::entry;
-use wheelleg_controller::control::{Control, ControlError, StopReason};
+use wheelleg_controller::control::StopReason;
 use wheelleg_controller::link::Buffer;
+use wheelleg_controller::report::stop_report;
 use wheelleg_controller::stack::{
-    ControllerDecider, DecisionRecord, Observation, Stack, ROW_ELEMENTS, WORK_BYTES,
+    ControllerDecider, DecisionRecord, Observation, Stack, StackError, DECISION_DEADLINE_MS,
+    ROW_ELEMENTS, WORK_BYTES,
 };
-use wheelleg_controller::wire::{self, stop_reason, FromController, ToController, WireError};
-use wheelleg_runtime::can::CanFrame;
+use wheelleg_controller::wire::{self, FromController, ToController, WireError};
 use wheelleg_runtime::model::Outputs;
 
-use board::{SlcanBoard, Uart};
-use observation_link::{Link, Received};
+use board::{sleep_unless, SlcanBoard, Uart};
+use observation_link::{reached, Link, Received};
+use period::{Command, Done, PERIODS};
 
 /// Control periods without a valid frame on the observation link, between steps, before the
 /// safe stop: 1 s (the perception computer answers within a period; the longest frame, the
 /// fine window's 10.6 KB, takes 0.05 s at 2 Mbit/s).
 const OBSERVATION_TIMEOUT_PERIODS: u32 = 100;
+
+/// [`DECISION_DEADLINE_MS`] in control periods (10 ms each).
+const DECISION_DEADLINE_PERIODS: u32 = DECISION_DEADLINE_MS.div_ceil(10);
 
 /// The policy's weights (weights/policy.wlw, or the file WHEELLEG_WEIGHTS named at build:
 /// build.rs), in flash, word-aligned so that the kernels may load 4 weights at once.
@@ -54,12 +64,17 @@ static DECIDER: Buffer<ControllerDecider> = Buffer::new(ControllerDecider::new()
 #[link_section = ".uninit.STACK"]
 static STACK: Buffer<MaybeUninit<Stack<'static, 'static>>> = Buffer::new(MaybeUninit::uninit());
 
-/// Interrupts of the vector table: none is enabled (the controller polls its UARTs, and
-/// SysTick is an exception), so the table has only the one entry cortex-m-rt's link script
-/// asks for; an interrupt that fired anyway would find no handler past it.
+/// Interrupts of the vector table, up to the one enabled: UART 2's receiver (the CAN
+/// adapter's bytes). SysTick is an exception; the observation link is polled.
 #[link_section = ".vector_table.interrupts"]
 #[no_mangle]
-static __INTERRUPTS: [unsafe extern "C" fn(); 1] = [unused_interrupt];
+static __INTERRUPTS: [unsafe extern "C" fn(); board::UART2_RX_IRQ + 1] = [
+    unused_interrupt,
+    unused_interrupt,
+    unused_interrupt,
+    unused_interrupt,
+    board::uart2_rx,
+];
 
 /// An interrupt nothing enabled: stop here.
 unsafe extern "C" fn unused_interrupt() {
@@ -79,53 +94,23 @@ fn panic(_info: &PanicInfo) -> ! {
     halt()
 }
 
-/// The report of a stopped controller.
-fn stopped(control: &Control<CanFrame>) -> Option<FromController> {
-    let stop = control.stop_state()?;
-    let (reason, axes) = match stop.reason {
-        StopReason::Silent(axes) => (stop_reason::SILENT_AXES, axes.0),
-        StopReason::AxisError(axes) => (stop_reason::AXIS_ERRORS, axes.0),
-        StopReason::CanLink => (stop_reason::CAN_LINK, 0),
-        StopReason::ObservationStalled => (stop_reason::OBSERVATION_STALLED, 0),
-        StopReason::ObservationCorrupt => (stop_reason::OBSERVATION_CORRUPT, 0),
-        StopReason::StartupFailed => (stop_reason::STARTUP_FAILED, 0),
-        StopReason::Control => (stop_reason::CONTROL, 0),
-    };
-    Some(FromController::Stopped {
-        reason,
-        axes,
-        tick: stop.tick,
-    })
+/// Waits until the control period reports the end of the activity it was given.
+fn wait_done() -> Done {
+    loop {
+        if let Some(done) = period::take_done() {
+            return done;
+        }
+        sleep_unless(|| false);
+    }
 }
 
-/// The report after a step (or a retreat): its end, or the safe stop it ended in.
-fn step_report(
-    control: &mut Control<CanFrame>,
-    driven: Result<(), ControlError>,
-) -> FromController {
-    let moved = match driven {
-        Ok(()) => true,
-        // Legs out of reach: nothing was sent, as on the host.
-        Err(ControlError::Motion(_)) => false,
-        Err(_) => {
-            control.stop(StopReason::Control);
-            true
+/// Runs `command` through the control period and waits for the report of its end.
+fn drive(command: Command) -> FromController {
+    period::post(command);
+    loop {
+        if let Done::Step(report) = wait_done() {
+            return report;
         }
-    };
-    if let Some(report) = stopped(control) {
-        return report;
-    }
-    let pose = control.odometry().pose;
-    let legs = control.measured_legs().unwrap_or(control.legs());
-    FromController::StepDone {
-        moved,
-        pose: [
-            pose.translation.x,
-            pose.translation.y,
-            pose.rotation.angle(),
-        ],
-        legs_m: [legs.clearance_m, legs.track_m],
-        tick: control.ticks(),
     }
 }
 
@@ -168,28 +153,40 @@ fn main() -> ! {
         len: 0,
         too_long: false,
     };
-    let mut board = SlcanBoard::new(Uart::new(Uart::UART2));
-    // The legs start where the first observation says they are.
-    let mut control: Option<Control<CanFrame>> = None;
+    let Some(board) = SlcanBoard::start(Uart::new(Uart::UART2)) else {
+        halt()
+    };
+    if !period::hand_over(board, stack.robot()) {
+        halt()
+    }
+    // The legs start where the first observation says they are: the control period takes
+    // the robot over at the first decision.
+    let mut started = false;
     // The policy's outputs on the observation whose window is awaited.
     let mut pending: Option<Outputs> = None;
-    let (mut quiet_periods, mut corrupt) = (0u32, false);
+    let mut delay_periods = 0u32;
+    let (mut quiet_since, mut corrupt, mut answered) = (0, false, true);
     loop {
-        let len = match link.receive(bytes(work), &mut board, control.as_mut()) {
-            Received::Period => {
-                quiet_periods += 1;
-                if let Some(control) = control.as_mut().filter(|c| !c.stopped()) {
-                    if quiet_periods >= OBSERVATION_TIMEOUT_PERIODS {
-                        control.stop(if corrupt {
-                            StopReason::ObservationCorrupt
-                        } else {
-                            StopReason::ObservationStalled
-                        });
-                        if let Some(report) = stopped(control) {
-                            link.send(report);
-                        }
+        // The link's silence counts from the controller's last answer to a valid frame.
+        if core::mem::take(&mut answered) {
+            quiet_since = PERIODS.load(Ordering::Relaxed);
+        }
+        let watched = started && period::stopped().is_none();
+        let until = watched.then(|| quiet_since.wrapping_add(OBSERVATION_TIMEOUT_PERIODS));
+        let len = match link.receive(bytes(work), until) {
+            Received::TimedOut => {
+                period::post(Command::Stop(if corrupt {
+                    StopReason::ObservationCorrupt
+                } else {
+                    StopReason::ObservationStalled
+                }));
+                let stop = loop {
+                    if let Some(stop) = period::stopped() {
+                        break stop;
                     }
-                }
+                    sleep_unless(|| false);
+                };
+                link.send(stop_report(stop));
                 continue;
             }
             Received::Bad => Err(WireError::Framing),
@@ -207,9 +204,9 @@ fn main() -> ! {
                 continue;
             }
         };
-        (quiet_periods, corrupt) = (0, false);
-        if let Some(report) = control.as_ref().and_then(stopped) {
-            link.send(report);
+        (answered, corrupt) = (true, false);
+        if let Some(stop) = period::stopped() {
+            link.send(stop_report(stop));
             continue;
         }
         match (message, pending.take()) {
@@ -248,36 +245,45 @@ fn main() -> ! {
                 link.send(FromController::WindowPlease);
             }
             (ToController::Window { heights_mm_le }, Some(outputs)) => {
-                let Ok(record) = stack.decide(observation, &outputs, heights_mm_le) else {
-                    link.send(FromController::Rejected {
-                        error: WireError::Message.code(),
-                    });
-                    continue;
-                };
-                link.send(decision(&record));
-                let control = match &mut control {
-                    Some(control) => control,
-                    empty => {
-                        let started =
-                            empty.insert(Control::new(&stack.robot(), observation.legs()));
-                        if started.start_up(&mut board).is_err() {
-                            started.stop(StopReason::StartupFailed);
-                        }
-                        started
+                let began = PERIODS.load(Ordering::Relaxed);
+                let deadline = began.wrapping_add(DECISION_DEADLINE_PERIODS);
+                // The bring-up test's slow decision: busy, as a decision is.
+                let delayed = began.wrapping_add(core::mem::take(&mut delay_periods));
+                while !reached(delayed) {}
+                let decided = stack
+                    .decide_in_time(observation, &outputs, heights_mm_le, || !reached(deadline));
+                let record = match decided {
+                    Ok(record) => record,
+                    Err(StackError::DeadlineMissed) => {
+                        let periods = PERIODS.load(Ordering::Relaxed).wrapping_sub(began);
+                        link.send(FromController::DeadlineMissed { periods });
+                        continue;
+                    }
+                    Err(_) => {
+                        link.send(FromController::Rejected {
+                            error: WireError::Message.code(),
+                        });
+                        continue;
                     }
                 };
-                let driven = if control.stopped() {
-                    Ok(())
-                } else {
-                    control.step(&mut board, record.action())
-                };
-                link.send(step_report(control, driven));
+                link.send(decision(&record));
+                if !started {
+                    started = true;
+                    period::post(Command::Start {
+                        legs: observation.legs(),
+                    });
+                    wait_done();
+                }
+                link.send(drive(Command::Step(record.action())));
             }
             (ToController::Collided, None) => {
-                if let Some(control) = control.as_mut() {
-                    let driven = control.retreat(&mut board);
-                    link.send(step_report(control, driven));
+                if started {
+                    link.send(drive(Command::Retreat));
                 }
+            }
+            (ToController::DelayNextDecision { ms }, outputs) => {
+                pending = outputs;
+                delay_periods = ms.div_ceil(10);
             }
             _ => link.send(FromController::Rejected {
                 error: WireError::Message.code(),

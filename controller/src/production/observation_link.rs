@@ -1,12 +1,13 @@
 //! The observation link on UART 1: COBS frames from the perception computer decoded as their
-//! bytes come, the controller's messages sealed and sent back, and the control period kept
-//! running (the robot held) while a frame is awaited.
+//! bytes come, and the controller's messages sealed and sent back. The control period runs in
+//! its interrupt meanwhile; the link only watches the clock for its own timeout.
 
-use wheelleg_controller::control::{Control, StopReason};
+use core::sync::atomic::Ordering;
+
 use wheelleg_controller::wire::{self, FromController};
-use wheelleg_runtime::can::CanFrame;
 
-use crate::board::{SlcanBoard, Uart};
+use crate::board::Uart;
+use crate::period::PERIODS;
 
 /// The observation link: COBS frames in, decoded into the receiver's buffer as they come.
 pub(crate) struct Link {
@@ -22,30 +23,19 @@ pub(crate) enum Received {
     Frame(usize),
     /// A frame that is no frame (bad COBS, too long).
     Bad,
-    /// A control period went by (the robot was held in it).
-    Period,
+    /// The period given as the wait's end began first.
+    TimedOut,
 }
 
 impl Link {
-    /// Reads bytes into `buf` until a frame ends or, once the robot is under control, a
-    /// control period begins (it runs one, holding the robot).
-    pub(crate) fn receive(
-        &mut self,
-        buf: &mut [u8],
-        board: &mut SlcanBoard,
-        mut control: Option<&mut Control<CanFrame>>,
-    ) -> Received {
+    /// Reads bytes into `buf` until a frame ends or, with `until`, that control period
+    /// begins.
+    pub(crate) fn receive(&mut self, buf: &mut [u8], until: Option<u32>) -> Received {
         loop {
-            // Every turn, not only when the link is quiet: a flood of bytes must not starve
-            // the control period.
-            if let Some(control) = control.as_deref_mut() {
-                if board.period_due() {
-                    // A frame that cannot be queued stops the robot in the next period.
-                    if control.hold(board).is_err() {
-                        control.stop(StopReason::Control);
-                    }
-                    return Received::Period;
-                }
+            // Every turn, not only when the link is quiet: a flood of bytes must not hide the
+            // timeout.
+            if until.is_some_and(reached) {
+                return Received::TimedOut;
             }
             let Some(byte) = self.uart.try_read() else {
                 continue;
@@ -83,4 +73,10 @@ impl Link {
             self.uart.write(frame.get(..len).unwrap_or(&[]));
         }
     }
+}
+
+/// Whether control period `period` has begun (counts wrap after 497 days: compared by
+/// difference).
+pub(crate) fn reached(period: u32) -> bool {
+    PERIODS.load(Ordering::Relaxed).wrapping_sub(period) < u32::MAX / 2
 }

@@ -59,7 +59,7 @@ impl Rig {
             }
         }
         // The verdict stands on what the periods' reads brought, as on the controller
-        // (`controller/src/control.rs`), whose reads come only at a period's start: frames of
+        // (`control/src/lib.rs`), whose reads come only at a period's start: frames of
         // the last period reach the tracker at the next one.
         match roll_call.verdict() {
             Ok(()) => Ok(()),

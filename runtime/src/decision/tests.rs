@@ -166,6 +166,26 @@ fn a_check_that_refuses_everything_falls_back_to_the_plain_choice() {
 }
 
 #[test]
+fn a_decision_out_of_time_is_abandoned_and_remembers_nothing() {
+    let mut decider: Decider = Decider::new();
+    let logits = forward_logits();
+    // Time runs out after three refused candidates.
+    let mut budget = 3;
+    let abandoned = decider.choose_checked_in_time(A, &logits, 2, |_, _| {
+        if budget == 0 {
+            return None;
+        }
+        budget -= 1;
+        Some(false)
+    });
+    assert_eq!(abandoned, None);
+    assert_eq!(decider.taken_count(A), 0);
+    // Decided again in time, the observation meets the same first candidate as a fresh one.
+    let mut fresh: Decider = Decider::new();
+    assert_eq!(decider.choose(A, &logits), fresh.choose(A, &logits));
+}
+
+#[test]
 fn the_default_memory_is_about_five_kilobytes() {
     // 128 observations x (8-byte key + 32-byte set) + two counters: the 5 KB the docs state.
     assert!(core::mem::size_of::<Decider>() <= 128 * 40 + 16);

@@ -238,13 +238,43 @@ impl CollisionGuard {
         legs: LegConfig,
         arrival: Option<&Arrival>,
     ) -> Checked {
+        let decided = self.choose_in_time(decider, key, logits, heights, legs, arrival, || true);
+        // Never out of time: the fallback only keeps the types honest.
+        decided.unwrap_or(Checked {
+            action: Action::IDLE,
+            level: None,
+            checks: 0,
+        })
+    }
+
+    /// [`Self::choose`] with a deadline: `in_time` is asked before each candidate's check,
+    /// and once it says no the decision is abandoned (`None`, nothing remembered). A check
+    /// costs at most one pass over the window, so the decision's time past the deadline is
+    /// bounded by one check ([`crate::decision::Decider::choose_checked_in_time`]).
+    #[allow(clippy::too_many_arguments)]
+    pub fn choose_in_time<const STATES: usize, L: Copy + Into<f32>>(
+        &self,
+        decider: &mut Decider<STATES>,
+        key: ObservationKey,
+        logits: &[L; DIMS * CHOICES],
+        heights: HeightMapRef<'_>,
+        legs: LegConfig,
+        arrival: Option<&Arrival>,
+        mut in_time: impl FnMut() -> bool,
+    ) -> Option<Checked> {
         let arrival = arrival.filter(|a| a.applies(decider, key));
         let first = usize::from(arrival.is_some());
         // Levels numbered as if arrival were always asked: 0 arrival, 1 strict, 2 lenient.
         let skipped = 1 - first;
-        let mut checked =
-            decider.choose_checked(key, logits, first + Self::LEVELS, |level, action| {
-                match level + skipped {
+        let mut checked = decider.choose_checked_in_time(
+            key,
+            logits,
+            first + Self::LEVELS,
+            |level, action| {
+                if !in_time() {
+                    return None;
+                }
+                Some(match level + skipped {
                     0 => {
                         arrival.is_some_and(|a| a.reached_by(action))
                             && self.check(heights, legs, action).is_ok()
@@ -252,10 +282,11 @@ impl CollisionGuard {
                     1 => self.check(heights, legs, action).is_ok(),
                     2 => self.check_no_deeper(heights, legs, action).is_ok(),
                     _ => false,
-                }
-            });
+                })
+            },
+        )?;
         checked.level = checked.level.map(|level| level.saturating_sub(first));
-        checked
+        Some(checked)
     }
 
     /// How much every column's square is grown on each side (negative: shrunk).

@@ -1,7 +1,7 @@
 //! `demo --controller qemu`: the on-board stack and the motor commands in the controller
 //! firmware's production image in QEMU.
 
-use super::{print_report, Args, LogFile};
+use super::{print_report, Args, ClockArg, LogFile};
 use crate::cli::CliResult;
 use wheelleg::closed_loop::{LoopConfig, Tolerance};
 use wheelleg_firmware_sim::candump::{CandumpWriter, DEFAULT_EPOCH_US};
@@ -14,7 +14,9 @@ use wheelleg_sim::scenario::Scenario;
 /// `demo --controller qemu`: the episode through the firmware in QEMU.
 pub(super) fn run_qemu(args: &Args, scenario: &Scenario, origin: &str) -> CliResult {
     use wheelleg::hil::{
-        find_or_build_image, plant::PlantFault, Faults, Hil, PERIOD_BUDGET_CYCLES,
+        find_or_build_image,
+        plant::{PlantClock, PlantFault},
+        Faults, Hil, PERIOD_BUDGET_CYCLES,
     };
     let refused = [
         (
@@ -43,7 +45,16 @@ pub(super) fn run_qemu(args: &Args, scenario: &Scenario, origin: &str) -> CliRes
         )
         .into());
     }
-    let image = find_or_build_image(args.firmware.as_deref())?;
+    let clock = match args.clock {
+        ClockArg::Lockstep => PlantClock::Lockstep,
+        ClockArg::Emulated => PlantClock::Emulated,
+    };
+    let image = find_or_build_image(args.firmware.as_deref(), clock)?;
+    let say = |line: std::fmt::Arguments<'_>| {
+        if !args.json {
+            outln!("{line}");
+        }
+    };
     let mut env = Env::new(scenario, LoopConfig::default().env).map_err(|e| e.to_string())?;
     let legs = env.state().leg_config(env.geometry());
     let mut faults = Faults::default();
@@ -52,27 +63,40 @@ pub(super) fn run_qemu(args: &Args, scenario: &Scenario, origin: &str) -> CliRes
             .into_iter()
             .find(|&a| NodeMap::NOMINAL.node_id(a).get() == node)
         {
-            outln!("inject:    node {node} ({axis:?}) goes silent during step {at}");
+            say(format_args!(
+                "inject:    node {node} ({axis:?}) goes silent during step {at}"
+            ));
             faults.plant.push((at, PlantFault::SilentAxis(axis)));
         }
     }
-    outln!(
+    if let Some(ms) = args.inject_decision_ms {
+        say(format_args!(
+            "inject:    decision {} spends {ms} ms more on the controller",
+            args.inject_at_step
+        ));
+        faults.slow_decision = Some((args.inject_at_step, ms));
+    }
+    say(format_args!(
         "scene:     {} ({origin}); target {:.2} m away",
         scenario.name,
         env.distance_to_target_m()
-    );
-    outln!(
+    ));
+    say(format_args!(
         "driver:    the controller firmware {} in QEMU mps2-an386 (Cortex-M4F): shipped int8 \
          policy, decision rule, collision guard on the 1 cm fine window, arrival",
         image.display()
-    );
-    outln!(
+    ));
+    let timing = match clock {
+        PlantClock::Lockstep => "in lockstep",
+        PlantClock::Emulated => "on QEMU's instruction clock (250 M instructions/s)",
+    };
+    say(format_args!(
         "links:     observation link on UART 1 (COBS, CRC-16, postcard); SLCAN adapter on \
-         UART 2, 16 simulated ODrive axes behind it, 1 Mbit/s, control 100 Hz in lockstep"
-    );
+         UART 2, 16 simulated ODrive axes behind it, 1 Mbit/s, control 100 Hz {timing}"
+    ));
     std::fs::create_dir_all(&args.out)
         .map_err(|e| format!("cannot create {}: {e}", args.out.display()))?;
-    let mut hil = Hil::start(&image, legs)?;
+    let mut hil = Hil::start(&image, legs, clock)?;
     let (log_file, writer) = LogFile::create(args.out.join("bus.log"))?;
     hil.plant()
         .log_to(CandumpWriter::new(writer, "slcan0", DEFAULT_EPOCH_US));
@@ -90,6 +114,44 @@ pub(super) fn run_qemu(args: &Args, scenario: &Scenario, origin: &str) -> CliRes
     top_view(scenario, &WHEELLEG, &report.path, &report.collided_at)?
         .save_png(&png)
         .map_err(|e| format!("cannot write {}: {e}", png.display()))?;
+    if args.json {
+        let result = match (report.status, report.fault) {
+            (_, Some(_)) => "stopped".to_owned(),
+            (status, None) => format!("{status:?}"),
+        };
+        let held = episode.held.map(|held| {
+            serde_json::json!({
+                "periods": held.steps / 10,
+                "max_leg_change_mm": 1e3 * held.max_leg_change_m,
+                "max_wheel_speed_sum_turns_per_s": held.max_wheel_speed_sum,
+            })
+        });
+        let timed = clock == PlantClock::Emulated;
+        let json = serde_json::json!({
+            "scene": scenario.name,
+            "clock": format!("{:?}", clock).to_lowercase(),
+            "result": result,
+            "fault": report.fault.map(|f| f.to_string()),
+            "decisions": report.steps,
+            "collisions": report.collisions,
+            "deadline_misses": episode.deadline_misses,
+            "periods": episode.periods,
+            "periods_stamped": timed.then_some(episode.timing.periods),
+            "periods_late": timed.then_some(episode.timing.late),
+            "worst_period_lateness_ms":
+                timed.then_some(episode.timing.worst_lateness_us as f64 * 1e-3),
+            "axis_watchdog_trips": episode.watchdog_trips,
+            "robot_time_s": report.elapsed_s,
+            "busiest_period_instructions": busiest_period,
+            "ram_bytes": ram.total_bytes(),
+            "held_through_slow_decision": held,
+        });
+        outln!("{json}");
+        return match report.fault {
+            Some(fault) => Err(format!("robot stopped: {fault}").into()),
+            None => Ok(()),
+        };
+    }
     // The firmware in the loop checks steps against the default tolerances.
     print_report(
         report,
@@ -114,6 +176,31 @@ pub(super) fn run_qemu(args: &Args, scenario: &Scenario, origin: &str) -> CliRes
          of its 10 ms at 170 MHz, one cycle per instruction)",
         100.0 * busiest_period as f64 / PERIOD_BUDGET_CYCLES as f64
     );
+    if clock == PlantClock::Emulated {
+        outln!(
+            "clock:     {} periods on QEMU's instruction clock, {} late (the latest {:.3} ms after \
+             its due time), {} axis watchdog trips",
+            episode.timing.periods,
+            episode.timing.late,
+            episode.timing.worst_lateness_us as f64 * 1e-3,
+            episode.watchdog_trips
+        );
+    }
+    if episode.deadline_misses > 0 {
+        outln!(
+            "deadline:  {} decisions abandoned at their deadline, decided again",
+            episode.deadline_misses
+        );
+    }
+    if let Some(held) = episode.held {
+        outln!(
+            "held:      through the slow decision {} periods, legs within {:.3} mm, wheels at \
+             most {:.4} turns/s",
+            held.steps / 10,
+            1e3 * held.max_leg_change_m,
+            held.max_wheel_speed_sum
+        );
+    }
     match report.fault {
         Some(fault) => Err(format!("robot stopped: {fault}").into()),
         None => Ok(()),

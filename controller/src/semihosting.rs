@@ -1,6 +1,7 @@
-//! Arm semihosting (the debugger's file and exit calls, `bkpt 0xAB`): how the QEMU board reads
-//! its test vectors, writes its results and ends the run. Only the check harness uses it; a
-//! real board has no debugger attached and takes its observations over its own links.
+//! Arm semihosting (the debugger's file and exit calls, `bkpt 0xAB`): how the check image reads
+//! its test vectors, writes its results and ends the run in QEMU, and how the production image
+//! built for the HIL's emulated clock takes its CAN adapter's bytes. A real board has no
+//! debugger attached and uses its own links.
 
 use core::arch::asm;
 
@@ -56,6 +57,13 @@ impl File {
     pub fn read_exact(&mut self, buf: &mut [u8]) -> bool {
         let left = call(SYS_READ, &[self.0, buf.as_mut_ptr() as usize, buf.len()]);
         left == 0
+    }
+
+    /// Reads what is there into `buf`, waiting (in the host, at no cost to the emulated
+    /// clock) until there is at least a byte; the bytes read, 0 at the end or on an error.
+    pub fn read_some(&mut self, buf: &mut [u8]) -> usize {
+        let left = call(SYS_READ, &[self.0, buf.as_mut_ptr() as usize, buf.len()]);
+        usize::try_from(left).map_or(0, |left| buf.len().saturating_sub(left))
     }
 
     /// Writes all of `bytes`.
