@@ -38,7 +38,6 @@ use wheelleg_firmware_sim::candump::{CandumpWriter, DEFAULT_EPOCH_US};
 use wheelleg_runtime::action::Action;
 use wheelleg_runtime::can::decode;
 use wheelleg_runtime::guard::{CollisionGuard, GridMap, HeightMapRef, DEFAULT_MARGIN_M};
-use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::env::{Env, EnvConfig, Status};
 use wheelleg_sim::height_map::MapGrid;
 use wheelleg_sim::scenario::Scenario;
@@ -73,8 +72,13 @@ fn run() -> Result<()> {
         }
     };
     let weights = std::fs::read(WEIGHTS).map_err(|e| format!("{WEIGHTS}: {e}"))?;
+    // The scenes are read for the robot the weights were trained for.
+    let geometry = OnboardDriver::new(&weights)
+        .map_err(|e| format!("{WEIGHTS}: {}", e.0))?
+        .robot()
+        .geometry;
     let json = std::fs::read_to_string(SCENES).map_err(|e| format!("{SCENES}: {e}"))?;
-    let scenes = wheelleg_sim::scenario_file::parse(&json, &WHEELLEG).map_err(|e| e.to_string())?;
+    let scenes = wheelleg_sim::scenario_file::parse(&json, &geometry).map_err(|e| e.to_string())?;
     match args.first().map(String::as_str) {
         Some("vectors") => {
             let out = PathBuf::from(args.get(1).ok_or("vectors needs OUT_DIR")?);
@@ -117,10 +121,8 @@ impl<'w> Robot<'w> {
         if window.side != MapGrid::GUARD_FINE.side || window.cell_m != MapGrid::GUARD_FINE.cell_m {
             return Err("the controller's fine map is not the host's GUARD_FINE".into());
         }
-        Ok(Robot {
-            driver,
-            guard: CollisionGuard::new(&wheelleg_runtime::robot::Robot::WHEELLEG, DEFAULT_MARGIN_M),
-        })
+        let guard = CollisionGuard::new(&driver.robot(), DEFAULT_MARGIN_M);
+        Ok(Robot { driver, guard })
     }
 
     /// One decision on `env` as it is now.

@@ -75,7 +75,13 @@ fn run(
 ) -> (Hil, HilEpisode) {
     let mut env = Env::new(scene, EnvConfig::default()).expect("scene");
     let legs = env.state().leg_config(env.geometry());
-    let mut hil = Hil::start(image, legs, clock).unwrap_or_else(|e| panic!("{e}"));
+    let mut hil = Hil::start(
+        image,
+        &wheelleg_runtime::robot::Robot::WHEELLEG,
+        legs,
+        clock,
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
     if let Some(path) = log {
         let file = std::fs::File::create(path).expect("log file");
         let writer: Box<dyn std::io::Write + Send> = Box::new(std::io::BufWriter::new(file));
@@ -519,4 +525,120 @@ fn a_slow_decision_holds_the_robot_and_then_it_goes_on() {
         expected,
         "{test}"
     );
+}
+
+/// The shipped network with `robot`'s record: weights a controller takes as trained for it.
+fn weights_for(robot: &wheelleg_robot::RobotDescription) -> Vec<u8> {
+    use wheelleg_runtime::model::format::{RobotRecord, FORMAT_VERSION};
+    use wheelleg_runtime::model::load::open_envelope;
+    let shipped = std::fs::read(root().join("weights/policy.wlw")).expect("weights");
+    let (_, payload) = open_envelope(&shipped).expect("shipped envelope");
+    let mut payload = payload.to_vec();
+    let record = RobotRecord::of(&robot.name, &robot.robot, robot.bit_rate_bps);
+    payload.extend(postcard::to_allocvec(&record).expect("record"));
+    wheelleg_trainer::quantize::file_bytes::envelope_bytes(FORMAT_VERSION, &payload)
+        .expect("weights file")
+}
+
+#[test]
+fn another_robot_s_weights_run_on_the_firmware() {
+    use rand::SeedableRng;
+    use wheelleg_sim::generate::{generate, SceneRobot};
+    let test = "another_robot_s_weights_run_on_the_firmware";
+    if !qemu_available() {
+        println!("SKIPPED {test}: qemu-system-arm is missing (bash scripts/embedded-toolchain.sh)");
+        return;
+    }
+    let strider = wheelleg_robot::RobotDescription::load(&root().join("robots/strider.toml"))
+        .expect("robots/strider.toml");
+    let out = root().join("target/hil");
+    std::fs::create_dir_all(&out).expect("out dir");
+    let weights_path = out.join("strider.wlw");
+    let weights = weights_for(&strider);
+    std::fs::write(&weights_path, &weights).expect("weights written");
+    let image = wheelleg::hil::image_with_weights(&weights_path, PlantClock::Emulated)
+        .unwrap_or_else(|e| panic!("{e}"));
+    // A straight scene fitted to the strider, its target moved to within one step: the first
+    // decision arrives (the arrival rule), so the episode is short and its outcome certain.
+    let geometry = strider.simulated_geometry().expect("simulated geometry");
+    let mut rng = rand::rngs::StdRng::seed_from_u64(2);
+    let mut scene = generate(
+        SceneRobot::of(&geometry),
+        wheelleg_sim::generate::SceneKind::Behaviour(wheelleg_sim::generate::Behaviour::Straight),
+        &mut rng,
+        "strider-straight".into(),
+    );
+    let yaw_rad = scene.start.yaw_rad();
+    let ahead_m = EnvConfig::default().success_radius_m + 0.02;
+    scene.target = scene.start.position;
+    scene.target.x += ahead_m * yaw_rad.cos();
+    scene.target.y += ahead_m * yaw_rad.sin();
+    let env_config = EnvConfig {
+        geometry,
+        ..EnvConfig::default()
+    };
+    // The host's in-process loop with the firmware's stack on the same weights and robot.
+    let mut driver = OnboardDriver::new(&weights).expect("stack");
+    let config = LoopConfig {
+        env: env_config,
+        node_map: strider.robot.can,
+        ..LoopConfig::default()
+    };
+    let mut host = ClosedLoop::in_process(&scene, config).expect("loop");
+    host.start().expect("start-up");
+    while !host.is_done() {
+        let action = driver.decide(host.env()).expect("decision");
+        host.step(action).expect("step");
+    }
+    let expected = host.finish().expect("finish");
+
+    let mut env = Env::new(&scene, env_config).expect("scene");
+    let legs = env.state().leg_config(env.geometry());
+    let mut hil = Hil::start(&image, &strider.robot, legs, PlantClock::Emulated)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let log = out.join("strider.log");
+    let file = std::fs::File::create(&log).expect("log file");
+    let writer: Box<dyn std::io::Write + Send> = Box::new(std::io::BufWriter::new(file));
+    hil.plant()
+        .log_to(CandumpWriter::new(writer, "slcan0", DEFAULT_EPOCH_US));
+    let got = hil
+        .run(&mut env, &Faults::default())
+        .unwrap_or_else(|e| panic!("{e}"));
+    hil.plant().take_log().expect("log flushed");
+    hil.shutdown().expect("shutdown");
+    let report = &got.report;
+    println!(
+        "{test}: host {:?} in {} decisions; firmware {:?} in {} decisions, {} periods, {} late, \
+         {} watchdog trips",
+        expected.status,
+        expected.steps,
+        report.status,
+        report.steps,
+        got.timing.periods,
+        got.timing.late,
+        got.watchdog_trips
+    );
+    assert_eq!(report.fault, None, "{test}");
+    assert_eq!(report.status, wheelleg_sim::env::Status::Success, "{test}");
+    assert_eq!(
+        (report.status, report.steps, report.collisions),
+        (expected.status, expected.steps, expected.collisions),
+        "{test}"
+    );
+    assert_eq!((got.timing.late, got.watchdog_trips), (0, 0), "{test}");
+    // Every frame on the bus is the strider's (nodes 21 to 36): the roll call, the arming and
+    // the setpoints went to its node map, read from the weights at boot.
+    let text = std::fs::read_to_string(&log).expect("log");
+    let mut frames = 0;
+    for line in text.lines() {
+        let id = line
+            .split_whitespace()
+            .nth(2)
+            .and_then(|f| f.split('#').next())
+            .expect("a candump line");
+        let node = u32::from_str_radix(id, 16).expect("hex id") >> 5;
+        assert!((21..=36).contains(&node), "{test}: {line}");
+        frames += 1;
+    }
+    assert!(frames > 500, "{test}: {frames} frames");
 }

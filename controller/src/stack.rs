@@ -24,9 +24,10 @@ use wheelleg_runtime::robot::Robot;
 pub const FINE_SIDE: usize = 128;
 /// Cell side of the fine map.
 pub const FINE_CELL_M: f32 = 0.01;
-/// Capacity of the fine window, in cells: [`CollisionGuard::fine_window`] of the default
-/// guard on the 1 cm map is 68 x 78 = 5,304 cells; the stack refuses to start if it were more.
-pub const WINDOW_CELLS: usize = 5_376;
+/// Capacity of the fine window, in cells: the whole 1 cm map, so that the window of any robot
+/// fits ([`CollisionGuard::fine_window`] is cut from the map; the shipped robot's default guard
+/// reads 68 x 78 = 5,304 cells, the strider's 78 x 88 = 6,864).
+pub const WINDOW_CELLS: usize = FINE_SIDE * FINE_SIDE;
 /// Bytes of the fine window (`i16` heights).
 pub const WINDOW_BYTES: usize = 2 * WINDOW_CELLS;
 /// int8 elements of each activation buffer (the first conv layer's 16 x 16 x 16 output).
@@ -35,10 +36,13 @@ pub const ACTIVATION_ELEMENTS: usize = 4_096;
 /// conv 1), at least the longest row (the dense layer's 516 inputs) padded to whole 16-element
 /// blocks. Each conv batch has a fixed set-up cost, so fewer, larger batches are faster.
 pub const ROW_ELEMENTS: usize = 1_152;
+/// Bytes a link frame adds around the fine window's heights (the envelope's version, the
+/// message's tag and the heights' length, the CRC), with room to spare.
+pub const FRAME_OVERHEAD_BYTES: usize = 16;
 /// The work area: inference's two activation buffers, then (after inference) the fine
-/// window, in the same bytes.
-pub const WORK_BYTES: usize = if WINDOW_BYTES > 2 * ACTIVATION_ELEMENTS {
-    WINDOW_BYTES
+/// window, in the same bytes; the observation link's frames arrive in it too.
+pub const WORK_BYTES: usize = if WINDOW_BYTES + FRAME_OVERHEAD_BYTES > 2 * ACTIVATION_ELEMENTS {
+    WINDOW_BYTES + FRAME_OVERHEAD_BYTES
 } else {
     2 * ACTIVATION_ELEMENTS
 };

@@ -328,16 +328,7 @@ pub fn run(args: Args) -> CliResult {
     };
     let (scenario, origin) = scene(&args, env_config, &planner)?;
     if args.controller == ControllerArg::Qemu {
-        if robot != RobotDescription::shipped() {
-            return Err(format!(
-                "--controller qemu with robot '{}': the QEMU loop runs the shipped robot's \
-                 image; an image with this robot's weights is built with WHEELLEG_WEIGHTS \
-                 (controller/build.rs)",
-                robot.name
-            )
-            .into());
-        }
-        return run_qemu(&args, &scenario, &origin);
+        return run_qemu(&args, &scenario, &origin, &robot.robot, env_config);
     }
     let mut closed_loop = closed_loop(&args, &scenario, &robot, tolerance)?;
 

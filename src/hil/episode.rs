@@ -3,7 +3,6 @@
 
 use super::plant::{HoldWatch, PeriodTiming};
 use super::*;
-use wheelleg_runtime::robot::Robot;
 
 impl Hil {
     /// Runs one episode of `env` with `faults`; the robot is left at rest (or in safe stop).
@@ -40,7 +39,7 @@ impl Hil {
             if stall {
                 // Nothing more is sent: the firmware must stop by itself.
                 let answer = self.answer(&mut rejected)?;
-                stop = stopped(answer)?;
+                stop = stopped(answer, &self.robot)?;
                 fault = stop.map(|s| Fault::Controller {
                     step: env.steps(),
                     reason: s,
@@ -79,7 +78,7 @@ impl Hil {
                             )?;
                         }
                         other => {
-                            stop = stopped(other)?;
+                            stop = stopped(other, &self.robot)?;
                             break;
                         }
                     }
@@ -93,7 +92,7 @@ impl Hil {
             match self.answer(&mut rejected)? {
                 FromController::WindowPlease => {}
                 other => {
-                    stop = stopped(other)?;
+                    stop = stopped(other, &self.robot)?;
                     fault = stop.map(|s| Fault::Controller {
                         step: env.steps(),
                         reason: s,
@@ -149,8 +148,8 @@ impl Hil {
             });
             let from = *env.state();
             let from_legs = from.leg_config(env.geometry());
-            let ideal = BaseDisplacement::of_action(action, &Robot::WHEELLEG.actions);
-            let ideal_legs = target_config(from_legs, action, &Robot::WHEELLEG.actions);
+            let ideal = BaseDisplacement::of_action(action, &self.robot.actions);
+            let ideal_legs = target_config(from_legs, action, &self.robot.actions);
             let index = env.steps();
             match self.answer(&mut rejected)? {
                 FromController::StepDone {
@@ -210,7 +209,7 @@ impl Hil {
                             tracking.undone += 1;
                         }
                         other => {
-                            stop = stopped(other)?;
+                            stop = stopped(other, &self.robot)?;
                             fault = stop.map(|s| Fault::Controller {
                                 step: index,
                                 reason: s,
@@ -219,7 +218,7 @@ impl Hil {
                     }
                 }
                 other => {
-                    stop = stopped(other)?;
+                    stop = stopped(other, &self.robot)?;
                     fault = stop.map(|s| Fault::Controller {
                         step: index,
                         reason: s,
@@ -301,12 +300,13 @@ fn finished() -> HilError {
     HilError::Protocol("the world's episode ended before the firmware's".into())
 }
 
-fn stopped(answer: FromController) -> Result<Option<ControllerStop>, HilError> {
+fn stopped(answer: FromController, robot: &Robot) -> Result<Option<ControllerStop>, HilError> {
     match answer {
         FromController::Stopped { reason, axes, tick } => Ok(Some(ControllerStop {
             reason,
             axes: AxisSet(axes),
             tick,
+            node_ids: ControllerStop::node_ids(&robot.can),
         })),
         other => Err(HilError::Protocol(format!(
             "expected the firmware's report, got {other:?}"

@@ -1,7 +1,7 @@
 //! What the host injects into an episode in the loop, and why the firmware says it stopped.
 
 use wheelleg_runtime::can::host::AxisSet;
-use wheelleg_runtime::can::node_map::NodeMap;
+use wheelleg_runtime::can::node_map::{Axis, NodeMap};
 
 use super::plant::PlantFault;
 use super::wire::stop_reason;
@@ -38,6 +38,19 @@ pub struct ControllerStop {
     pub axes: AxisSet,
     /// The firmware's control period in which it stopped (counted from its first).
     pub tick: u32,
+    /// Each axis's node id (in `Axis::ALL`'s order), to name the axes by.
+    pub node_ids: [u8; 16],
+}
+
+impl ControllerStop {
+    /// The node ids of `map`'s axes, in `Axis::ALL`'s order.
+    pub fn node_ids(map: &NodeMap) -> [u8; 16] {
+        let mut ids = [0; 16];
+        for (id, axis) in ids.iter_mut().zip(Axis::ALL) {
+            *id = map.node_id(axis).get();
+        }
+        ids
+    }
 }
 
 impl std::fmt::Display for ControllerStop {
@@ -45,7 +58,10 @@ impl std::fmt::Display for ControllerStop {
         let axes = || {
             self.axes
                 .iter()
-                .map(|axis| format!("node {} ({axis:?})", NodeMap::NOMINAL.node_id(axis).get()))
+                .map(|axis| {
+                    let id = self.node_ids.get(axis.index()).copied().unwrap_or(0);
+                    format!("node {id} ({axis:?})")
+                })
                 .collect::<Vec<_>>()
                 .join(", ")
         };

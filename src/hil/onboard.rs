@@ -73,6 +73,11 @@ impl<'w> OnboardDriver<'w> {
         self.first = false;
     }
 
+    /// The robot the weights were trained for: what the stack's guard and lattice are for.
+    pub fn robot(&self) -> wheelleg_runtime::robot::Robot {
+        self.stack.robot()
+    }
+
     /// The fine window the guard reads, within the 1 cm map.
     pub fn window(&self) -> WindowBounds {
         self.stack.window()

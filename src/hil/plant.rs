@@ -138,9 +138,14 @@ pub struct Plant {
 }
 
 impl Plant {
-    /// The axes with the legs at `start`, wheels at rest, all idle.
-    pub fn new(geometry: &RobotGeometry, start: LegConfig) -> Result<Plant, IkError> {
-        let map = NodeMap::NOMINAL;
+    /// The axes of a robot of `geometry` on the nodes of `map`, with the legs at `start`,
+    /// wheels at rest, all idle.
+    pub fn new(
+        geometry: &RobotGeometry,
+        map: &NodeMap,
+        start: LegConfig,
+    ) -> Result<Plant, IkError> {
+        let map = *map;
         let bus = InProcessBus::default();
         let mut axes = Firmware::for_robot(geometry, &map, start)?;
         axes.set_watchdog_timeout_us(WATCHDOG_TIMEOUT_US);

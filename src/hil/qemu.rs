@@ -70,6 +70,50 @@ pub(super) fn qemu_command() -> Command {
     }
 }
 
+/// The production image for `clock` with the weights file at `weights` built into it
+/// (`WHEELLEG_WEIGHTS`, controller/build.rs), in a target folder of its own named by the
+/// file's contents, so that each weights file keeps its build.
+pub fn image_with_weights(weights: &Path, clock: PlantClock) -> Result<PathBuf, HilError> {
+    use std::hash::{Hash, Hasher};
+    let bytes = std::fs::read(weights)
+        .map_err(|e| HilError::NoImage(weights.to_path_buf(), format!("cannot read: {e}")))?;
+    let weights = weights
+        .canonicalize()
+        .map_err(|e| HilError::NoImage(weights.to_path_buf(), e.to_string()))?;
+    // std's hasher with its fixed keys: the same file names the same folder on this machine.
+    let mut hasher = std::collections::hash_map::DefaultHasher::new();
+    bytes.hash(&mut hasher);
+    let clock_dir = match clock {
+        PlantClock::Lockstep => "lockstep",
+        PlantClock::Emulated => "emulated-clock",
+    };
+    let target = format!("target/weights-{:016x}/{clock_dir}", hasher.finish());
+    let controller = Path::new(env!("CARGO_MANIFEST_DIR")).join("controller");
+    let image = controller
+        .join(&target)
+        .join("thumbv7em-none-eabihf/release/wheelleg-controller");
+    // Built every time: cargo rebuilds only what changed, so a firmware changed since the
+    // last run is never run stale (a second or so when nothing did).
+    let mut args = build_command(clock);
+    args.retain(|a| *a != "--target-dir" && *a != EMULATED_TARGET);
+    let built = Command::new("cargo")
+        .arg("+nightly")
+        .args(args)
+        .args(["--target-dir", &target])
+        .env("WHEELLEG_WEIGHTS", &weights)
+        .current_dir(&controller)
+        .stdout(Stdio::null())
+        .status();
+    match built {
+        Ok(status) if status.success() && image.is_file() => Ok(image),
+        Ok(status) => Err(HilError::NoImage(
+            image,
+            format!("the build with {} failed: {status}", weights.display()),
+        )),
+        Err(e) => Err(HilError::NoImage(image, format!("cargo cannot run: {e}"))),
+    }
+}
+
 /// Whether `qemu-system-arm` runs here.
 pub fn qemu_available() -> bool {
     Command::new("qemu-system-arm")

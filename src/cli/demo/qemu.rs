@@ -3,18 +3,26 @@
 
 use super::{print_report, Args, ClockArg, LogFile};
 use crate::cli::CliResult;
-use wheelleg::closed_loop::{LoopConfig, Tolerance};
+use wheelleg::closed_loop::Tolerance;
 use wheelleg_firmware_sim::candump::{CandumpWriter, DEFAULT_EPOCH_US};
-use wheelleg_runtime::can::node_map::{Axis, NodeMap};
-use wheelleg_runtime::robot::WHEELLEG;
-use wheelleg_sim::env::Env;
+use wheelleg_runtime::can::node_map::Axis;
+use wheelleg_runtime::robot::Robot;
+use wheelleg_sim::env::{Env, EnvConfig};
 use wheelleg_sim::render::top_view;
 use wheelleg_sim::scenario::Scenario;
 
-/// `demo --controller qemu`: the episode through the firmware in QEMU.
-pub(super) fn run_qemu(args: &Args, scenario: &Scenario, origin: &str) -> CliResult {
+/// `demo --controller qemu`: the episode through the firmware in QEMU, the image built with
+/// `--policy`'s weights when one is given (their robot `robot`, already checked against
+/// `--robot`), in a world of `env_config`.
+pub(super) fn run_qemu(
+    args: &Args,
+    scenario: &Scenario,
+    origin: &str,
+    robot: &Robot,
+    env_config: EnvConfig,
+) -> CliResult {
     use wheelleg::hil::{
-        find_or_build_image,
+        find_or_build_image, image_with_weights,
         plant::{PlantClock, PlantFault},
         Faults, Hil, PERIOD_BUDGET_CYCLES,
     };
@@ -25,8 +33,9 @@ pub(super) fn run_qemu(args: &Args, scenario: &Scenario, origin: &str) -> CliRes
         ),
         (args.planner, "--planner"),
         (
-            args.policy.is_some(),
-            "--policy (the firmware's policy is built into its image)",
+            args.policy.is_some() && args.firmware.is_some(),
+            "--policy with --firmware (the image's weights are built into it; --policy alone \
+             builds an image with them)",
         ),
         (
             !args.stack.is_robot_default(),
@@ -49,19 +58,34 @@ pub(super) fn run_qemu(args: &Args, scenario: &Scenario, origin: &str) -> CliRes
         ClockArg::Lockstep => PlantClock::Lockstep,
         ClockArg::Emulated => PlantClock::Emulated,
     };
-    let image = find_or_build_image(args.firmware.as_deref(), clock)?;
+    let image = match &args.policy {
+        Some(policy) => {
+            // The firmware halts at boot on weights its stack refuses: say why here instead.
+            let bytes = std::fs::read(policy)
+                .map_err(|e| format!("cannot read {}: {e}", policy.display()))?;
+            wheelleg::hil::onboard::OnboardDriver::new(&bytes).map_err(|e| {
+                format!(
+                    "{}: the controller firmware cannot run these weights: {}",
+                    policy.display(),
+                    e.0
+                )
+            })?;
+            image_with_weights(policy, clock)?
+        }
+        None => find_or_build_image(args.firmware.as_deref(), clock)?,
+    };
     let say = |line: std::fmt::Arguments<'_>| {
         if !args.json {
             outln!("{line}");
         }
     };
-    let mut env = Env::new(scenario, LoopConfig::default().env).map_err(|e| e.to_string())?;
+    let mut env = Env::new(scenario, env_config).map_err(|e| e.to_string())?;
     let legs = env.state().leg_config(env.geometry());
     let mut faults = Faults::default();
     if let (Some(node), Some(at)) = (args.silent_node, args.silent_at_step) {
         if let Some(axis) = Axis::ALL
             .into_iter()
-            .find(|&a| NodeMap::NOMINAL.node_id(a).get() == node)
+            .find(|&a| robot.can.node_id(a).get() == node)
         {
             say(format_args!(
                 "inject:    node {node} ({axis:?}) goes silent during step {at}"
@@ -81,9 +105,13 @@ pub(super) fn run_qemu(args: &Args, scenario: &Scenario, origin: &str) -> CliRes
         scenario.name,
         env.distance_to_target_m()
     ));
+    let weights = args.policy.as_ref().map_or_else(
+        || "the shipped int8 policy".to_owned(),
+        |policy| format!("the int8 policy {}", policy.display()),
+    );
     say(format_args!(
-        "driver:    the controller firmware {} in QEMU mps2-an386 (Cortex-M4F): shipped int8 \
-         policy, decision rule, collision guard on the 1 cm fine window, arrival",
+        "driver:    the controller firmware {} in QEMU mps2-an386 (Cortex-M4F): {weights}, \
+         decision rule, collision guard on the 1 cm fine window, arrival",
         image.display()
     ));
     let timing = match clock {
@@ -96,7 +124,7 @@ pub(super) fn run_qemu(args: &Args, scenario: &Scenario, origin: &str) -> CliRes
     ));
     std::fs::create_dir_all(&args.out)
         .map_err(|e| format!("cannot create {}: {e}", args.out.display()))?;
-    let mut hil = Hil::start(&image, legs, clock)?;
+    let mut hil = Hil::start(&image, robot, legs, clock)?;
     let (log_file, writer) = LogFile::create(args.out.join("bus.log"))?;
     hil.plant()
         .log_to(CandumpWriter::new(writer, "slcan0", DEFAULT_EPOCH_US));
@@ -111,7 +139,7 @@ pub(super) fn run_qemu(args: &Args, scenario: &Scenario, origin: &str) -> CliRes
     hil.shutdown()?;
     let report = &episode.report;
     let png = args.out.join("path.png");
-    top_view(scenario, &WHEELLEG, &report.path, &report.collided_at)?
+    top_view(scenario, &robot.geometry, &report.path, &report.collided_at)?
         .save_png(&png)
         .map_err(|e| format!("cannot write {}: {e}", png.display()))?;
     if args.json {
