@@ -96,11 +96,20 @@ pub fn image_with_weights(weights: &Path, clock: PlantClock) -> Result<PathBuf, 
     // last run is never run stale (a second or so when nothing did).
     let mut args = build_command(clock);
     args.retain(|a| *a != "--target-dir" && *a != EMULATED_TARGET);
-    let built = Command::new("cargo")
+    let mut command = Command::new("cargo");
+    command
         .arg("+nightly")
         .args(args)
         .args(["--target-dir", &target])
-        .env("WHEELLEG_WEIGHTS", &weights)
+        .env("WHEELLEG_WEIGHTS", &weights);
+    build(command, image)
+}
+
+/// Runs the image's build `command` (`cargo +nightly build ...`) in `controller/`; `image` once
+/// it is there.
+fn build(mut command: Command, image: PathBuf) -> Result<PathBuf, HilError> {
+    let controller = Path::new(env!("CARGO_MANIFEST_DIR")).join("controller");
+    let built = command
         .current_dir(&controller)
         .stdout(Stdio::null())
         .status();
@@ -108,7 +117,7 @@ pub fn image_with_weights(weights: &Path, clock: PlantClock) -> Result<PathBuf, 
         Ok(status) if status.success() && image.is_file() => Ok(image),
         Ok(status) => Err(HilError::NoImage(
             image,
-            format!("the build with {} failed: {status}", weights.display()),
+            format!("the build failed: {status}"),
         )),
         Err(e) => Err(HilError::NoImage(image, format!("cargo cannot run: {e}"))),
     }
@@ -133,19 +142,7 @@ pub fn find_or_build_image(path: Option<&Path>, clock: PlantClock) -> Result<Pat
     if path.is_some() {
         return Err(HilError::NoImage(image, "no such file".into()));
     }
-    let controller = Path::new(env!("CARGO_MANIFEST_DIR")).join("controller");
-    let built = Command::new("cargo")
-        .arg("+nightly")
-        .args(build_command(clock))
-        .current_dir(&controller)
-        .stdout(Stdio::null())
-        .status();
-    match built {
-        Ok(status) if status.success() && image.is_file() => Ok(image),
-        Ok(status) => Err(HilError::NoImage(
-            image,
-            format!("the build failed: {status}"),
-        )),
-        Err(e) => Err(HilError::NoImage(image, format!("cargo cannot run: {e}"))),
-    }
+    let mut command = Command::new("cargo");
+    command.arg("+nightly").args(build_command(clock));
+    build(command, image)
 }

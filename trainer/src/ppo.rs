@@ -301,35 +301,9 @@ impl Ppo {
 
     /// Forward, loss, backward, global-norm clip and Adam on the samples `idx` of `batch`.
     pub fn minibatch_step(&mut self, batch: &Batch, idx: &[usize]) -> Result<UpdateStats, String> {
-        let b = idx.len();
         let c = &self.config;
-        let mut heights = Vec::with_capacity(b * HEIGHT_MAP_CELLS);
-        let mut states = Vec::with_capacity(b * STATE_LEN);
-        let mut one_hot = vec![0.0f32; b * DIMS * CHOICES];
-        let mut old_lp = Vec::with_capacity(b);
-        let mut adv = Vec::with_capacity(b);
-        let mut ret = Vec::with_capacity(b);
-        let mut imitation = Vec::with_capacity(b);
-        for (k, &i) in idx.iter().enumerate() {
-            heights.extend_from_slice(
-                &batch.heights_m[i * HEIGHT_MAP_CELLS..(i + 1) * HEIGHT_MAP_CELLS],
-            );
-            states.extend_from_slice(&batch.states[i * STATE_LEN..(i + 1) * STATE_LEN]);
-            for h in 0..DIMS {
-                one_hot[(k * DIMS + h) * CHOICES + batch.actions[i * DIMS + h] as usize] = 1.0;
-            }
-            old_lp.push(batch.old_log_probs[i]);
-            adv.push(batch.advantages[i]);
-            ret.push(batch.returns[i]);
-            imitation.push(batch.imitation.get(i).copied().unwrap_or(0.0));
-        }
-        let imitates = imitation.iter().any(|&w| w != 0.0);
-        if c.normalize_advantages {
-            let mean = adv.iter().sum::<f32>() / b as f32;
-            let var = adv.iter().map(|a| (a - mean) * (a - mean)).sum::<f32>() / (b as f32 - 1.0);
-            let std = var.sqrt() + 1e-8;
-            adv.iter_mut().for_each(|a| *a = (*a - mean) / std);
-        }
+        let rows = Minibatch::gather(batch, idx, c.normalize_advantages);
+        let b = rows.len;
         let kernel =
             ConvKernel::from_name(&c.conv_kernel).map_err(|e| format!("ppo.conv_kernel: {e}"))?;
         let device = self.device.clone().autodiff();
@@ -338,7 +312,7 @@ impl Ppo {
         let (net, fwd, features_leaf) = match kernel {
             ConvKernel::Burn => {
                 let net = Net::new(&self.net, &device, true)?;
-                let fwd = net.forward(heights, states, b);
+                let fwd = net.forward(rows.heights, rows.states, b);
                 (net, fwd, None)
             }
             ConvKernel::Native => {
@@ -347,7 +321,7 @@ impl Ppo {
                     &self.net.convs,
                     arch.height_rows,
                     arch.height_cols,
-                    &heights,
+                    &rows.heights,
                     b,
                     &mut self.conv_tape,
                 )?;
@@ -357,45 +331,24 @@ impl Ppo {
                 )
                 .require_grad();
                 let net = Net::with_tracking(&self.net, &device, false, true)?;
-                let fwd = net.forward_from_features(leaf.clone(), states, b);
+                let fwd = net.forward_from_features(leaf.clone(), rows.states, b);
                 (net, fwd, Some(leaf))
             }
         };
         let data1 = |v: Vec<f32>| Tensor::<1>::from_data(TensorData::new(v, [b]), &device);
-        let one_hot = Tensor::<3>::from_data(TensorData::new(one_hot, [b, DIMS, CHOICES]), &device);
-        let (old_lp, adv, ret) = (data1(old_lp), data1(adv), data1(ret));
-
-        // psi = pi(a|s) / pi_old(a|s), from the sum of the five heads' log-probabilities.
-        let new_lp: Tensor<1> = (fwd.log_probs.clone() * one_hot)
-            .sum_dim(2)
-            .sum_dim(1)
-            .reshape([b]);
-        let log_ratio = new_lp.clone() - old_lp;
-        let ratio = log_ratio.clone().exp();
-        // Eq. 1: min(Z(psi) A, psi A); negated because Adam minimises.
-        let unclipped = ratio.clone() * adv.clone();
-        let clipped = ratio
-            .clone()
-            .clamp(1.0 - c.clip_epsilon, 1.0 + c.clip_epsilon)
-            * adv;
-        let policy_loss = unclipped.min_pair(clipped).mean().neg();
-        // L_v: squared error of the value against the return target.
-        let value_loss = (fwd.values - ret).square().mean();
-        // Entropy of the factorised distribution: the sum of the heads' entropies.
-        let entropy = (fwd.log_probs.clone().exp() * fwd.log_probs)
-            .sum_dim(2)
-            .sum_dim(1)
-            .mean()
-            .neg();
-        let mut loss = policy_loss.clone().mul_scalar(c.policy_coef)
-            + value_loss.clone().mul_scalar(c.value_coef)
-            - entropy.clone().mul_scalar(c.entropy_coef);
-        if imitates {
-            // Behaviour cloning of replayed successes (`crate::replay`): unlike the clipped
-            // surrogate, it does not fade once the critic has learnt their returns.
-            loss = loss - (new_lp * data1(imitation)).mean();
-        }
-        let grads = loss.backward();
+        let one_hot =
+            Tensor::<3>::from_data(TensorData::new(rows.one_hot, [b, DIMS, CHOICES]), &device);
+        let imitates = rows.imitation.iter().any(|&w| w != 0.0);
+        let loss = ppo_loss(
+            fwd,
+            one_hot,
+            data1(rows.old_log_probs),
+            data1(rows.advantages),
+            data1(rows.returns),
+            imitates.then(|| data1(rows.imitation)),
+            c,
+        );
+        let grads = loss.total.backward();
         let mut g = net.gradients(&grads);
         if let Some(leaf) = features_leaf {
             let d_features =
@@ -409,14 +362,8 @@ impl Ppo {
             }
         }
 
-        // Diagnostics, without gradients: approx KL (Schulman's k3 estimator) and clip fraction.
-        let log_ratio = network::to_vec(log_ratio.detach());
-        let approx_kl = log_ratio.iter().map(|lr| lr.exp() - 1.0 - lr).sum::<f32>() / b as f32;
-        let clip_fraction = log_ratio
-            .iter()
-            .filter(|lr| (lr.exp() - 1.0).abs() > c.clip_epsilon)
-            .count() as f32
-            / b as f32;
+        let (approx_kl, clip_fraction) =
+            ratio_diagnostics(&network::to_vec(loss.log_ratio.detach()), c.clip_epsilon);
         let scalar = |t: Tensor<1>| {
             network::to_vec(t.detach())
                 .first()
@@ -424,9 +371,9 @@ impl Ppo {
                 .unwrap_or(f32::NAN)
         };
         let stats = UpdateStats {
-            policy_loss: scalar(policy_loss),
-            value_loss: scalar(value_loss),
-            entropy: scalar(entropy),
+            policy_loss: scalar(loss.policy),
+            value_loss: scalar(loss.value),
+            entropy: scalar(loss.entropy),
             approx_kl,
             clip_fraction,
             gradient_steps: 1,
@@ -443,6 +390,138 @@ impl Ppo {
             .apply(&mut self.net, &g, c.learning_rate, c.adam_epsilon);
         Ok(stats)
     }
+}
+
+/// The samples of one minibatch, gathered from a rollout [`Batch`] for the loss.
+struct Minibatch {
+    len: usize,
+    heights: Vec<f32>,
+    states: Vec<f32>,
+    /// `[len, DIMS, CHOICES]`: each head's action taken, one-hot.
+    one_hot: Vec<f32>,
+    old_log_probs: Vec<f32>,
+    advantages: Vec<f32>,
+    returns: Vec<f32>,
+    /// The clone term's weight of each sample (0 for on-policy samples).
+    imitation: Vec<f32>,
+}
+
+impl Minibatch {
+    /// The samples `idx` of `batch`, the advantages normalised over the minibatch when
+    /// `normalize_advantages`.
+    fn gather(batch: &Batch, idx: &[usize], normalize_advantages: bool) -> Minibatch {
+        let b = idx.len();
+        let mut rows = Minibatch {
+            len: b,
+            heights: Vec::with_capacity(b * HEIGHT_MAP_CELLS),
+            states: Vec::with_capacity(b * STATE_LEN),
+            one_hot: vec![0.0f32; b * DIMS * CHOICES],
+            old_log_probs: Vec::with_capacity(b),
+            advantages: Vec::with_capacity(b),
+            returns: Vec::with_capacity(b),
+            imitation: Vec::with_capacity(b),
+        };
+        for (k, &i) in idx.iter().enumerate() {
+            rows.heights.extend_from_slice(
+                &batch.heights_m[i * HEIGHT_MAP_CELLS..(i + 1) * HEIGHT_MAP_CELLS],
+            );
+            rows.states
+                .extend_from_slice(&batch.states[i * STATE_LEN..(i + 1) * STATE_LEN]);
+            for h in 0..DIMS {
+                rows.one_hot[(k * DIMS + h) * CHOICES + batch.actions[i * DIMS + h] as usize] = 1.0;
+            }
+            rows.old_log_probs.push(batch.old_log_probs[i]);
+            rows.advantages.push(batch.advantages[i]);
+            rows.returns.push(batch.returns[i]);
+            rows.imitation
+                .push(batch.imitation.get(i).copied().unwrap_or(0.0));
+        }
+        if normalize_advantages {
+            let adv = &mut rows.advantages;
+            let mean = adv.iter().sum::<f32>() / b as f32;
+            let var = adv.iter().map(|a| (a - mean) * (a - mean)).sum::<f32>() / (b as f32 - 1.0);
+            let std = var.sqrt() + 1e-8;
+            adv.iter_mut().for_each(|a| *a = (*a - mean) / std);
+        }
+        rows
+    }
+}
+
+/// The loss of one minibatch and its terms, on the autodiff device.
+struct Loss {
+    /// What Adam minimises.
+    total: Tensor<1>,
+    /// `-eta_PPO`: the clipped surrogate, negated.
+    policy: Tensor<1>,
+    /// `L_v`.
+    value: Tensor<1>,
+    /// The policy's entropy (its bonus is subtracted from the total).
+    entropy: Tensor<1>,
+    /// `log psi` of each sample, for the diagnostics.
+    log_ratio: Tensor<1>,
+}
+
+/// The paper's loss (the module's Eq. 1 and 2) on the forward pass `fwd` of a minibatch whose
+/// actions are `one_hot`, with the rollout's log-probabilities `old_log_probs`, advantages and
+/// returns: `lambda_1 * -eta_PPO + lambda_2 * L_v - c_H * H`, and where `imitation` weights
+/// replayed samples, their behaviour cloning `-mean(w * log pi(a|s))`.
+fn ppo_loss(
+    fwd: network::Forward,
+    one_hot: Tensor<3>,
+    old_log_probs: Tensor<1>,
+    advantages: Tensor<1>,
+    returns: Tensor<1>,
+    imitation: Option<Tensor<1>>,
+    c: &PpoConfig,
+) -> Loss {
+    let b = advantages.dims()[0];
+    // psi = pi(a|s) / pi_old(a|s), from the sum of the five heads' log-probabilities.
+    let new_lp: Tensor<1> = (fwd.log_probs.clone() * one_hot)
+        .sum_dim(2)
+        .sum_dim(1)
+        .reshape([b]);
+    let log_ratio = new_lp.clone() - old_log_probs;
+    let ratio = log_ratio.clone().exp();
+    // Eq. 1: min(Z(psi) A, psi A); negated because Adam minimises.
+    let unclipped = ratio.clone() * advantages.clone();
+    let clipped = ratio.clamp(1.0 - c.clip_epsilon, 1.0 + c.clip_epsilon) * advantages;
+    let policy = unclipped.min_pair(clipped).mean().neg();
+    // L_v: squared error of the value against the return target.
+    let value = (fwd.values - returns).square().mean();
+    // Entropy of the factorised distribution: the sum of the heads' entropies.
+    let entropy = (fwd.log_probs.clone().exp() * fwd.log_probs)
+        .sum_dim(2)
+        .sum_dim(1)
+        .mean()
+        .neg();
+    let mut total = policy.clone().mul_scalar(c.policy_coef)
+        + value.clone().mul_scalar(c.value_coef)
+        - entropy.clone().mul_scalar(c.entropy_coef);
+    if let Some(weights) = imitation {
+        // Behaviour cloning of replayed successes (`crate::replay`): unlike the clipped
+        // surrogate, it does not fade once the critic has learnt their returns.
+        total = total - (new_lp * weights).mean();
+    }
+    Loss {
+        total,
+        policy,
+        value,
+        entropy,
+        log_ratio,
+    }
+}
+
+/// Approximate KL divergence (Schulman's k3 estimator) and the fraction of samples whose ratio
+/// the clip bounds, from their `log_ratio`: diagnostics, without gradients.
+fn ratio_diagnostics(log_ratio: &[f32], clip_epsilon: f32) -> (f32, f32) {
+    let n = log_ratio.len() as f32;
+    let approx_kl = log_ratio.iter().map(|lr| lr.exp() - 1.0 - lr).sum::<f32>() / n;
+    let clip_fraction = log_ratio
+        .iter()
+        .filter(|lr| (lr.exp() - 1.0).abs() > clip_epsilon)
+        .count() as f32
+        / n;
+    (approx_kl, clip_fraction)
 }
 
 /// Scales all gradients together so their joint L2 norm is at most `max_norm` (0: no clip).

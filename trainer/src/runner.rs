@@ -7,7 +7,6 @@
 
 use crate::checkpoint::{Checkpoint, CheckpointExtras, NetworkRecord, StartStageState};
 use crate::config::TrainConfig;
-use crate::curriculum::StartStageSchedule;
 use crate::network::{init_policy, BackendKind};
 use crate::network_f32::NetworkF32;
 use crate::ppo::Ppo;
@@ -35,6 +34,9 @@ pub const TRAJECTORIES_FILE: &str = "trajectories.wltb";
 pub const METRICS_FILE: &str = "metrics.jsonl";
 
 mod metrics;
+pub mod start_stage;
+
+pub use start_stage::StartStageSchedule;
 
 use metrics::{append_metrics, truncate_metrics};
 pub use metrics::{read_metrics, summarise, IterationMetrics};
