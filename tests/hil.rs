@@ -49,6 +49,18 @@ fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
+/// The held-out scenes a run asks for: `WHEELLEG_HIL_SKIP` (default 0) left out, then
+/// `WHEELLEG_HIL_SCENES` (default 2).
+fn chosen_scenes() -> (usize, usize) {
+    let var = |name: &str, default: usize| {
+        std::env::var(name)
+            .ok()
+            .and_then(|n| n.parse().ok())
+            .unwrap_or(default)
+    };
+    (var("WHEELLEG_HIL_SKIP", 0), var("WHEELLEG_HIL_SCENES", 2))
+}
+
 fn scenes() -> Vec<Scenario> {
     let json = std::fs::read_to_string(root().join(SCENES)).expect("held-out scenes");
     wheelleg_sim::scenario_file::parse(&json, &WHEELLEG).expect("scenes parse")
@@ -103,14 +115,7 @@ fn firmware_in_the_loop_reaches_the_in_process_outcomes() {
     ) else {
         return;
     };
-    let count: usize = std::env::var("WHEELLEG_HIL_SCENES")
-        .ok()
-        .and_then(|n| n.parse().ok())
-        .unwrap_or(2);
-    let skip: usize = std::env::var("WHEELLEG_HIL_SKIP")
-        .ok()
-        .and_then(|n| n.parse().ok())
-        .unwrap_or(0);
+    let (skip, count) = chosen_scenes();
     let weights = std::fs::read(root().join("weights/policy.wlw")).expect("weights");
     let out = root().join("target/hil");
     std::fs::create_dir_all(&out).expect("out dir");
@@ -420,14 +425,7 @@ fn on_the_emulated_clock_every_period_is_on_time_and_the_outcomes_hold() {
     let Some(image) = image(test, PlantClock::Emulated) else {
         return;
     };
-    let count: usize = std::env::var("WHEELLEG_HIL_SCENES")
-        .ok()
-        .and_then(|n| n.parse().ok())
-        .unwrap_or(2);
-    let skip: usize = std::env::var("WHEELLEG_HIL_SKIP")
-        .ok()
-        .and_then(|n| n.parse().ok())
-        .unwrap_or(0);
+    let (skip, count) = chosen_scenes();
     let weights = std::fs::read(root().join("weights/policy.wlw")).expect("weights");
     let mut differs = Vec::new();
     let (mut periods, mut worst_lateness_us) = (0, 0);

@@ -216,3 +216,72 @@ pub fn seal<M: Serialize>(
     *out.get_mut(encoded).ok_or(WireError::TooLong)? = 0;
     Ok(encoded + 1)
 }
+
+/// What one received byte completed ([`FrameReceiver::feed`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Fed {
+    /// The frame goes on.
+    Nothing,
+    /// A decoded frame of this many bytes is in the buffer.
+    Frame(usize),
+    /// A frame that is no frame (bad COBS, longer than the buffer); the next one starts afresh.
+    Bad,
+}
+
+/// The receiving end of the link: COBS frames decoded into the caller's buffer as their bytes
+/// come, whatever brings the bytes (a polled UART, a DMA ring).
+#[derive(Debug)]
+pub struct FrameReceiver {
+    cobs: cobs::DecoderState,
+    len: usize,
+    too_long: bool,
+}
+
+impl Default for FrameReceiver {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl FrameReceiver {
+    /// Waiting for a frame's first byte.
+    pub fn new() -> FrameReceiver {
+        FrameReceiver {
+            cobs: cobs::DecoderState::Idle,
+            len: 0,
+            too_long: false,
+        }
+    }
+
+    /// Takes one byte into `buf` (the same buffer for every byte of a frame).
+    pub fn feed(&mut self, byte: u8, buf: &mut [u8]) -> Fed {
+        match self.cobs.feed(byte) {
+            Ok(cobs::DecodeResult::NoData) => Fed::Nothing,
+            Ok(cobs::DecodeResult::DataContinue(value)) => {
+                match buf.get_mut(self.len) {
+                    Some(slot) => *slot = value,
+                    None => self.too_long = true,
+                }
+                self.len += 1;
+                Fed::Nothing
+            }
+            Ok(cobs::DecodeResult::DataComplete) => {
+                let len = core::mem::take(&mut self.len);
+                if core::mem::take(&mut self.too_long) {
+                    Fed::Bad
+                } else {
+                    Fed::Frame(len)
+                }
+            }
+            Err(_) => {
+                self.restart();
+                Fed::Bad
+            }
+        }
+    }
+
+    /// Forgets the frame under way (bytes of it were lost).
+    pub fn restart(&mut self) {
+        *self = FrameReceiver::new();
+    }
+}

@@ -15,13 +15,9 @@ pub fn default_image() -> PathBuf {
 /// The production image for `clock`: the emulated clock's is built with the `emulated-clock`
 /// feature into its own target folder ([`build_command`]).
 pub fn image_for(clock: PlantClock) -> PathBuf {
-    let target = match clock {
-        PlantClock::Lockstep => "target",
-        PlantClock::Emulated => EMULATED_TARGET,
-    };
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("controller")
-        .join(target)
+        .join(target_for(clock))
         .join("thumbv7em-none-eabihf/release/wheelleg-controller")
 }
 
@@ -32,18 +28,23 @@ const EMULATED_TARGET: &str = "target/emulated-clock";
 pub const BUILD_COMMAND: &str =
     "cd controller && cargo +nightly build --release --bin wheelleg-controller";
 
-/// The arguments of `cargo +nightly` in `controller/` that build the image for `clock`.
-pub fn build_command(clock: PlantClock) -> Vec<&'static str> {
+/// The arguments of `cargo +nightly` in `controller/` that build the image for `clock` into
+/// the target folder `target` (under `controller/`).
+pub fn build_command(clock: PlantClock, target: &str) -> Vec<String> {
     let mut args = vec!["build", "--release", "--bin", "wheelleg-controller"];
     if clock == PlantClock::Emulated {
-        args.extend([
-            "--features",
-            "emulated-clock",
-            "--target-dir",
-            EMULATED_TARGET,
-        ]);
+        args.extend(["--features", "emulated-clock"]);
     }
-    args
+    args.extend(["--target-dir", target]);
+    args.into_iter().map(String::from).collect()
+}
+
+/// The default image's target folder for `clock`, under `controller/`.
+fn target_for(clock: PlantClock) -> &'static str {
+    match clock {
+        PlantClock::Lockstep => "target",
+        PlantClock::Emulated => EMULATED_TARGET,
+    }
 }
 
 /// How much lower than the host's QEMU's scheduling priority is (`nice` increment).
@@ -94,13 +95,10 @@ pub fn image_with_weights(weights: &Path, clock: PlantClock) -> Result<PathBuf, 
         .join("thumbv7em-none-eabihf/release/wheelleg-controller");
     // Built every time: cargo rebuilds only what changed, so a firmware changed since the
     // last run is never run stale (a second or so when nothing did).
-    let mut args = build_command(clock);
-    args.retain(|a| *a != "--target-dir" && *a != EMULATED_TARGET);
     let mut command = Command::new("cargo");
     command
         .arg("+nightly")
-        .args(args)
-        .args(["--target-dir", &target])
+        .args(build_command(clock, &target))
         .env("WHEELLEG_WEIGHTS", &weights);
     build(command, image)
 }
@@ -143,6 +141,8 @@ pub fn find_or_build_image(path: Option<&Path>, clock: PlantClock) -> Result<Pat
         return Err(HilError::NoImage(image, "no such file".into()));
     }
     let mut command = Command::new("cargo");
-    command.arg("+nightly").args(build_command(clock));
+    command
+        .arg("+nightly")
+        .args(build_command(clock, target_for(clock)));
     build(command, image)
 }

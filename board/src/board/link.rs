@@ -37,9 +37,7 @@ pub enum Received {
 pub struct ObservationLink {
     rx: RingBufferedUartRx<'static>,
     tx: UartTx<'static, Async>,
-    cobs: cobs::DecoderState,
-    len: usize,
-    too_long: bool,
+    frames: wire::FrameReceiver,
     chunk: [u8; CHUNK_BYTES],
     chunk_len: usize,
     chunk_at: usize,
@@ -66,9 +64,7 @@ impl ObservationLink {
         Some(ObservationLink {
             rx,
             tx,
-            cobs: cobs::DecoderState::Idle,
-            len: 0,
-            too_long: false,
+            frames: wire::FrameReceiver::new(),
             chunk: [0; CHUNK_BYTES],
             chunk_len: 0,
             chunk_at: 0,
@@ -89,7 +85,7 @@ impl ObservationLink {
                     Ok(Err(_)) => {
                         // Bytes were lost: the frame under way is broken. The next read
                         // restarts the reception.
-                        self.restart();
+                        self.frames.restart();
                         return Received::Bad;
                     }
                     Ok(Ok(read)) => (self.chunk_len, self.chunk_at) = (read, 0),
@@ -100,35 +96,12 @@ impl ObservationLink {
                 continue;
             };
             self.chunk_at += 1;
-            match self.cobs.feed(byte) {
-                Ok(cobs::DecodeResult::NoData) => {}
-                Ok(cobs::DecodeResult::DataContinue(value)) => {
-                    match buf.get_mut(self.len) {
-                        Some(slot) => *slot = value,
-                        None => self.too_long = true,
-                    }
-                    self.len += 1;
-                }
-                Ok(cobs::DecodeResult::DataComplete) => {
-                    let len = core::mem::take(&mut self.len);
-                    if !core::mem::take(&mut self.too_long) {
-                        return Received::Frame(len);
-                    }
-                    return Received::Bad;
-                }
-                Err(_) => {
-                    self.restart();
-                    return Received::Bad;
-                }
+            match self.frames.feed(byte, buf) {
+                wire::Fed::Nothing => {}
+                wire::Fed::Frame(len) => return Received::Frame(len),
+                wire::Fed::Bad => return Received::Bad,
             }
         }
-    }
-
-    /// Forgets the frame under way.
-    fn restart(&mut self) {
-        self.cobs = cobs::DecoderState::Idle;
-        self.len = 0;
-        self.too_long = false;
     }
 
     /// Sends one message (a small one: all of the controller's are).

@@ -149,9 +149,7 @@ fn main() -> ! {
     let stack = slot.write(stack);
     let mut link = Link {
         uart: Uart::new(Uart::UART1),
-        cobs: cobs::DecoderState::Idle,
-        len: 0,
-        too_long: false,
+        frames: wire::FrameReceiver::new(),
     };
     let Some(board) = SlcanBoard::start(Uart::new(Uart::UART2)) else {
         halt()

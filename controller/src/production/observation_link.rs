@@ -12,9 +12,7 @@ use crate::period::PERIODS;
 /// The observation link: COBS frames in, decoded into the receiver's buffer as they come.
 pub(crate) struct Link {
     pub(crate) uart: Uart,
-    pub(crate) cobs: cobs::DecoderState,
-    pub(crate) len: usize,
-    pub(crate) too_long: bool,
+    pub(crate) frames: wire::FrameReceiver,
 }
 
 /// What waiting on the observation link brought.
@@ -40,27 +38,10 @@ impl Link {
             let Some(byte) = self.uart.try_read() else {
                 continue;
             };
-            match self.cobs.feed(byte) {
-                Ok(cobs::DecodeResult::NoData) => {}
-                Ok(cobs::DecodeResult::DataContinue(value)) => {
-                    match buf.get_mut(self.len) {
-                        Some(slot) => *slot = value,
-                        None => self.too_long = true,
-                    }
-                    self.len += 1;
-                }
-                Ok(cobs::DecodeResult::DataComplete) => {
-                    let len = core::mem::take(&mut self.len);
-                    if !core::mem::take(&mut self.too_long) {
-                        return Received::Frame(len);
-                    }
-                    return Received::Bad;
-                }
-                Err(_) => {
-                    self.len = 0;
-                    self.too_long = false;
-                    return Received::Bad;
-                }
+            match self.frames.feed(byte, buf) {
+                wire::Fed::Nothing => {}
+                wire::Fed::Frame(len) => return Received::Frame(len),
+                wire::Fed::Bad => return Received::Bad,
             }
         }
     }
