@@ -292,24 +292,13 @@ async fn main(_spawner: Spawner) {
                 },
                 _,
             ) => {
-                if height_mm_le.len() != 2 * observation.height_mm.len() {
+                if !observation.read(height_mm_le, state_mm) {
                     link.send(FromController::Rejected {
                         error: WireError::Message.code(),
                     })
                     .await;
                     continue;
                 }
-                for (cell, pair) in observation
-                    .height_mm
-                    .iter_mut()
-                    .zip(height_mm_le.chunks_exact(2))
-                {
-                    *cell = i16::from_le_bytes([
-                        pair.first().copied().unwrap_or(0),
-                        pair.get(1).copied().unwrap_or(0),
-                    ]);
-                }
-                observation.state_mm = state_mm;
                 if new_episode {
                     stack.reset();
                 }

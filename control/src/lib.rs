@@ -24,6 +24,7 @@ mod board;
 mod stop;
 
 pub use board::{Board, CAN_LINK_TIMEOUT_PERIODS};
+use stop::StopPlan;
 pub use stop::{ControlError, Stop, StopReason};
 
 use embedded_can::nb::Can;
@@ -32,7 +33,7 @@ use wheelleg_runtime::action::Action;
 use wheelleg_runtime::base::{MecanumBase, Odometry};
 
 use wheelleg_runtime::can::host::{
-    Commander, FeedbackTracker, RollCall, TxQueue, ROLL_CALL_ROUNDS, ROLL_CALL_ROUND_US,
+    Commander, FeedbackTracker, Health, RollCall, TxQueue, ROLL_CALL_ROUNDS, ROLL_CALL_ROUND_US,
 };
 use wheelleg_runtime::can::node_map::Axis;
 use wheelleg_runtime::can::protocol::AxisState;
@@ -46,10 +47,33 @@ pub const TX_FRAMES: usize = 64;
 /// Hold periods of the start-up sequence: a few heartbeat periods, enough for every axis to
 /// report closed loop (the rig's count).
 pub const STARTUP_TICKS: u32 = 30;
-/// Hold time after each step's setpoints, so the motors settle (the rig's 0.2 s).
+/// Hold time after each step's setpoints, so the motors settle before the pose is read.
 pub const SETTLE_S: f32 = 0.2;
-/// An axis not heard from for this long is silent: 5 missed encoder estimates at 100 Hz.
+/// An axis not heard from for this long is silent: 5 missed encoder estimates at 100 Hz (one
+/// lost frame is noise, five in a row is a dead node).
 pub const HEALTH_TIMEOUT_US: u64 = 50_000;
+
+/// The loop's settings: the firmware runs the defaults; a host loop may set its own.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ControlSettings {
+    /// Control rate, step duration, limits and the safe stop's deceleration time.
+    pub motion: MotionConfig,
+    /// Hold time after each step's setpoints.
+    pub settle_s: f32,
+    /// An axis not heard from for this long is silent.
+    pub health_timeout_us: u64,
+}
+
+impl Default for ControlSettings {
+    /// 100 Hz, [`SETTLE_S`], [`HEALTH_TIMEOUT_US`].
+    fn default() -> Self {
+        ControlSettings {
+            motion: MotionConfig::default(),
+            settle_s: SETTLE_S,
+            health_timeout_us: HEALTH_TIMEOUT_US,
+        }
+    }
+}
 
 /// What the loop is doing, period by period.
 // The variants differ in size (a roll call's tallies, a step's plan), but there is no heap to
@@ -72,7 +96,7 @@ enum Activity {
         motion: StepMotion,
         target: LegConfig,
     },
-    /// Holding a step's target for [`SETTLE_S`].
+    /// Holding a step's target for [`ControlSettings::settle_s`].
     Settling { periods_left: u32 },
 }
 
@@ -97,7 +121,7 @@ impl Finished {
 /// The robot's motion side: commanded legs, odometry, axis feedback and the frames out.
 pub struct Control<F: Frame> {
     robot: Robot,
-    motion: MotionConfig,
+    settings: ControlSettings,
     commander: Commander,
     tracker: FeedbackTracker,
     tx: TxQueue<F, TX_FRAMES>,
@@ -106,6 +130,10 @@ pub struct Control<F: Frame> {
     now_us: u64,
     ticks: u32,
     stop: Option<Stop>,
+    /// How the safe stop comes to rest, from the period it is decided in.
+    stop_plan: Option<StopPlan>,
+    /// The last setpoint sent: where a stop outside a step rests.
+    last_sent: Option<Setpoint>,
     /// The last step's start legs and base motion: what backing out of it undoes.
     last_step: Option<(LegConfig, BaseDisplacement)>,
     activity: Activity,
@@ -113,11 +141,16 @@ pub struct Control<F: Frame> {
 
 impl<F: Frame> Control<F> {
     /// The loop for `robot` (its geometry and CAN node map) with the legs at `start`, motors
-    /// idle.
+    /// idle, with the default settings.
     pub fn new(robot: &Robot, start: LegConfig) -> Control<F> {
+        Control::with_settings(robot, start, ControlSettings::default())
+    }
+
+    /// [`Control::new`] with `settings`.
+    pub fn with_settings(robot: &Robot, start: LegConfig, settings: ControlSettings) -> Control<F> {
         Control {
             robot: *robot,
-            motion: MotionConfig::default(),
+            settings,
             commander: Commander::new(robot.can),
             tracker: FeedbackTracker::new(robot.can),
             tx: TxQueue::new(),
@@ -126,6 +159,8 @@ impl<F: Frame> Control<F> {
             now_us: 0,
             ticks: 0,
             stop: None,
+            stop_plan: None,
+            last_sent: None,
             last_step: None,
             activity: Activity::Holding,
         }
@@ -157,6 +192,39 @@ impl<F: Frame> Control<F> {
         self.stop
     }
 
+    /// The robot driven.
+    pub fn robot(&self) -> Robot {
+        self.robot
+    }
+
+    /// The axes' feedback as the loop has heard it.
+    pub fn feedback(&self) -> &FeedbackTracker {
+        &self.tracker
+    }
+
+    /// The axes' health now, by the loop's clock and silence timeout.
+    pub fn health(&self) -> Health {
+        self.tracker
+            .health(self.now_us, self.settings.health_timeout_us)
+    }
+
+    /// The loop's settings.
+    pub fn settings(&self) -> &ControlSettings {
+        &self.settings
+    }
+
+    /// What the safe stop holds once at rest, once the stop is planned (from the first period
+    /// in safe stop on); `None` before, or when nothing was sent to rest on.
+    pub fn stop_rest(&self) -> Option<Setpoint> {
+        self.stop_plan.as_ref().and_then(StopPlan::rest)
+    }
+
+    /// Whether the safe stop has brought the robot to rest (its deceleration along the step's
+    /// path is over); false when not in safe stop.
+    pub fn stop_at_rest(&self) -> bool {
+        self.stop.is_some() && self.stop_plan.as_ref().is_none_or(StopPlan::at_rest)
+    }
+
     /// Control periods run so far.
     pub fn ticks(&self) -> u32 {
         self.ticks
@@ -165,24 +233,40 @@ impl<F: Frame> Control<F> {
     /// Puts the robot in safe stop for `reason` from the next period on (the first reason
     /// stays).
     pub fn stop(&mut self, reason: StopReason) {
+        self.stop_in(reason, self.ticks);
+    }
+
+    /// [`Self::stop`], decided in period `tick`.
+    fn stop_in(&mut self, reason: StopReason, tick: u32) {
         if self.stop.is_none() {
-            self.stop = Some(Stop {
-                reason,
-                tick: self.ticks,
-            });
+            self.stop = Some(Stop { reason, tick });
         }
     }
 
     fn tick_s(&self) -> f32 {
-        1.0 / self.motion.control_rate_hz
+        1.0 / self.settings.motion.control_rate_hz
     }
 
-    /// One control period: feedback in, odometry, health, then this period's frames out.
+    /// One control period sending `setpoint` (or the safe stop): feedback in, odometry, health
+    /// when `supervise`, then this period's frames out. For callers that stream a motion of
+    /// their own outside the loop's activities.
     pub fn tick<B: Board<Frame = F>>(
         &mut self,
         board: &mut B,
         setpoint: &Setpoint,
         supervise: bool,
+    ) -> Result<(), ControlError> {
+        self.tick_in(board, setpoint, supervise, None)
+    }
+
+    /// [`Self::tick`] with setpoint `setpoint.tick` of `moving` in progress: what a safe stop
+    /// decided now decelerates along.
+    fn tick_in<B: Board<Frame = F>>(
+        &mut self,
+        board: &mut B,
+        setpoint: &Setpoint,
+        supervise: bool,
+        moving: Option<&StepMotion>,
     ) -> Result<(), ControlError> {
         board.wait_for_tick();
         while let Ok(frame) = board.can().receive() {
@@ -203,21 +287,39 @@ impl<F: Frame> Control<F> {
                 self.stop(reason);
             }
         }
-        // The rig slows a step in progress to rest along its own path first; the controller
-        // holds the measured joints with the wheels stopped at once (the commander's safe
-        // stop), which needs no plan kept across periods.
         if self.stop.is_some() {
-            self.commander
-                .queue_safe_stop(&mut self.tx, &self.tracker)?;
+            // Planned before this period's setpoint goes out, which it replaces.
+            let plan = self
+                .stop_plan
+                .get_or_insert_with(|| StopPlan::new(moving, setpoint.tick, self.last_sent));
+            let stop_setpoint = plan.next_setpoint();
+            if let Some(rest) = plan.rest() {
+                // Where the robot rests is what it holds, and where a recovery starts from.
+                self.legs = rest.legs;
+            }
+            match stop_setpoint {
+                Some(stop) => self.commander.queue_setpoint(&mut self.tx, &stop)?,
+                None => {
+                    self.commander
+                        .queue_safe_stop(&mut self.tx, &self.tracker)?;
+                }
+            }
         } else {
             self.commander.queue_setpoint(&mut self.tx, setpoint)?;
+            self.last_sent = Some(*setpoint);
         }
+        self.end_period(board)
+    }
+
+    /// Sends the period's queued frames and ends the period. The period ends (its clock runs
+    /// on, the board's `tick_done` comes) even when a frame is refused, as time does.
+    fn end_period<B: Board<Frame = F>>(&mut self, board: &mut B) -> Result<(), ControlError> {
         board.sending();
-        self.flush(board)?;
+        let sent = self.flush(board);
         board.tick_done();
-        self.now_us += (1.0e6 * self.tick_s()) as u64;
+        self.now_us += ((1.0e6 * self.tick_s()) as u64).max(1);
         self.ticks = self.ticks.wrapping_add(1);
-        Ok(())
+        sent
     }
 
     /// Sends the queued frames. A frame the peripheral refuses drops the rest of the period's
@@ -237,7 +339,7 @@ impl<F: Frame> Control<F> {
     /// Silent or errored axes (the rig's stop conditions; an axis merely not in closed loop
     /// yet is not one), or a lost CAN link.
     fn unhealthy(&self, link_lost: bool) -> Option<StopReason> {
-        let health = self.tracker.health(self.now_us, HEALTH_TIMEOUT_US);
+        let health = self.health();
         if link_lost {
             Some(StopReason::CanLink)
         } else if !health.silent.is_empty() {
@@ -263,14 +365,16 @@ impl<F: Frame> Control<F> {
             activity,
             Activity::Moving { .. } | Activity::Settling { .. }
         );
+        // A period that fails has ended all the same: its stop belongs to it.
+        let tick = self.ticks;
         let (next, finished) = match self.run_period(board, activity) {
             Ok(outcome) => outcome,
             Err(error) if starting => {
-                self.stop(StopReason::StartupFailed);
+                self.stop_in(StopReason::StartupFailed, tick);
                 (Activity::Holding, Some(Finished::StartUp(Err(error))))
             }
             Err(error) => {
-                self.stop(StopReason::Control);
+                self.stop_in(StopReason::Control, tick);
                 (
                     Activity::Holding,
                     stepping.then_some(Finished::Step(Err(error))),
@@ -311,8 +415,13 @@ impl<F: Frame> Control<F> {
                 }
                 if let Err(refusal) = call.verdict() {
                     self.stop(StopReason::StartupFailed);
-                    let refused = Err(ControlError::StartupRefused(refusal));
-                    return Ok((Activity::Holding, Some(Finished::StartUp(refused))));
+                    // A bus on which nothing at all answers has no motor controller to refuse.
+                    let refused = if call.heard().is_empty() {
+                        ControlError::StartupFailed
+                    } else {
+                        ControlError::StartupRefused(refusal)
+                    };
+                    return Ok((Activity::Holding, Some(Finished::StartUp(Err(refused)))));
                 }
                 self.commander.queue_clear_errors(&mut self.tx)?;
                 self.commander.queue_startup(&mut self.tx)?;
@@ -338,7 +447,7 @@ impl<F: Frame> Control<F> {
             }
             Activity::Moving { mut motion, target } => match motion.next() {
                 Some(setpoint) => {
-                    self.tick(board, &setpoint, true)?;
+                    self.tick_in(board, &setpoint, true, Some(&motion))?;
                     if self.stopped() {
                         (Activity::Holding, Some(Finished::Step(Ok(()))))
                     } else {
@@ -349,7 +458,7 @@ impl<F: Frame> Control<F> {
                     // The stream ended with the previous period: this one is the first of the
                     // settling.
                     self.legs = target;
-                    let periods_left = libm_round(SETTLE_S / self.tick_s());
+                    let periods_left = libm_round(self.settings.settle_s / self.tick_s());
                     self.run_period(board, Activity::Settling { periods_left })?
                 }
             },
@@ -374,10 +483,13 @@ impl<F: Frame> Control<F> {
         self.tick(board, &hold, true)
     }
 
-    /// Begins the start-up as the host's rig runs it: the roll call (who is on each node, on
-    /// what firmware), Clear_Errors, then arming every axis and holding the start pose until
-    /// all report closed loop ([`Finished::StartUp`]).
+    /// Begins the start-up: the roll call (who is on each node, on what firmware),
+    /// Clear_Errors, then arming every axis and holding the start pose until all report closed
+    /// loop ([`Finished::StartUp`]). A start-up is also the way out of a safe stop: it clears
+    /// the stop, and the robot re-arms where the stop left it.
     pub fn begin_start_up(&mut self) {
+        self.stop = None;
+        self.stop_plan = None;
         let tick_us = ((1.0e6 * self.tick_s()) as u64).max(1);
         let per_round = ROLL_CALL_ROUND_US.div_ceil(tick_us).max(1);
         self.activity = Activity::RollCall {
@@ -406,27 +518,23 @@ impl<F: Frame> Control<F> {
             call.begin_round();
             self.commander.queue_version_requests(&mut self.tx)?;
         }
-        board.sending();
-        self.flush(board)?;
-        board.tick_done();
-        self.now_us += ((1.0e6 * self.tick_s()) as u64).max(1);
-        self.ticks = self.ticks.wrapping_add(1);
-        Ok(())
+        self.end_period(board)
     }
 
-    /// Begins driving one decision: its setpoint stream, then [`SETTLE_S`] holding its target
+    /// Begins driving one decision: its setpoint stream, then [`ControlSettings::settle_s`]
+    /// holding its target
     /// ([`Finished::Step`]). An action the legs cannot take is not begun (`Err`, nothing
     /// queued), as on the host. A safe stop ends the step at once (the periods after it hold
     /// the robot).
     pub fn begin_step(&mut self, action: Action) -> Result<(), ControlError> {
-        let motion = StepMotion::plan(&self.robot, &self.motion, self.legs, action)?;
+        let motion = StepMotion::plan(&self.robot, &self.settings.motion, self.legs, action)?;
         self.begin_motion(motion);
         Ok(())
     }
 
     /// Begins backing out of the last step along its inverse motion, to its start legs (the
-    /// world refused the step), as the host's closed loop does; then [`SETTLE_S`] holding
-    /// them. With no step to undo nothing begins ([`Self::busy`] stays false).
+    /// world refused the step), as the host's closed loop does; then
+    /// [`ControlSettings::settle_s`] holding them. With no step to undo nothing begins ([`Self::busy`] stays false).
     pub fn begin_retreat(&mut self) -> Result<(), ControlError> {
         let Some((start, displacement)) = self.last_step else {
             return Ok(());
@@ -437,13 +545,21 @@ impl<F: Frame> Control<F> {
             dy_m: back.translation.y,
             dyaw_rad: back.rotation.angle(),
         };
-        let motion =
-            StepMotion::plan_between(&self.robot.geometry, &self.motion, self.legs, start, back)?;
+        let motion = StepMotion::plan_between(
+            &self.robot.geometry,
+            &self.settings.motion,
+            self.legs,
+            start,
+            back,
+        )?;
         self.begin_motion(motion);
         Ok(())
     }
 
-    fn begin_motion(&mut self, motion: StepMotion) {
+    /// Begins driving any planned motion (a lattice step, or a move off the lattice such as
+    /// backing out of a step), then [`ControlSettings::settle_s`] holding its target
+    /// ([`Finished::Step`]). The motion should start from [`Self::legs`].
+    pub fn begin_motion(&mut self, motion: StepMotion) {
         let target = motion.target();
         self.last_step = Some((self.legs, motion.displacement()));
         self.activity = Activity::Moving { motion, target };
@@ -479,6 +595,17 @@ impl<F: Frame> Control<F> {
     pub fn retreat<B: Board<Frame = F>>(&mut self, board: &mut B) -> Result<(), ControlError> {
         self.begin_retreat()?;
         self.finish(board)
+    }
+
+    /// Sends Estop to every axis (they disarm and latch `ESTOP_REQUESTED`) and puts the loop in
+    /// safe stop ([`StopReason::Estop`]), in one unsupervised period so the motors see it at
+    /// once; the activity in progress ends. [`Self::begin_start_up`] recovers.
+    pub fn estop<B: Board<Frame = F>>(&mut self, board: &mut B) -> Result<(), ControlError> {
+        self.activity = Activity::Holding;
+        self.commander.queue_estop(&mut self.tx)?;
+        self.stop(StopReason::Estop);
+        let hold = Setpoint::hold(&self.robot.geometry, self.legs)?;
+        self.tick(board, &hold, false)
     }
 
     /// The measured legs, if every joint has reported.

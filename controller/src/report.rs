@@ -16,6 +16,7 @@ pub fn stop_report(stop: Stop) -> FromController {
         StopReason::ObservationCorrupt => (stop_reason::OBSERVATION_CORRUPT, 0),
         StopReason::StartupFailed => (stop_reason::STARTUP_FAILED, 0),
         StopReason::Control => (stop_reason::CONTROL, 0),
+        StopReason::Estop => (stop_reason::ESTOP, 0),
     };
     FromController::Stopped {
         reason,

@@ -80,6 +80,24 @@ impl Observation {
         }
     }
 
+    /// Takes the observation link's message in: the height map as `i16` little-endian
+    /// millimetres, row-major, and the state. Whether it was taken: a map of another size is
+    /// refused, and the last observation kept.
+    #[must_use]
+    pub fn read(&mut self, height_mm_le: &[u8], state_mm: [i32; STATE_LEN]) -> bool {
+        if height_mm_le.len() != 2 * self.height_mm.len() {
+            return false;
+        }
+        for (cell, pair) in self.height_mm.iter_mut().zip(height_mm_le.chunks_exact(2)) {
+            *cell = i16::from_le_bytes([
+                pair.first().copied().unwrap_or(0),
+                pair.get(1).copied().unwrap_or(0),
+            ]);
+        }
+        self.state_mm = state_mm;
+        true
+    }
+
     /// The leg configuration the state reports.
     pub fn legs(&self) -> LegConfig {
         let [clearance_mm, track_mm, _, _] = self.state_mm;

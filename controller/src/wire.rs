@@ -137,6 +137,8 @@ pub mod stop_reason {
     pub const STARTUP_FAILED: u8 = 6;
     /// A step could not be driven (a motion the runtime cannot plan, a full transmit queue).
     pub const CONTROL: u8 = 7;
+    /// An emergency stop was sent to every axis.
+    pub const ESTOP: u8 = 8;
 }
 
 /// Why a frame is refused.

@@ -113,6 +113,22 @@ impl fmt::Display for Fault {
                 step + 1,
                 describe_axes(*set)
             ),
+            Fault::SafeStop { step, reason } => {
+                let why = match reason {
+                    StopReason::CanLink => "the CAN link was lost",
+                    StopReason::ObservationStalled => "no observation within its timeout",
+                    StopReason::ObservationCorrupt => "only corrupt observation frames",
+                    StopReason::StartupFailed => "not every axis reached closed loop",
+                    StopReason::Control => "a frame could not be queued or sent",
+                    StopReason::Estop => "an emergency stop was sent to every axis",
+                    StopReason::Silent(_) | StopReason::AxisError(_) => "axes failed",
+                };
+                write!(
+                    f,
+                    "safe stop during step {}: {why}; wheels stopped, legs held",
+                    step + 1
+                )
+            }
             Fault::Controller { step, reason } => write!(
                 f,
                 "the controller stopped the robot at step {}: {reason}; wheels stopped, legs \

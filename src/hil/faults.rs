@@ -76,6 +76,7 @@ impl std::fmt::Display for ControllerStop {
                 f.write_str("only corrupt frames for 1 s on the observation link")
             }
             stop_reason::STARTUP_FAILED => f.write_str("not every axis reached closed loop"),
+            stop_reason::ESTOP => f.write_str("an emergency stop was sent to every axis"),
             _ => f.write_str("a step could not be driven"),
         }?;
         write!(f, ", in control period {}", self.tick)

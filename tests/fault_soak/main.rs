@@ -228,6 +228,8 @@ fn run_episode(planned: &Planned, episode: u64, figures: &mut Figures) {
         Some(Fault::SafeStop { reason, .. }) => match reason {
             StopReason::Silent(_) => figures.safe_stops_silent += 1,
             StopReason::AxisError(_) => figures.safe_stops_error += 1,
+            // The soak injects only silent, lost and erring axes.
+            other => panic!("{what}: safe stop for {other:?}"),
         },
         Some(Fault::OffTolerance { .. }) => figures.off_tolerance += 1,
         // The in-process loop has no controller firmware to stop it: either is a bug here.

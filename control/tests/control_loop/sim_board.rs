@@ -1,12 +1,11 @@
-//! A test board: the 16 simulated ODrive axes on an in-process bus, advanced one control period
-//! (ten 1 ms physics steps, as the host's rig and the firmware-in-the-loop plant run them) at
-//! each period's start, behind an `embedded_can::nb::Can` that records every frame the loop
-//! sends, with switches for the faults the loop must survive.
+//! The test board: the host's rig board ([`RigBoard`]) with the 16 simulated ODrive axes on an
+//! in-process bus, advanced one control period (ten 1 ms physics steps, as the rig and the
+//! firmware-in-the-loop plant run them) after each period's frames, recording every frame the
+//! loop sends, with switches for the faults the loop must survive.
 
-use embedded_can::ErrorKind;
-use wheelleg_control::{Board, Control, ControlError, Finished, SETTLE_S, TX_FRAMES};
-use wheelleg_firmware_sim::bus::{InProcessBus, Port, Transport};
-use wheelleg_firmware_sim::firmware::Firmware;
+use wheelleg_control::{Control, ControlError, Finished, SETTLE_S, TX_FRAMES};
+use wheelleg_firmware_sim::bus::Faults;
+use wheelleg_firmware_sim::rig::{true_wheel_speed_sum, RigBoard};
 use wheelleg_runtime::action::Action;
 use wheelleg_runtime::can::host::{Commander, TxQueue};
 use wheelleg_runtime::can::node_map::Axis;
@@ -45,164 +44,64 @@ pub fn start_legs() -> LegConfig {
     }
 }
 
-/// The CAN peripheral of [`SimBoard`]: the loop's port on the in-process bus.
-pub struct SimCan {
-    port: Port,
-    now_us: u64,
-    link_lost: bool,
-    refuse: bool,
-    /// Every frame the peripheral took, by period.
-    sent: Vec<Vec<CanFrame>>,
+/// The host's board with the robot's 16 simulated axes on an in-process bus: the rig's, so
+/// the loop is tested on the board the host runs it on.
+pub type SimBoard = RigBoard;
+
+/// The robot's axes with the legs at `start`, wheels at rest, all idle, watchdog on, recording
+/// every frame the loop sends.
+pub fn sim_board(robot: &Robot, start: LegConfig) -> RigBoard {
+    let mut board = RigBoard::in_process(
+        robot,
+        start,
+        Faults::NONE,
+        WATCHDOG_TIMEOUT_US,
+        PERIOD_US,
+        PHYSICS_US,
+    )
+    .unwrap();
+    board.record_sent();
+    board
 }
 
-impl embedded_can::nb::Can for SimCan {
-    type Frame = CanFrame;
-    type Error = ErrorKind;
-
-    fn transmit(&mut self, frame: &CanFrame) -> nb::Result<Option<CanFrame>, ErrorKind> {
-        if self.refuse {
-            return Err(nb::Error::Other(ErrorKind::Other));
-        }
-        if let Some(period) = self.sent.last_mut() {
-            period.push(*frame);
-        }
-        // A lost link takes the frame and loses it, as an adapter that stopped answering does.
-        if !self.link_lost {
-            self.port
-                .send(frame, self.now_us)
-                .map_err(|_| nb::Error::Other(ErrorKind::Other))?;
-        }
-        Ok(None)
-    }
-
-    fn receive(&mut self) -> nb::Result<CanFrame, ErrorKind> {
-        match self.port.recv(self.now_us) {
-            // What the axes send while the link is lost never arrives.
-            Ok(Some(_)) if self.link_lost => {
-                while let Ok(Some(_)) = self.port.recv(self.now_us) {}
-                Err(nb::Error::WouldBlock)
-            }
-            Ok(Some(frame)) => Ok(frame),
-            Ok(None) => Err(nb::Error::WouldBlock),
-            Err(_) => Err(nb::Error::Other(ErrorKind::Other)),
-        }
-    }
-}
-
-/// The simulated axes and the loop's CAN peripheral, one control period per
-/// [`Board::wait_for_tick`].
-pub struct SimBoard {
-    axes: Firmware,
-    axes_port: Port,
-    can: SimCan,
-    robot: Robot,
-    now_us: u64,
-    periods: u64,
-}
-
-impl SimBoard {
-    /// The robot's axes with the legs at `start`, wheels at rest, all idle, watchdog on.
-    pub fn new(robot: &Robot, start: LegConfig) -> SimBoard {
-        let bus = InProcessBus::default();
-        let mut axes = Firmware::for_robot(&robot.geometry, &robot.can, start).unwrap();
-        axes.set_watchdog_timeout_us(WATCHDOG_TIMEOUT_US);
-        SimBoard {
-            axes,
-            axes_port: bus.port(),
-            can: SimCan {
-                port: bus.port(),
-                now_us: 0,
-                link_lost: false,
-                refuse: false,
-                sent: Vec::new(),
-            },
-            robot: *robot,
-            now_us: 0,
-            periods: 0,
-        }
-    }
-
-    /// The simulated axes (their true state).
-    pub fn axes(&self) -> &Firmware {
-        &self.axes
-    }
-
+/// The faults and views the tests use on the board.
+pub trait TestBoard {
     /// Makes `axis` stop transmitting from the next period on (it still obeys commands).
-    pub fn silence(&mut self, axis: Axis) {
-        self.axes.axis_mut(axis).unwrap().set_silent(true);
-    }
-
+    fn silence(&mut self, axis: Axis);
     /// Makes `axis` latch an error (an emergency stop): its heartbeats report it from the next
     /// one on.
-    pub fn fault(&mut self, axis: Axis) {
-        let now_us = self.now_us;
-        self.axes
+    fn fault(&mut self, axis: Axis);
+    /// The frames of the last period.
+    fn last_period(&self) -> &[CanFrame];
+    /// The legs as the simulated joints really are.
+    fn legs_now(&self) -> LegConfig;
+    /// Sum of the simulated wheels' absolute speeds, turns/s.
+    fn wheel_speed_sum(&self) -> f32;
+}
+
+impl TestBoard for RigBoard {
+    fn silence(&mut self, axis: Axis) {
+        self.firmware_mut().axis_mut(axis).unwrap().set_silent(true);
+    }
+
+    fn fault(&mut self, axis: Axis) {
+        let now_us = self.now_us();
+        self.firmware_mut()
             .axis_mut(axis)
             .unwrap()
             .handle(&Message::Estop, now_us);
     }
 
-    /// Loses (or restores) the link to the bus: [`Board::link_lost`] says so, and nothing
-    /// crosses it either way.
-    pub fn set_link_lost(&mut self, lost: bool) {
-        self.can.link_lost = lost;
+    fn last_period(&self) -> &[CanFrame] {
+        self.sent().last().map(Vec::as_slice).unwrap_or(&[])
     }
 
-    /// Makes the peripheral refuse (or take again) every frame.
-    pub fn set_refusing(&mut self, refuse: bool) {
-        self.can.refuse = refuse;
+    fn legs_now(&self) -> LegConfig {
+        self.true_legs().unwrap()
     }
 
-    /// The frames the peripheral took, by period.
-    pub fn sent(&self) -> &[Vec<CanFrame>] {
-        &self.can.sent
-    }
-
-    /// The frames of the last period.
-    pub fn last_period(&self) -> &[CanFrame] {
-        self.can.sent.last().map(Vec::as_slice).unwrap_or(&[])
-    }
-
-    /// The legs as the simulated joints really are.
-    pub fn true_legs(&self) -> LegConfig {
-        self.axes
-            .true_legs(&self.robot.can, &self.robot.geometry)
-            .unwrap()
-    }
-
-    /// Sum of the simulated wheels' absolute speeds, turns/s.
-    pub fn wheel_speed_sum(&self) -> f32 {
-        wheelleg_firmware_sim::rig::true_wheel_speed_sum(&self.axes)
-    }
-}
-
-impl Board for SimBoard {
-    type Frame = CanFrame;
-    type Can = SimCan;
-
-    fn can(&mut self) -> &mut SimCan {
-        &mut self.can
-    }
-
-    /// The motors run for the period that ended (none before the first), then the new one
-    /// begins: the rig's order, so the loop reads what the axes sent in the last period.
-    fn wait_for_tick(&mut self) {
-        if self.periods > 0 {
-            let dt_s = PHYSICS_US as f32 * 1e-6;
-            for _ in 0..PERIOD_US / PHYSICS_US {
-                self.now_us += PHYSICS_US;
-                self.axes
-                    .run(&mut self.axes_port, self.now_us, dt_s)
-                    .unwrap();
-            }
-        }
-        self.periods += 1;
-        self.can.now_us = self.now_us;
-        self.can.sent.push(Vec::new());
-    }
-
-    fn link_lost(&self) -> bool {
-        self.can.link_lost
+    fn wheel_speed_sum(&self) -> f32 {
+        true_wheel_speed_sum(self.firmware())
     }
 }
 
@@ -226,7 +125,7 @@ pub fn run_until_finished(
 /// The loop and its board after a successful start-up, legs at `start`.
 pub fn started_at(start: LegConfig) -> (Control<CanFrame>, SimBoard) {
     let robot = robot();
-    let mut board = SimBoard::new(&robot, start);
+    let mut board = sim_board(&robot, start);
     let mut control = Control::new(&robot, start);
     control.begin_start_up();
     let (_, finished) = run_until_finished(&mut control, &mut board, 100);

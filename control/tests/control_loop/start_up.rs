@@ -1,7 +1,9 @@
 //! The start-up: the roll call, then Clear_Errors and arming, or a refusal before anything
 //! moves.
 
-use crate::sim_board::{decoded, robot, run_until_finished, start_legs, SimBoard, PERIOD_US};
+use crate::sim_board::{
+    decoded, robot, run_until_finished, sim_board, start_legs, TestBoard, PERIOD_US,
+};
 use wheelleg_control::{Control, ControlError, Finished, StopReason, STARTUP_TICKS};
 use wheelleg_runtime::can::host::{
     RollCallProblem, RollCallRefusal, ROLL_CALL_ROUNDS, ROLL_CALL_ROUND_US,
@@ -20,7 +22,7 @@ fn roll_call_periods() -> u32 {
 #[test]
 fn start_up_arms_every_axis_in_the_documented_number_of_periods() {
     let robot = robot();
-    let mut board = SimBoard::new(&robot, start_legs());
+    let mut board = sim_board(&robot, start_legs());
     let mut control: Control<CanFrame> = Control::new(&robot, start_legs());
     control.begin_start_up();
     let (periods, finished) = run_until_finished(&mut control, &mut board, 200);
@@ -30,7 +32,7 @@ fn start_up_arms_every_axis_in_the_documented_number_of_periods() {
     assert_eq!(periods, 45);
     assert_eq!(control.ticks(), periods);
     assert_eq!(control.stop_state(), None);
-    for motor in board.axes().axes() {
+    for motor in board.firmware().axes() {
         assert_eq!(motor.state(), AxisState::ClosedLoopControl);
         assert_eq!(motor.error(), 0);
     }
@@ -63,7 +65,7 @@ fn start_up_arms_every_axis_in_the_documented_number_of_periods() {
 fn a_missing_node_is_refused_by_the_roll_call_and_nothing_is_armed() {
     let robot = robot();
     let knee = Axis::Joint(LegId::RearRight, Joint::Knee);
-    let mut board = SimBoard::new(&robot, start_legs());
+    let mut board = sim_board(&robot, start_legs());
     board.silence(knee);
     let mut control: Control<CanFrame> = Control::new(&robot, start_legs());
     control.begin_start_up();
@@ -86,7 +88,7 @@ fn a_missing_node_is_refused_by_the_roll_call_and_nothing_is_armed() {
     for _ in 0..20 {
         assert_eq!(control.period(&mut board), None);
     }
-    for motor in board.axes().axes() {
+    for motor in board.firmware().axes() {
         assert_eq!(motor.state(), AxisState::Idle);
     }
     for frames in board.sent() {

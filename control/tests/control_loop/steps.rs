@@ -3,7 +3,7 @@
 
 use crate::sim_board::{
     frames_of, hold_frames, plan, robot, run_until_finished, setpoints_per_motion, settle_periods,
-    start_legs, started, started_at, SimBoard, LEG_TOLERANCE_M, POSITION_TOLERANCE_M,
+    sim_board, start_legs, started, started_at, TestBoard, LEG_TOLERANCE_M, POSITION_TOLERANCE_M,
     YAW_TOLERANCE_RAD,
 };
 use wheelleg_control::{Control, ControlError, Finished};
@@ -64,7 +64,7 @@ fn a_step_streams_its_setpoints_then_settles_at_its_target() {
     }
     assert_eq!(control.legs(), target);
     assert_legs_near(control.measured_legs(), target, "measured");
-    assert_legs_near(Some(board.true_legs()), target, "true");
+    assert_legs_near(Some(board.legs_now()), target, "true");
     let pose = control.odometry().pose;
     let ideal = ideal.isometry();
     let off = (pose.translation.vector - ideal.translation.vector).norm();
@@ -140,14 +140,14 @@ fn an_action_the_legs_cannot_take_is_refused_and_nothing_is_sent() {
 fn holding_with_no_activity_finishes_nothing_and_keeps_the_pose() {
     let robot = robot();
     let (mut control, mut board) = started();
-    let legs = board.true_legs();
+    let legs = board.legs_now();
     let hold = hold_frames(&robot, control.legs());
     for period in 0..100 {
         assert_eq!(control.period(&mut board), None, "period {period}");
         assert!(!control.busy());
         assert_eq!(board.last_period(), hold, "period {period}");
     }
-    let now = board.true_legs();
+    let now = board.legs_now();
     assert!((now.clearance_m - legs.clearance_m).abs() < 1e-5, "{now:?}");
     assert!((now.track_m - legs.track_m).abs() < 1e-5, "{now:?}");
     assert!(board.wheel_speed_sum() < 1e-6);
@@ -157,13 +157,13 @@ fn holding_with_no_activity_finishes_nothing_and_keeps_the_pose() {
 #[test]
 fn the_blocking_calls_send_the_frames_of_the_periods_run_by_hand() {
     let robot = robot();
-    let mut blocking_board = SimBoard::new(&robot, start_legs());
+    let mut blocking_board = sim_board(&robot, start_legs());
     let mut blocking: Control<CanFrame> = Control::new(&robot, start_legs());
     blocking.start_up(&mut blocking_board).unwrap();
     blocking.step(&mut blocking_board, ACTION).unwrap();
     blocking.retreat(&mut blocking_board).unwrap();
 
-    let mut board = SimBoard::new(&robot, start_legs());
+    let mut board = sim_board(&robot, start_legs());
     let mut control: Control<CanFrame> = Control::new(&robot, start_legs());
     control.begin_start_up();
     assert_eq!(

@@ -10,6 +10,8 @@ use wheelleg_runtime::can::CanFrame;
 use wheelleg_runtime::leg::{IkError, LegConfig};
 use wheelleg_runtime::motion::{MotionConfig, MotionError};
 
+pub use wheelleg_control::StopReason;
+
 /// Settings of the closed loop.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RigConfig {
@@ -65,6 +67,8 @@ pub enum RigError {
     /// The start-up roll call found a node missing, two devices on one node id, or firmware the
     /// codec does not speak: nothing was armed.
     StartupRefused(RollCallRefusal),
+    /// The CAN peripheral refused a frame.
+    Refused,
 }
 
 impl std::fmt::Display for RigError {
@@ -97,15 +101,6 @@ from_error!(
     Bus(BusError),
     Log(std::io::Error)
 );
-
-/// Why the controller went into safe stop.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum StopReason {
-    /// These axes were not heard from within the timeout.
-    Silent(wheelleg_runtime::can::host::AxisSet),
-    /// These axes reported errors (for example `WATCHDOG_TIMER_EXPIRED`).
-    AxisError(wheelleg_runtime::can::host::AxisSet),
-}
 
 /// A fault the rig injects by itself when simulated time reaches a chosen instant, so that a
 /// test can hit the middle of a motion rather than the gap between two steps.
@@ -191,4 +186,16 @@ pub struct MeasuredBusLoad {
     pub nominal: f64,
     /// Fraction of capacity used, with worst-case stuffing.
     pub worst_case: f64,
+}
+
+/// Where the robot really was at one instant (in-process bus only): what a fault test checks
+/// for collisions at every control period, not only after each step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TrueSample {
+    /// Simulated time.
+    pub at_us: u64,
+    /// [`Rig::true_pose`](super::Rig::true_pose) then.
+    pub pose: Isometry2<f32>,
+    /// [`Rig::true_legs`](super::Rig::true_legs) then.
+    pub legs: LegConfig,
 }
