@@ -7,10 +7,12 @@ use super::stack_args::StackArgs;
 use super::CliResult;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use wheelleg_robot::RobotDescription;
 use wheelleg_runtime::model::format::MAGIC;
 use wheelleg_sim::env::EnvConfig;
 use wheelleg_sim::generate::{generate_many, SceneRobot};
+use wheelleg_stack::policy::BatchPolicy;
 use wheelleg_stack::policy::Int8Policy;
 use wheelleg_stack::{DecisionRule, Preset};
 use wheelleg_trainer::batch_policy::FloatPolicy;
@@ -59,6 +61,34 @@ pub struct Args {
     /// The robot simulated; the policy must be trained for it.
     #[command(flatten)]
     robot: RobotArg,
+}
+
+/// Runs `f` with the policy in file `path`: a `.wlw` weights file (int8, run by the robot's
+/// runtime crate) or a run's checkpoint (float, as trained); refused when it was made for
+/// another robot than `robot`.
+pub fn with_policy<T>(
+    path: &Path,
+    robot: &RobotDescription,
+    f: impl FnOnce(&dyn BatchPolicy) -> Result<T, String>,
+) -> Result<T, String> {
+    let label = path.display().to_string();
+    let bytes = std::fs::read(path).map_err(|e| format!("cannot read {label}: {e}"))?;
+    if bytes.starts_with(&MAGIC) {
+        let policy = Int8Policy::from_bytes(&bytes).map_err(|e| format!("{label}: {e}"))?;
+        robot.accepts(&policy.model().trained_for, &label)?;
+        f(&policy)
+    } else {
+        let (checkpoint, extras) =
+            wheelleg_trainer::checkpoint::Checkpoint::from_bytes_with_extras(&bytes)
+                .map_err(|e| format!("{label}: {e}"))?;
+        extras.check_robot(robot, &label)?;
+        let net = checkpoint
+            .network
+            .to_network()
+            .map_err(|e| format!("{label}: {e}"))?;
+        let policy = FloatPolicy::new(&net, &BackendKind::Flex.device()?)?;
+        f(&policy)
+    }
 }
 
 /// How the policy's heads become one action (`--rule`).
@@ -137,29 +167,9 @@ pub fn run(args: Args) -> CliResult {
     };
     let mut rng = ChaCha8Rng::seed_from_u64(args.seed);
     rng.set_stream(1);
-    let bytes = std::fs::read(&args.policy)
-        .map_err(|e| format!("cannot read {}: {e}", args.policy.display()))?;
-    let report = if bytes.starts_with(&MAGIC) {
-        let policy = Int8Policy::from_bytes(&bytes)
-            .map_err(|e| format!("{}: {e}", args.policy.display()))?;
-        robot.accepts(
-            &policy.model().trained_for,
-            &args.policy.display().to_string(),
-        )?;
-        evaluate(&policy, &scenarios, &options, &mut rng)?
-    } else {
-        let label = args.policy.display().to_string();
-        let (checkpoint, extras) =
-            wheelleg_trainer::checkpoint::Checkpoint::from_bytes_with_extras(&bytes)
-                .map_err(|e| format!("{label}: {e}"))?;
-        extras.check_robot(&robot, &label)?;
-        let net = checkpoint
-            .network
-            .to_network()
-            .map_err(|e| format!("{label}: {e}"))?;
-        let policy = FloatPolicy::new(&net, &BackendKind::Flex.device()?)?;
-        evaluate(&policy, &scenarios, &options, &mut rng)?
-    };
+    let report = with_policy(&args.policy, &robot, |policy| {
+        evaluate(policy, &scenarios, &options, &mut rng)
+    })?;
     if args.json {
         outln!("{}", serde_json::to_string_pretty(&report)?);
         return Ok(());

@@ -38,13 +38,21 @@ pub struct FinishedEpisode {
     pub local_searches: u32,
     /// Of them, those that found a plan.
     pub local_plans: u32,
+    /// Every action stepped, in order, whoever chose it (a search's plan steps included, and
+    /// actions the world undid): the episode replays from its scenario with them.
+    pub actions: Vec<Action>,
 }
 
-/// One decision the policy took part in: the observation it read (height map in metres,
-/// row-major; state) and the action taken there, whoever chose it (the rule, the guard, the
-/// arrival rule or the look-ahead; steps of a search's plan are not decisions).
+/// One decision the policy took part in: the episode and where it stood, the observation the
+/// policy read (height map in metres, row-major; state) and the action taken there, whoever
+/// chose it (the rule, the guard, the arrival rule or the look-ahead; steps of a search's plan
+/// are not decisions).
 #[derive(Clone, Copy, Debug)]
 pub struct Decision<'a> {
+    /// Index of the episode's scenario in the batch.
+    pub episode: usize,
+    /// The episode as it stood when the action was chosen (before it is taken).
+    pub env: &'a Env,
     /// The height map the policy read.
     pub height_map_m: &'a [f32],
     /// The state it read.
@@ -82,10 +90,11 @@ pub fn run_episodes(
         .iter()
         .map(|_| stack.last_metres.map(LastMetres::new))
         .collect();
+    let mut actions: Vec<Vec<Action>> = vec![Vec::new(); envs.len()];
     let success_radius_m = env_config.success_radius_m;
     loop {
         // Episodes following a local plan step without the policy.
-        for (env, last_metres) in envs.iter_mut().zip(&mut last_metres) {
+        for ((env, last_metres), taken) in envs.iter_mut().zip(&mut last_metres).zip(&mut actions) {
             let Some(last_metres) = last_metres else {
                 continue;
             };
@@ -96,6 +105,7 @@ pub fn run_episodes(
                 let outcome = env
                     .step(action)
                     .map_err(|_| "stepped a finished episode".to_string())?;
+                taken.push(action);
                 if outcome.invalid.is_some() {
                     last_metres.abandon();
                 }
@@ -218,6 +228,8 @@ pub fn run_episodes(
         for (k, &i) in running.iter().enumerate() {
             let action = chosen[k].ok_or("no action chosen")?;
             on_decision(Decision {
+                episode: i,
+                env: &envs[i],
                 height_map_m: &heights[k * HEIGHT_MAP_CELLS..(k + 1) * HEIGHT_MAP_CELLS],
                 state: &states[k * STATE_LEN..(k + 1) * STATE_LEN],
                 action,
@@ -225,18 +237,23 @@ pub fn run_episodes(
             envs[i]
                 .step(action)
                 .map_err(|_| "stepped a finished episode".to_string())?;
+            actions[i].push(action);
         }
     }
     Ok(envs
         .into_iter()
         .zip(last_metres)
         .zip(lookahead_stats)
-        .map(|((env, last_metres), lookahead)| FinishedEpisode {
-            env,
-            lookahead,
-            local_searches: last_metres.as_ref().map_or(0, LastMetres::searches),
-            local_plans: last_metres.as_ref().map_or(0, LastMetres::plans),
-        })
+        .zip(actions)
+        .map(
+            |(((env, last_metres), lookahead), actions)| FinishedEpisode {
+                env,
+                lookahead,
+                local_searches: last_metres.as_ref().map_or(0, LastMetres::searches),
+                local_plans: last_metres.as_ref().map_or(0, LastMetres::plans),
+                actions,
+            },
+        )
         .collect())
 }
 

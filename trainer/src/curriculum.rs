@@ -10,20 +10,29 @@
 //!    on-policy batch plus replayed samples whose advantages the current critic recomputes.
 //!
 //! Layout of `--out runs/NAME`: `secondary-<behaviour>/` (a run folder each, with
-//! `trajectories.wltb`), `batch.wltb` (the trajectory batch), `primary/` (a run folder).
+//! `trajectories.wltb`), `batch.wltb` (the trajectory batch), `primary/` (a run folder),
+//! `labels.wltb` (expert labels, [`run_label`]).
 //! [`run_all`] runs the stages in order; a stage whose run reached its budget is not redone,
 //! one that was interrupted resumes from its checkpoint.
+//!
+//! A primary may also start from another run's checkpoint and replay other batches
+//! ([`PrimaryInputs`], [`run_primary_with`]): a round of expert iteration fine-tunes the current
+//! primary on the secondaries' batch plus the labels of the states its stack visits
+//! ([`crate::trajectory::expert_labels`]).
 
 use crate::checkpoint::Checkpoint;
 use crate::config::TrainConfig;
 use crate::network_f32::NetworkF32;
 use crate::replay::ReplayOptions;
 use crate::runner::{train_stage, RunOptions, RunSummary, StageInputs, TRAJECTORIES_FILE};
-use crate::trajectory::batch_file::TrajectoryBatch;
+use crate::trajectory::batch_file::{BatchFileError, TrajectoryBatch};
+use crate::trajectory::expert_labels::{label_batch, LabelConfig, LabelStats, LABELS_FILE};
 use crate::trajectory::randomize::{randomize_batch_with, RandomizeConfig, Stats};
 use crate::trajectory::Trajectory;
 use std::path::{Path, PathBuf};
 use wheelleg_sim::generate::{Behaviour, SceneKind, SceneRobot};
+use wheelleg_sim::scenario::Scenario;
+use wheelleg_stack::policy::BatchPolicy;
 
 /// Name of the trajectory batch in a curriculum folder.
 pub const BATCH_FILE: &str = "batch.wltb";
@@ -108,10 +117,36 @@ fn run_stage(
 }
 
 fn load_network(config: &TrainConfig, dir: &Path) -> Result<NetworkF32, String> {
-    let path = dir.join(crate::runner::CHECKPOINT_FILE);
-    let (checkpoint, extras) = Checkpoint::load_with_extras(&path)?;
+    load_checkpoint_network(config, &dir.join(crate::runner::CHECKPOINT_FILE))
+}
+
+/// The network of checkpoint `path`, refused when it was trained for another robot.
+fn load_checkpoint_network(config: &TrainConfig, path: &Path) -> Result<NetworkF32, String> {
+    let (checkpoint, extras) = Checkpoint::load_with_extras(path)?;
     extras.check_robot(&config.robot, &path.display().to_string())?;
-    checkpoint.network.to_network()
+    checkpoint
+        .network
+        .to_network()
+        .map_err(|e| format!("{}: {e}", path.display()))
+}
+
+/// [`load_checkpoint_network`] for a run to start from: its layers must be the config's
+/// `[network]`, which the run's checkpoints will record.
+fn load_init_network(config: &TrainConfig, path: &Path) -> Result<NetworkF32, String> {
+    let network = load_checkpoint_network(config, path)?;
+    let wanted = config.architecture();
+    if network.arch.convs != wanted.convs || network.arch.hidden != wanted.hidden {
+        return Err(format!(
+            "{}: its network (conv channels {:?}, hidden {:?}) is not the config's [network] (conv \
+             channels {:?}, hidden {:?})",
+            path.display(),
+            network.arch.convs.iter().map(|c| c.out_channels).collect::<Vec<_>>(),
+            network.arch.hidden,
+            config.network.conv_channels,
+            config.network.hidden
+        ));
+    }
+    Ok(network)
 }
 
 /// The config of `behaviour`'s secondary stage (`first`: the straight-line policy, which starts
@@ -271,17 +306,94 @@ pub fn run_randomize(config: &TrainConfig, opts: &CurriculumOptions) -> Result<S
     Ok(stats)
 }
 
+/// Where a primary starts and what it replays, when not what its curriculum folder holds.
+#[derive(Clone, Debug, Default)]
+pub struct PrimaryInputs {
+    /// A checkpoint whose network a fresh primary starts from, in place of
+    /// `curriculum.primary_init` (a fine-tune, on expert labels say; its Adam state and step
+    /// count are not taken: the run counts its own env steps from 0). A primary that resumes
+    /// its own checkpoint continues from that, so the same command resumes a killed fine-tune.
+    pub init: Option<PathBuf>,
+    /// Trajectory batches replayed together, in this order, in place of the folder's
+    /// [`BATCH_FILE`]; empty: that one.
+    pub batches: Vec<PathBuf>,
+}
+
+/// Expert labels ([`crate::trajectory::expert_labels`]): `policy` driven through `scenarios`
+/// by `label.stack`, the states it visits labelled with the planner's shortest way, into
+/// `OUT/labels.wltb` (resumable), for [`run_primary_with`] to replay.
+pub fn run_label(
+    policy: &dyn BatchPolicy,
+    scenarios: &[Scenario],
+    label: &LabelConfig,
+    opts: &CurriculumOptions,
+) -> Result<LabelStats, String> {
+    std::fs::create_dir_all(&opts.out)
+        .map_err(|e| format!("cannot create {}: {e}", opts.out.display()))?;
+    let bar = if opts.progress {
+        indicatif::ProgressBar::new(0)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    bar.set_message("driving the episodes");
+    let stats = label_batch(policy, scenarios, label, &opts.out.join(LABELS_FILE), |p| {
+        bar.set_length(p.states_total);
+        bar.set_position(p.states_done);
+        bar.set_message(format!("{} labelled", p.labelled));
+    })?;
+    bar.finish_and_clear();
+    Ok(stats)
+}
+
 /// Algorithm 2: PPO on complex scenes with replayed samples from the trajectory batch.
 pub fn run_primary(config: &TrainConfig, opts: &CurriculumOptions) -> Result<RunSummary, String> {
-    let batch_path = opts.out.join(BATCH_FILE);
-    let batch = TrajectoryBatch::load(&batch_path)
-        .map_err(|e| format!("{e} (make the trajectory batch first: wheelleg train randomize)"))?;
-    batch
-        .header()
-        .check_robot(&config.robot, &batch_path.display().to_string())?;
-    let init = match config.curriculum.primary_init.as_str() {
-        "scratch" => None,
-        name => match SceneKind::from_name(name) {
+    run_primary_with(config, opts, &PrimaryInputs::default())
+}
+
+/// The trajectory batches of `paths`, each checked for the robot, as one.
+fn load_batches(config: &TrainConfig, paths: &[PathBuf]) -> Result<TrajectoryBatch, String> {
+    let mut all: Option<TrajectoryBatch> = None;
+    for path in paths {
+        let batch = TrajectoryBatch::load(path).map_err(|e| match e {
+            // Its message names the file already.
+            BatchFileError::Io { .. } => e.to_string(),
+            _ => format!("{}: {e}", path.display()),
+        })?;
+        batch
+            .header()
+            .check_robot(&config.robot, &path.display().to_string())?;
+        match &mut all {
+            None => all = Some(batch),
+            Some(all) => all
+                .append(batch)
+                .map_err(|e| format!("{}: {e}", path.display()))?,
+        }
+    }
+    all.ok_or_else(|| "no trajectory batch to replay".to_string())
+}
+
+/// [`run_primary`] from `inputs.init` when given, replaying `inputs.batches` when given.
+pub fn run_primary_with(
+    config: &TrainConfig,
+    opts: &CurriculumOptions,
+    inputs: &PrimaryInputs,
+) -> Result<RunSummary, String> {
+    let batch = if inputs.batches.is_empty() {
+        let batch_path = opts.out.join(BATCH_FILE);
+        let batch = TrajectoryBatch::load(&batch_path).map_err(|e| {
+            format!("{e} (make the trajectory batch first: wheelleg train randomize)")
+        })?;
+        batch
+            .header()
+            .check_robot(&config.robot, &batch_path.display().to_string())?;
+        batch
+    } else {
+        load_batches(config, &inputs.batches)?
+    };
+    let init = match (&inputs.init, config.curriculum.primary_init.as_str()) {
+        (Some(path), _) => Some(load_init_network(config, path)?),
+        (None, "scratch") => None,
+        (None, name) => match SceneKind::from_name(name) {
             Some(SceneKind::Behaviour(b)) => {
                 Some(load_network(config, &secondary_dir(&opts.out, b))?)
             }

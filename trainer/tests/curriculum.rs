@@ -1,7 +1,7 @@
 //! The paper's pipeline end to end on a tiny budget: secondary policies store successful
 //! trajectories, randomization turns them into a batch of replays that all still succeed, the
 //! primary policy trains on complex scenes with replayed samples, and `all` run again resumes
-//! without redoing finished stages.
+//! without redoing finished stages; a primary fine-tuned from a checkpoint on expert labels.
 //!
 //! Run in release: `cargo test --release -p wheelleg-trainer --test curriculum`.
 
@@ -10,10 +10,12 @@ use wheelleg_sim::generate::Behaviour;
 use wheelleg_trainer::checkpoint::Checkpoint;
 use wheelleg_trainer::config::TrainConfig;
 use wheelleg_trainer::curriculum::{
-    run_all, secondary_dir, stored_trajectories, CurriculumOptions, BATCH_FILE, PRIMARY_DIR,
+    run_all, run_primary_with, secondary_dir, stored_trajectories, CurriculumOptions,
+    PrimaryInputs, BATCH_FILE, PRIMARY_DIR,
 };
 use wheelleg_trainer::runner::{read_metrics, CHECKPOINT_FILE};
 use wheelleg_trainer::trajectory::batch_file::TrajectoryBatch;
+use wheelleg_trainer::trajectory::expert_labels::{label_batch, LabelConfig};
 
 fn tiny_config() -> TrainConfig {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/smoke.toml");
@@ -146,5 +148,125 @@ fn a_behaviour_given_its_own_budget_is_continued_alone() {
         .insert("squeeze".into(), 1);
     let e = config.validate().unwrap_err();
     assert!(e.contains("secondary_env_steps_by_behaviour"), "{e}");
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+/// Expert labels of one complex scene of `seed`, driven by the shipped policy under `config`'s
+/// episode rules.
+fn labels(config: &TrainConfig, seed: u64, out: &std::path::Path) -> TrajectoryBatch {
+    use rand::SeedableRng;
+    let bytes = std::fs::read(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../weights/policy.wlw"
+    ))
+    .unwrap();
+    let policy = wheelleg_stack::policy::Int8Policy::from_bytes(&bytes).unwrap();
+    let scenes = wheelleg_sim::generate::generate_many(
+        wheelleg_sim::generate::SceneRobot::shipped(),
+        wheelleg_sim::generate::SceneKind::Complex,
+        &mut rand_chacha::ChaCha8Rng::seed_from_u64(seed),
+        1,
+    );
+    let label = LabelConfig {
+        env: config.episode_rules(),
+        seed,
+        planner_expansions: 2_000,
+        ..LabelConfig::default()
+    };
+    label_batch(&policy, &scenes, &label, out, |_| {}).unwrap();
+    TrajectoryBatch::load(out).unwrap()
+}
+
+#[test]
+fn a_primary_fine_tunes_from_a_checkpoint_on_several_batches() {
+    let out = std::env::temp_dir().join(format!("wheelleg-finetune-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    std::fs::create_dir_all(&out).unwrap();
+    let config = tiny_config();
+    let (a, b) = (out.join("a.wltb"), out.join("b.wltb"));
+    let (first, second) = (
+        labels(&config, 4_000_001, &a),
+        labels(&config, 4_000_002, &b),
+    );
+    assert!(!first.is_empty() && !second.is_empty());
+
+    // Two batches replay as one: the second's trajectories after the first's.
+    let mut both = first.clone();
+    both.append(second.clone()).unwrap();
+    assert_eq!(both.len(), first.len() + second.len());
+    assert_eq!(both.trajectory(0), first.trajectory(0));
+    assert_eq!(both.trajectory(first.len()), second.trajectory(0));
+    assert_eq!(
+        both.trajectory(both.len() - 1),
+        second.trajectory(second.len() - 1)
+    );
+    let mut longer = config.clone();
+    longer.run.max_episode_steps = 70;
+    let foreign = labels(&longer, 4_000_003, &out.join("c.wltb"));
+    assert!(both
+        .append(foreign)
+        .unwrap_err()
+        .contains("different episode rules"));
+
+    let init = PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/fixtures/straight-secondary.ckpt"
+    ));
+    let opts = CurriculumOptions {
+        out: out.clone(),
+        seed: 2,
+        progress: false,
+        stop_at_env_steps: None,
+    };
+    let inputs = PrimaryInputs {
+        init: Some(init.clone()),
+        batches: vec![a, b],
+    };
+    let mut narrow = config.clone();
+    narrow.network.hidden = vec![64];
+    let e = run_primary_with(&narrow, &opts, &inputs).unwrap_err();
+    assert!(e.contains("[network]"), "{e}");
+
+    let summary = run_primary_with(&config, &opts, &inputs).unwrap();
+    assert_eq!(summary.env_steps, 2000);
+    // Two updates move the checkpoint's network a little, far less than a fresh start is
+    // from it.
+    let head = |path: &std::path::Path| {
+        Checkpoint::load(path)
+            .unwrap()
+            .network
+            .to_network()
+            .unwrap()
+            .action_head
+            .weights
+    };
+    let distance = |x: &[f32], y: &[f32]| -> f32 {
+        x.iter()
+            .zip(y)
+            .map(|(p, q)| (p - q) * (p - q))
+            .sum::<f32>()
+            .sqrt()
+    };
+    let (before, after) = (head(&init), head(&summary.checkpoint));
+    let fresh = out.join("fresh");
+    let fresh_summary = run_primary_with(
+        &config,
+        &CurriculumOptions {
+            out: fresh,
+            ..opts.clone()
+        },
+        &PrimaryInputs {
+            init: None,
+            ..inputs.clone()
+        },
+    )
+    .unwrap();
+    let scratch = head(&fresh_summary.checkpoint);
+    assert!(
+        distance(&after, &before) < 0.5 * distance(&scratch, &before),
+        "{} vs {}",
+        distance(&after, &before),
+        distance(&scratch, &before)
+    );
     let _ = std::fs::remove_dir_all(&out);
 }

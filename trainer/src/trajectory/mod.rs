@@ -15,10 +15,13 @@
 //!   in-memory [`batch_file::TrajectoryBatch`] the trainer samples from.
 //! - [`relevance`]: the paper's relevance test: remove each obstacle, roll the greedy policy,
 //!   measure how far its trajectory moves, and draw it.
+//! - [`expert_labels`]: the states a decision stack visits, each labelled with the planner's
+//!   shortest way from there (DAgger), written as a batch the primary replays and clones.
 //!
 //! The design and the measured figures are in docs/curriculum.md.
 
 pub mod batch_file;
+pub mod expert_labels;
 pub mod randomize;
 pub mod relevance;
 pub mod sweep;

@@ -96,5 +96,6 @@ fn with_a_collision(trajectory: &Trajectory) -> Trajectory {
 
 mod batch_file;
 mod essential_area;
+mod expert_labels;
 mod relevance;
 mod replay;

@@ -126,6 +126,51 @@ impl TrajectoryBatch {
         Ok(())
     }
 
+    /// Adds every trajectory of `other` after this batch's own, so that one replay draws from
+    /// both (the secondaries' batch and expert labels, say). The header stays this batch's:
+    /// refused, naming what differs, when the two batches replay under other episode rules or
+    /// were driven by another robot, since a trajectory holds only under its own.
+    pub fn append(&mut self, other: TrajectoryBatch) -> Result<(), String> {
+        if other.env_config() != self.env_config() {
+            return Err(format!(
+                "the batches replay under different episode rules ({:?} and {:?})",
+                self.env_config(),
+                other.env_config()
+            ));
+        }
+        if other.header.robot != self.header.robot {
+            return Err(format!(
+                "the batches hold trajectories of different robots ('{}' and '{}')",
+                self.header.robot().name,
+                other.header.robot().name
+            ));
+        }
+        let offset = |len: usize| {
+            u32::try_from(len).map_err(|_| "more than 2^32 scenes or obstacles in memory")
+        };
+        let (sources, scenes, obstacles) = (
+            offset(self.sources.len())?,
+            offset(self.scenes.len())?,
+            offset(self.obstacles.len())?,
+        );
+        offset(self.scenes.len() + other.scenes.len())?;
+        offset(self.obstacles.len() + other.obstacles.len())?;
+        offset(self.sources.len() + other.sources.len())?;
+        self.scenes.extend(other.scenes.iter().map(|s| SceneRef {
+            source: s.source + sources,
+            first_obstacle: s.first_obstacle + obstacles,
+            obstacles: s.obstacles,
+        }));
+        self.sources
+            .extend(other.sources.into_iter().map(|s| StoredSource {
+                first_scene: s.first_scene + scenes,
+                ..s
+            }));
+        self.obstacles.extend_from_slice(&other.obstacles);
+        self.file_bytes += other.file_bytes;
+        Ok(())
+    }
+
     /// The header (parameters and episode rules).
     pub fn header(&self) -> &BatchHeader {
         &self.header
