@@ -13,6 +13,7 @@
 //! - [`planner`]: exact shortest-path search over the action set.
 //! - [`local_plan`]: that search on the robot's own map, for the last metres.
 //! - [`render`]: PNG pictures of scenes and height maps (plotters).
+//! - [`seeds`]: the seeds by purpose (training, held-out, calibration, validation, labels).
 //!
 //! The robot's geometry and kinematics come from `wheelleg-runtime`, the crate that runs on the
 //! robot: what is simulated is what is controlled.
@@ -29,6 +30,7 @@ pub mod render;
 pub mod reward;
 pub mod scenario;
 pub mod scenario_file;
+pub mod seeds;
 pub mod state;
 
 use std::io::Write;

@@ -36,7 +36,7 @@ pub struct Args {
     #[arg(long, value_enum)]
     kind: Option<super::generate::KindArg>,
     /// Seed of scene generation and stochastic actions (use seeds not used in training).
-    #[arg(long, default_value_t = 1_000_000)]
+    #[arg(long, default_value_t = wheelleg_sim::seeds::HELD_OUT)]
     seed: u64,
     /// Print JSON instead of a table.
     #[arg(long)]
@@ -146,7 +146,7 @@ pub fn run(args: Args) -> CliResult {
         RuleArg::Sample => DecisionRule::Sample,
         RuleArg::Untried => DecisionRule::Untried,
     };
-    if stack.rule != DecisionRule::Untried && args.stack.preset()? != Preset::Policy {
+    if stack.rule != DecisionRule::Untried && args.stack.preset() != Preset::Policy {
         return Err(format!(
             "--rule {}: only with --stack policy (the guard, arrival and the look-ahead build on \
              the untried rule's memory of what it took)",

@@ -30,7 +30,7 @@ pub struct Args {
     #[arg(long, default_value = "weights/policy.wlw")]
     out: PathBuf,
     /// Seed of the calibration scenes (held-out scenes: seed + 1).
-    #[arg(long, default_value_t = 2_000_000)]
+    #[arg(long, default_value_t = wheelleg_sim::seeds::CALIBRATION)]
     seed: u64,
     /// Observations to calibrate activation ranges on.
     #[arg(long, default_value_t = 20_000)]

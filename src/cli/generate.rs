@@ -16,7 +16,7 @@ pub struct Args {
     #[arg(long, default_value_t = 10)]
     count: usize,
     /// Seed of every random choice.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = wheelleg_sim::seeds::TRAINING)]
     seed: u64,
     /// Scenario file to write.
     #[arg(long)]

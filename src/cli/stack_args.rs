@@ -13,6 +13,29 @@ pub enum GuardMapArg {
     Fine,
 }
 
+/// The stack presets by name (`--stack`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum StackArg {
+    /// The decision rule alone.
+    Policy,
+    /// What the controller firmware runs: the rule, the guard, arrival.
+    #[default]
+    Robot,
+    /// `robot` plus the look-ahead and the searches of a companion computer.
+    Full,
+}
+
+impl StackArg {
+    /// The preset it names.
+    pub fn preset(self) -> Preset {
+        match self {
+            StackArg::Policy => Preset::Policy,
+            StackArg::Robot => Preset::Robot,
+            StackArg::Full => Preset::Full,
+        }
+    }
+}
+
 /// Which stack decides, and its layers' settings.
 #[derive(clap::Args, Clone, Debug, Default)]
 pub struct StackArgs {
@@ -22,8 +45,8 @@ pub struct StackArgs {
     /// rule) or `full` (`robot` plus what a companion computer adds: rollouts of the policy
     /// on the robot's map with a search for a shorter way, and a search for the last metres).
     /// Default: robot. docs/results.md, "Current figures".
-    #[arg(long, value_name = "NAME", value_parser = ["policy", "robot", "full"])]
-    pub stack: Option<String>,
+    #[arg(long, value_enum, value_name = "NAME")]
+    pub stack: Option<StackArg>,
     /// The guard grows every map column by MARGIN_M metres on each side (default 0.005;
     /// negative shrinks them).
     #[arg(long, value_name = "MARGIN_M", allow_negative_numbers = true)]
@@ -63,8 +86,8 @@ pub struct StackArgs {
 
 impl StackArgs {
     /// The preset named by `--stack` (robot when none is).
-    pub fn preset(&self) -> Result<Preset, String> {
-        Preset::from_name(self.stack.as_deref().unwrap_or("robot"))
+    pub fn preset(&self) -> Preset {
+        self.stack.unwrap_or_default().preset()
     }
 
     /// Whether nothing but the default `robot` stack was asked for.
@@ -81,7 +104,7 @@ impl StackArgs {
             lookahead_search,
             last_metres,
         } = self;
-        stack.as_deref().is_none_or(|s| s == "robot")
+        stack.is_none_or(|s| s == StackArg::Robot)
             && guard_margin.is_none()
             && guard_map.is_none()
             && !no_guard
@@ -96,7 +119,7 @@ impl StackArgs {
     /// The stack's layers: the preset's, with the options applied. An option for a layer the
     /// stack does not have is an error naming it, never silently ignored.
     pub fn config(&self) -> Result<StackConfig, String> {
-        let preset = self.preset()?;
+        let preset = self.preset();
         let mut config = preset.config();
         let name = preset.name();
         if self.no_guard {

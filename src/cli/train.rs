@@ -114,7 +114,7 @@ pub struct Args {
     #[arg(long)]
     out: PathBuf,
     /// Seed of every random choice (for `label`: of the scenes).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = wheelleg_sim::seeds::TRAINING)]
     seed: u64,
     /// Continue the run in --out from its last checkpoint (baseline; the curriculum stages
     /// always resume what they find).

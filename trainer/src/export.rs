@@ -47,7 +47,7 @@ impl Default for ExportOptions {
     fn default() -> Self {
         ExportOptions {
             scene_kind: SceneKind::Complex,
-            seed: 2_000_000,
+            seed: wheelleg_sim::seeds::CALIBRATION,
             calibration_observations: 20_000,
             holdout_observations: 10_000,
             range: RangeMethod::MinMax,

@@ -57,10 +57,6 @@ use wheelleg_stack::StackConfig;
 /// Name of the labels in a run folder (a trajectory batch file).
 pub const LABELS_FILE: &str = "labels.wltb";
 
-/// Scene seeds that generate held-out, calibration and validation sets (docs/results.md,
-/// docs/decisions.md): labels drawn there would train on what measures the policy.
-pub const RESERVED_SEEDS: [u64; 5] = [1_000_000, 2_000_000, 2_000_001, 2_000_002, 3_000_000];
-
 /// Why a rejected state has no label: the planner proved there is no way.
 pub const NO_WAY: &str = "planner: no way to the target under the episode rules";
 /// Why a rejected state has no label: the planner's budget ran out first (the reason goes on
@@ -143,11 +139,12 @@ impl LabelConfig {
         if self.chunk_states == 0 {
             return Err("chunk_states must be at least 1".into());
         }
-        if RESERVED_SEEDS.contains(&self.seed) {
+        if let Some(set) = wheelleg_sim::seeds::measuring_set(self.seed) {
             return Err(format!(
-                "seed {} generates a held-out, calibration or validation set (seeds \
-                 {RESERVED_SEEDS:?}); label scenes of another seed",
-                self.seed
+                "seed {} makes {set}, which measure the policy; label scenes of another seed \
+                 ({} + round, say)",
+                self.seed,
+                wheelleg_sim::seeds::EXPERT_LABELS
             ));
         }
         Ok(())

@@ -95,7 +95,7 @@ impl Default for QatOptions {
             near_tie_margin: 0.1,
             recalibrate_every: 200,
             observations: 20_000,
-            seed: 2_000_002,
+            seed: wheelleg_sim::seeds::CALIBRATION + 2,
             max_grad_norm: 1.0,
         }
     }
