@@ -237,6 +237,24 @@ fn report_stage(name: &str, summary: &RunSummary) {
         ),
         None => println!("{name}: done earlier ({} env steps)", summary.env_steps),
     }
+    // Where the stage's time went, over every iteration of its log (resumed ones included;
+    // a log written before the split was timed has none).
+    let run = summary
+        .checkpoint
+        .parent()
+        .unwrap_or(std::path::Path::new("."));
+    if let Ok(metrics) = crate::runner::read_metrics(run) {
+        let total = metrics
+            .iter()
+            .fold(crate::runner::IterationTime::default(), |t, m| t + m.time);
+        if total == crate::runner::IterationTime::default() {
+            return;
+        }
+        println!(
+            "{name}: time in acting {:.0} s, environments {:.0} s, replay {:.0} s, updates {:.0} s",
+            total.act_s, total.env_s, total.replay_s, total.update_s
+        );
+    }
 }
 
 /// The stored trajectories of every secondary policy, in behaviour order. Refused when a

@@ -39,7 +39,7 @@ pub mod start_stage;
 pub use start_stage::StartStageSchedule;
 
 use metrics::{append_metrics, truncate_metrics};
-pub use metrics::{read_metrics, summarise, IterationMetrics};
+pub use metrics::{read_metrics, summarise, IterationMetrics, IterationTime};
 
 /// Options of a run besides the config.
 #[derive(Clone, Debug)]
@@ -251,6 +251,7 @@ pub fn train_stage(
         .map_or(run.total_env_steps, |s| s.min(run.total_env_steps));
     while env_steps < stop_at && opts.max_iterations.is_none_or(|m| iterations_here < m) {
         let iter_start = Instant::now();
+        let mut time = IterationTime::default();
         let (composed_share, exit_share) = mix_at(run, env_steps);
         envs.set_composed_share(composed_share);
         envs.set_exit_share(exit_share);
@@ -259,9 +260,13 @@ pub fn train_stage(
         let mut episodes = Vec::new();
         let stage_now = envs.stage();
         for _ in 0..steps_per_env {
+            let acting = Instant::now();
             let acted = ppo.act(&heights, &states, n, &mut sampler)?;
+            time.act_s += acting.elapsed().as_secs_f64();
             let (obs_h, obs_s) = (heights.clone(), states.clone());
+            let stepping = Instant::now();
             let results = envs.step(&acted.choices, &mut heights, &mut states);
+            time.env_s += stepping.elapsed().as_secs_f64();
             let rewards: Vec<f32> = results.iter().map(|r| r.reward).collect();
             let dones: Vec<bool> = results.iter().map(|r| r.done).collect();
             episodes.extend(results.iter().filter_map(|r| r.episode));
@@ -294,13 +299,16 @@ pub fn train_stage(
             );
         }
         // 2. Returns and advantages (GAE), bootstrapped with the value of where each env stands.
+        let acting = Instant::now();
         let last_values = ppo.evaluate(&heights, &states, n)?.values;
+        time.act_s += acting.elapsed().as_secs_f64();
         storage.compute_returns(&last_values, config.ppo.gamma, config.ppo.gae_lambda);
         // 3. PPO update, on the on-policy samples plus (Algorithm 2) replayed ones whose
         //    advantages come from the current value function.
         ppo.config.learning_rate = config.ppo.learning_rate_at(env_steps, run.total_env_steps);
         let update = match inputs.replay {
             Some(batch) => {
+                let replaying = Instant::now();
                 let mut mixed = storage.samples.clone();
                 mixed.extend(&replay_samples(
                     &ppo,
@@ -308,9 +316,18 @@ pub fn train_stage(
                     &inputs.replay_options,
                     &mut sampler,
                 )?);
-                ppo.update(&mixed, &mut sampler)?
+                time.replay_s = replaying.elapsed().as_secs_f64();
+                let updating = Instant::now();
+                let update = ppo.update(&mixed, &mut sampler)?;
+                time.update_s = updating.elapsed().as_secs_f64();
+                update
             }
-            None => ppo.update(&storage.samples, &mut sampler)?,
+            None => {
+                let updating = Instant::now();
+                let update = ppo.update(&storage.samples, &mut sampler)?;
+                time.update_s = updating.elapsed().as_secs_f64();
+                update
+            }
         };
 
         iteration += 1;
@@ -340,6 +357,7 @@ pub fn train_stage(
             mean_success_steps,
             update,
             steps_per_s: (n * steps_per_env) as f32 / iter_start.elapsed().as_secs_f32(),
+            time,
             elapsed_s,
             start_stage: schedule.as_ref().map(|_| stage_now),
             start_stage_success_rate: stage_success,

@@ -83,9 +83,18 @@ fn the_whole_pipeline_runs_and_resumes() {
         );
     }
 
-    // The primary run logged its iterations; running `all` again trains nothing more.
+    // The primary run logged its iterations, each with where its time went (the primary
+    // replays the batch); running `all` again trains nothing more.
     let primary = out.join(PRIMARY_DIR);
-    assert_eq!(read_metrics(&primary).unwrap().len(), 2);
+    let metrics = read_metrics(&primary).unwrap();
+    assert_eq!(metrics.len(), 2);
+    for m in &metrics {
+        let t = m.time;
+        assert!(
+            t.act_s > 0.0 && t.env_s > 0.0 && t.replay_s > 0.0 && t.update_s > 0.0,
+            "{t:?}"
+        );
+    }
     let again = run_all(&config, &opts).unwrap();
     assert_eq!(again.env_steps, 2000);
     assert!(again.last.is_none());

@@ -29,6 +29,9 @@ pub struct IterationMetrics {
     pub update: UpdateStats,
     /// Environment steps per second of the whole iteration (rollout + update).
     pub steps_per_s: f32,
+    /// Where the iteration's time went.
+    #[serde(default)]
+    pub time: IterationTime,
     /// Seconds of training so far.
     pub elapsed_s: f64,
     /// Start stage of the scenes drawn during the iteration (runs with the start-stage
@@ -38,6 +41,33 @@ pub struct IterationMetrics {
     /// Success rate of the iteration's episodes that started at that stage.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub start_stage_success_rate: Option<f32>,
+}
+
+/// Where one iteration's wall time went, in seconds: what a change to training speed is
+/// measured against (`wheelleg train`'s summary adds them up over a run).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct IterationTime {
+    /// The policy's forward passes of the rollout (acting, and the bootstrap values).
+    pub act_s: f64,
+    /// The environments' steps (simulation, rewards, observations).
+    pub env_s: f64,
+    /// Replayed samples re-rendered and scored (Algorithm 2; 0 without a batch).
+    pub replay_s: f64,
+    /// The PPO update (forward, backward, optimizer) over all samples.
+    pub update_s: f64,
+}
+
+impl std::ops::Add for IterationTime {
+    type Output = IterationTime;
+
+    fn add(self, other: IterationTime) -> IterationTime {
+        IterationTime {
+            act_s: self.act_s + other.act_s,
+            env_s: self.env_s + other.env_s,
+            replay_s: self.replay_s + other.replay_s,
+            update_s: self.update_s + other.update_s,
+        }
+    }
 }
 
 /// Episode outcomes summarised.
