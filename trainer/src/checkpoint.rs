@@ -15,11 +15,95 @@ use crate::network_f32::{Architecture, Conv2dF32, ConvSpec, DenseF32, NetworkF32
 use crate::ppo::Adam;
 use crate::vec_env::EnvSnapshot;
 use serde::{Deserialize, Serialize};
-use std::path::Path;
+use std::fmt;
+use std::path::{Path, PathBuf};
 use wheelleg_robot::RobotDescription;
 
 const MAGIC: &[u8; 8] = b"WLCKPT01";
 const HEADER_LEN: usize = 24;
+
+/// Why a checkpoint cannot be read, used or written.
+#[derive(Debug)]
+pub enum CheckpointError {
+    /// The file could not be read (or, `writing`, written).
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// Whether it was being written.
+        writing: bool,
+        /// What the system said.
+        error: std::io::Error,
+    },
+    /// Not a wheelleg checkpoint: shorter than its header, or another magic.
+    NotACheckpoint,
+    /// The payload is not as long as the header says.
+    Truncated {
+        /// Bytes after the header.
+        payload_bytes: usize,
+        /// Bytes the header announces.
+        header_bytes: usize,
+    },
+    /// The payload's checksum does not match the header's.
+    Checksum,
+    /// A record does not decode, or bytes follow the last one.
+    Corrupt(String),
+    /// The network's architecture is impossible, or its tensors do not fit it.
+    Network(String),
+    /// The optimizer state does not match the network.
+    Optimizer,
+    /// The record could not be encoded.
+    Encode(String),
+    /// Trained for another robot (both named), or the robot recorded does not read.
+    Robot(String),
+    /// One of the above, in the file `path`.
+    In {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with it.
+        error: Box<CheckpointError>,
+    },
+}
+
+impl fmt::Display for CheckpointError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            CheckpointError::Io {
+                path,
+                writing,
+                error,
+            } => {
+                let verb = if *writing { "write" } else { "read" };
+                write!(f, "cannot {verb} checkpoint {}: {error}", path.display())
+            }
+            CheckpointError::NotACheckpoint => f.write_str("not a wheelleg checkpoint (bad magic)"),
+            CheckpointError::Truncated {
+                payload_bytes,
+                header_bytes,
+            } => write!(
+                f,
+                "checkpoint truncated or padded: payload is {payload_bytes} bytes, header says \
+                 {header_bytes}"
+            ),
+            CheckpointError::Checksum => f.write_str("checkpoint corrupt: checksum mismatch"),
+            CheckpointError::Corrupt(what) => write!(f, "checkpoint corrupt: {what}"),
+            CheckpointError::Network(what) => f.write_str(what),
+            CheckpointError::Optimizer => {
+                f.write_str("checkpoint optimizer state does not match its network")
+            }
+            CheckpointError::Encode(what) => write!(f, "cannot encode checkpoint: {what}"),
+            CheckpointError::Robot(what) => f.write_str(what),
+            CheckpointError::In { path, error } => write!(f, "{}: {error}", path.display()),
+        }
+    }
+}
+
+impl std::error::Error for CheckpointError {}
+
+impl From<CheckpointError> for String {
+    fn from(error: CheckpointError) -> String {
+        error.to_string()
+    }
+}
 
 /// The architecture as stored (network_f32's types stay serde-free for the no_std side).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -99,19 +183,19 @@ impl NetworkRecord {
     }
 
     /// Rebuilds the network, checking every tensor's length against the architecture.
-    pub fn to_network(&self) -> Result<NetworkF32, String> {
+    pub fn to_network(&self) -> Result<NetworkF32, CheckpointError> {
         check_shape(&self.arch)?;
         let arch = self.arch.to_arch();
         let mut t = self.tensors.iter();
-        let mut take = |len: usize, what: &str| -> Result<Vec<f32>, String> {
-            let v = t
-                .next()
-                .ok_or_else(|| format!("checkpoint network is missing tensor {what}"))?;
+        let mut take = |len: usize, what: &str| -> Result<Vec<f32>, CheckpointError> {
+            let v = t.next().ok_or_else(|| {
+                CheckpointError::Network(format!("checkpoint network is missing tensor {what}"))
+            })?;
             if v.len() != len {
-                return Err(format!(
+                return Err(CheckpointError::Network(format!(
                     "checkpoint tensor {what} has {} values, the architecture needs {len}",
                     v.len()
-                ));
+                )));
             }
             Ok(v.clone())
         };
@@ -129,14 +213,15 @@ impl NetworkRecord {
             });
         }
         let mut width = arch.concat_len();
-        let mut dense = |out: usize, name: &str, width: usize| -> Result<DenseF32, String> {
-            Ok(DenseF32 {
-                in_features: width,
-                out_features: out,
-                weights: take(out * width, &format!("{name}.weight"))?,
-                bias: take(out, &format!("{name}.bias"))?,
-            })
-        };
+        let mut dense =
+            |out: usize, name: &str, width: usize| -> Result<DenseF32, CheckpointError> {
+                Ok(DenseF32 {
+                    in_features: width,
+                    out_features: out,
+                    weights: take(out * width, &format!("{name}.weight"))?,
+                    bias: take(out, &format!("{name}.bias"))?,
+                })
+            };
         let mut hidden = Vec::new();
         for (i, &out) in arch.hidden.iter().enumerate() {
             hidden.push(dense(out, &format!("hidden{i}"), width)?);
@@ -149,7 +234,9 @@ impl NetworkRecord {
             None
         };
         if t.next().is_some() {
-            return Err("checkpoint network has more tensors than its architecture".into());
+            return Err(CheckpointError::Network(
+                "checkpoint network has more tensors than its architecture".into(),
+            ));
         }
         Ok(NetworkF32 {
             arch,
@@ -165,8 +252,12 @@ impl NetworkRecord {
 /// kernel larger than its padded input, channels that chain, and no product that overflows.
 /// A checkpoint is outside data once it is on disk; the fuzz target `checkpoint_payload` found
 /// an architecture whose feature count overflowed (docs/robustness.md).
-fn check_shape(arch: &ArchRecord) -> Result<(), String> {
-    let bad = |what: String| Err(format!("checkpoint architecture is impossible: {what}"));
+fn check_shape(arch: &ArchRecord) -> Result<(), CheckpointError> {
+    let bad = |what: String| {
+        Err(CheckpointError::Network(format!(
+            "checkpoint architecture is impossible: {what}"
+        )))
+    };
     let (mut h, mut w, mut c) = (arch.height.0, arch.height.1, 1usize);
     for (i, &(in_channels, out_channels, kernel, stride, padding)) in arch.convs.iter().enumerate()
     {
@@ -271,18 +362,21 @@ impl CheckpointExtras {
     }
 
     /// The robot the checkpoint's policy was trained for.
-    pub fn robot(&self) -> Result<RobotDescription, String> {
+    pub fn robot(&self) -> Result<RobotDescription, CheckpointError> {
         match &self.robot {
             None => Ok(RobotDescription::shipped()),
-            Some(text) => RobotDescription::from_toml(text)
-                .map_err(|e| format!("checkpoint corrupt: its robot description: {e}")),
+            Some(text) => RobotDescription::from_toml(text).map_err(|e| {
+                CheckpointError::Robot(format!("checkpoint corrupt: its robot description: {e}"))
+            }),
         }
     }
 
     /// Refuses a checkpoint (`what`) trained for another robot than `robot`, naming both.
-    pub fn check_robot(&self, robot: &RobotDescription, what: &str) -> Result<(), String> {
+    pub fn check_robot(&self, robot: &RobotDescription, what: &str) -> Result<(), CheckpointError> {
         let trained = self.robot()?;
-        robot.accepts(&trained.trained_for(), what)
+        robot
+            .accepts(&trained.trained_for(), what)
+            .map_err(CheckpointError::Robot)
     }
 }
 
@@ -306,18 +400,18 @@ fn fnv1a(bytes: &[u8]) -> u64 {
 
 impl Checkpoint {
     /// Encodes the file bytes.
-    pub fn to_bytes(&self) -> Result<Vec<u8>, String> {
+    pub fn to_bytes(&self) -> Result<Vec<u8>, CheckpointError> {
         self.to_bytes_with(&CheckpointExtras::default())
     }
 
     /// Encodes the file bytes with `extras` after the record (nothing when they are empty).
-    pub fn to_bytes_with(&self, extras: &CheckpointExtras) -> Result<Vec<u8>, String> {
+    pub fn to_bytes_with(&self, extras: &CheckpointExtras) -> Result<Vec<u8>, CheckpointError> {
         let mut payload =
-            postcard::to_allocvec(self).map_err(|e| format!("cannot encode checkpoint: {e}"))?;
+            postcard::to_allocvec(self).map_err(|e| CheckpointError::Encode(e.to_string()))?;
         if *extras != CheckpointExtras::default() {
             payload.extend(
                 postcard::to_allocvec(extras)
-                    .map_err(|e| format!("cannot encode checkpoint extras: {e}"))?,
+                    .map_err(|e| CheckpointError::Encode(format!("extras: {e}")))?,
             );
         }
         let mut out = Vec::with_capacity(HEADER_LEN + payload.len());
@@ -329,30 +423,32 @@ impl Checkpoint {
     }
 
     /// Decodes and validates file bytes (ignoring any extras).
-    pub fn from_bytes(bytes: &[u8]) -> Result<Checkpoint, String> {
+    pub fn from_bytes(bytes: &[u8]) -> Result<Checkpoint, CheckpointError> {
         Checkpoint::from_bytes_with_extras(bytes).map(|(c, _)| c)
     }
 
     /// Decodes and validates file bytes and the extras after the record (empty when there are
     /// none).
-    pub fn from_bytes_with_extras(bytes: &[u8]) -> Result<(Checkpoint, CheckpointExtras), String> {
+    pub fn from_bytes_with_extras(
+        bytes: &[u8],
+    ) -> Result<(Checkpoint, CheckpointExtras), CheckpointError> {
         if bytes.len() < HEADER_LEN || &bytes[..8] != MAGIC {
-            return Err("not a wheelleg checkpoint (bad magic)".into());
+            return Err(CheckpointError::NotACheckpoint);
         }
         let len = u64::from_le_bytes(bytes[8..16].try_into().unwrap_or_default()) as usize;
         let sum = u64::from_le_bytes(bytes[16..24].try_into().unwrap_or_default());
         let payload = &bytes[HEADER_LEN..];
         if payload.len() != len {
-            return Err(format!(
-                "checkpoint truncated or padded: payload is {} bytes, header says {len}",
-                payload.len()
-            ));
+            return Err(CheckpointError::Truncated {
+                payload_bytes: payload.len(),
+                header_bytes: len,
+            });
         }
         if fnv1a(payload) != sum {
-            return Err("checkpoint corrupt: checksum mismatch".into());
+            return Err(CheckpointError::Checksum);
         }
-        let (c, rest): (Checkpoint, &[u8]) =
-            postcard::take_from_bytes(payload).map_err(|e| format!("checkpoint corrupt: {e}"))?;
+        let (c, rest): (Checkpoint, &[u8]) = postcard::take_from_bytes(payload)
+            .map_err(|e| CheckpointError::Corrupt(e.to_string()))?;
         let extras = if rest.is_empty() {
             CheckpointExtras::default()
         } else {
@@ -382,55 +478,66 @@ impl Checkpoint {
                         },
                     }
                 })
-                .map_err(|e| format!("checkpoint corrupt: extras: {e}"))?;
+                .map_err(|e| CheckpointError::Corrupt(format!("extras: {e}")))?;
             if !tail.is_empty() {
-                return Err(format!(
-                    "checkpoint corrupt: {} bytes after the extras",
+                return Err(CheckpointError::Corrupt(format!(
+                    "{} bytes after the extras",
                     tail.len()
-                ));
+                )));
             }
             extras
         };
         let net = c.network.to_network()?;
         if !c.adam.fits(&net) {
-            return Err("checkpoint optimizer state does not match its network".into());
+            return Err(CheckpointError::Optimizer);
         }
         Ok((c, extras))
     }
 
     /// Writes the checkpoint atomically (temporary file + rename).
-    pub fn save(&self, path: &Path) -> Result<(), String> {
+    pub fn save(&self, path: &Path) -> Result<(), CheckpointError> {
         self.save_with(path, &CheckpointExtras::default())
     }
 
     /// [`Checkpoint::save`] with `extras`.
-    pub fn save_with(&self, path: &Path, extras: &CheckpointExtras) -> Result<(), String> {
+    pub fn save_with(&self, path: &Path, extras: &CheckpointExtras) -> Result<(), CheckpointError> {
         let bytes = self.to_bytes_with(extras)?;
-        wheelleg_sim::atomic_write(path, &bytes)
-            .map_err(|e| format!("cannot write checkpoint {}: {e}", path.display()))
+        wheelleg_sim::atomic_write(path, &bytes).map_err(|error| CheckpointError::Io {
+            path: path.to_path_buf(),
+            writing: true,
+            error,
+        })
     }
 
     /// Reads and validates a checkpoint file.
-    pub fn load(path: &Path) -> Result<Checkpoint, String> {
+    pub fn load(path: &Path) -> Result<Checkpoint, CheckpointError> {
         Checkpoint::load_with_extras(path).map(|(c, _)| c)
     }
 
     /// Reads and validates a checkpoint file and its extras.
-    pub fn load_with_extras(path: &Path) -> Result<(Checkpoint, CheckpointExtras), String> {
-        let bytes = std::fs::read(path)
-            .map_err(|e| format!("cannot read checkpoint {}: {e}", path.display()))?;
-        Checkpoint::from_bytes_with_extras(&bytes).map_err(|e| format!("{}: {e}", path.display()))
+    pub fn load_with_extras(
+        path: &Path,
+    ) -> Result<(Checkpoint, CheckpointExtras), CheckpointError> {
+        let bytes = std::fs::read(path).map_err(|error| CheckpointError::Io {
+            path: path.to_path_buf(),
+            writing: false,
+            error,
+        })?;
+        Checkpoint::from_bytes_with_extras(&bytes).map_err(|error| CheckpointError::In {
+            path: path.to_path_buf(),
+            error: Box::new(error),
+        })
     }
 }
 
 /// Loads just the policy from a checkpoint file.
-pub fn load_policy(path: &Path) -> Result<NetworkF32, String> {
+pub fn load_policy(path: &Path) -> Result<NetworkF32, CheckpointError> {
     Checkpoint::load(path)?.network.to_network()
 }
 
 /// Refuses the checkpoint at `path` when it was trained for another robot than `robot`,
 /// naming both.
-pub fn check_robot(path: &Path, robot: &RobotDescription) -> Result<(), String> {
+pub fn check_robot(path: &Path, robot: &RobotDescription) -> Result<(), CheckpointError> {
     let (_, extras) = Checkpoint::load_with_extras(path)?;
     extras.check_robot(robot, &path.display().to_string())
 }

@@ -5,7 +5,6 @@
 //! the look-ahead and the searches), all scenarios in lock-step so that the policy is evaluated
 //! once per step on the whole batch; stochastic draws come from the caller's seeded RNG.
 
-use crate::network_f32::NetworkF32;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
@@ -431,11 +430,6 @@ pub fn evaluate(
         by_composed_variant,
         scenarios: results,
     })
-}
-
-/// Loads a policy from a checkpoint file.
-pub fn load_policy(path: &std::path::Path) -> Result<NetworkF32, String> {
-    crate::checkpoint::load_policy(path)
 }
 
 #[cfg(test)]
