@@ -80,9 +80,15 @@ pub fn run_episodes(
     let mut obs = Observation::default();
     let mut deciders: Vec<Decider> = vec![Decider::new(); envs.len()];
     let mut keys = vec![ObservationKey(0); envs.len()];
+    // The guard checks the robot simulated (its geometry from the episode rules) on the
+    // simulator's action lattice, the paper's (`wheelleg_sim::state`).
+    let robot = Robot {
+        geometry: env_config.geometry,
+        ..Robot::WHEELLEG
+    };
     let guard = stack
         .guard
-        .map(|layer| CollisionGuard::new(&Robot::WHEELLEG, layer.margin_m));
+        .map(|layer| CollisionGuard::new(&robot, layer.margin_m));
     let mut guard_map = stack.guard.and_then(|layer| layer.grid).map(GuardMap::new);
     let mut lookahead = Lookahead::new(stack.lookahead.unwrap_or_default());
     let mut lookahead_stats = vec![LookaheadStats::default(); envs.len()];

@@ -4,6 +4,7 @@
 use nalgebra::Point2;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use wheelleg_runtime::robot::{RobotGeometry, WHEELLEG};
 use wheelleg_sim::env::{Env, EnvConfig, Status};
 use wheelleg_sim::obstacle::{Obstacle, ObstacleKind, ObstacleYaw};
 use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig};
@@ -177,4 +178,47 @@ fn the_search_finds_the_shortest_way_where_every_rollout_is_longer() {
     assert!(rollouts.env.steps() > shortest, "{rollouts:?}");
     assert_eq!(searched.env.steps(), shortest, "{searched:?}");
     assert!(searched.lookahead.overrides > 0);
+}
+
+#[test]
+fn the_guard_checks_the_robot_the_episodes_simulate() {
+    // A robot whose body reaches 15 cm further forward than the shipped one's meets the block
+    // ahead earlier: a guard that checked the shipped body would let it push in.
+    let long = RobotGeometry {
+        body_length_m: WHEELLEG.body_length_m + 0.3,
+        ..WHEELLEG
+    };
+    let rules = EnvConfig {
+        geometry: long,
+        ..EnvConfig::default()
+    };
+    let scenario = Scenario {
+        name: "block-ahead-long-body".into(),
+        start: start(),
+        target: Point2::new(0.9, 0.125),
+        obstacles: vec![Obstacle::new(
+            ObstacleKind::Block,
+            0.625,
+            0.125,
+            ObstacleYaw::Deg0,
+        )],
+    };
+    let run = |stack: &StackConfig| {
+        let mut rng = ChaCha8Rng::seed_from_u64(0);
+        run_episodes(
+            &Fixated,
+            std::slice::from_ref(&scenario),
+            stack,
+            rules,
+            &mut rng,
+            &mut |_| {},
+        )
+        .unwrap()
+        .remove(0)
+        .env
+    };
+    let unguarded = run(&Preset::Policy.config());
+    assert!(unguarded.collisions() > 0, "the long body meets the block");
+    let guarded = run(&Preset::Robot.config());
+    assert_eq!(guarded.collisions(), 0);
 }

@@ -22,7 +22,7 @@ use super::{ReplayError, Trajectory};
 use nalgebra::Point2;
 use wheelleg_runtime::action::YAW_STEP_DEG;
 use wheelleg_runtime::leg::{IkError, LegConfig};
-use wheelleg_runtime::robot::{RobotGeometry, WHEELLEG};
+use wheelleg_runtime::robot::RobotGeometry;
 use wheelleg_sim::collision::RobotParts;
 use wheelleg_sim::env::EnvConfig;
 use wheelleg_sim::obstacle::{GroundBox, Obstacle};
@@ -145,7 +145,7 @@ impl EssentialArea {
         Ok(Self::from_rects(rects, margin_m))
     }
 
-    /// The area of a trajectory's replay with the project's robot.
+    /// The area of a trajectory's replay, with the robot of the episode rules.
     pub fn of_trajectory(
         trajectory: &Trajectory,
         config: EnvConfig,
@@ -153,7 +153,7 @@ impl EssentialArea {
     ) -> Result<Self, ReplayError> {
         let replay = trajectory.replay(config)?;
         // Every state on a replayed path passed the simulator's leg check.
-        Self::from_path(&WHEELLEG, &replay.path, margin_m).map_err(|e| {
+        Self::from_path(&config.geometry, &replay.path, margin_m).map_err(|e| {
             ReplayError::Scenario(wheelleg_sim::scenario::ScenarioError {
                 scenario: trajectory.scenario.name.clone(),
                 field: "robot".into(),

@@ -24,6 +24,38 @@ fn the_essential_area_covers_every_checked_pose_and_nothing_far() {
     }
 }
 
+#[test]
+fn the_essential_area_is_the_simulated_robots() {
+    // The area of a trajectory is swept by the robot of its episode rules: a body 30 cm longer
+    // than the shipped one's sweeps more along the very same path.
+    let shipped = EnvConfig::default();
+    let long = EnvConfig {
+        geometry: wheelleg_runtime::robot::RobotGeometry {
+            body_length_m: shipped.geometry.body_length_m + 0.3,
+            ..shipped.geometry
+        },
+        ..shipped
+    };
+    let mut compared = 0;
+    for t in sources() {
+        // The longer body does not fit every source's scene.
+        let Ok(area) = EssentialArea::of_trajectory(&t, long, DEFAULT_MARGIN_M) else {
+            continue;
+        };
+        let path = t.replay(long).unwrap().path;
+        let swept = |config: EnvConfig| {
+            EssentialArea::from_path(&config.geometry, &path, DEFAULT_MARGIN_M)
+                .unwrap()
+                .rects()
+                .to_vec()
+        };
+        assert_eq!(area.rects(), swept(long), "{}", t.scenario.name);
+        assert_ne!(area.rects(), swept(shipped), "{}", t.scenario.name);
+        compared += 1;
+    }
+    assert!(compared > 0, "no source fits the longer body");
+}
+
 /// Source obstacles that meet `area`, by a naive test over the area's rectangles.
 fn meets(area: &EssentialArea, o: &Obstacle) -> bool {
     let r = GroundRect::of_box(&o.ground_box());
