@@ -156,7 +156,14 @@ fn a_behaviour_given_its_own_budget_is_continued_alone() {
         .secondary_env_steps_by_behaviour
         .insert("squeeze".into(), 1);
     let e = config.validate().unwrap_err();
-    assert!(e.contains("secondary_env_steps_by_behaviour"), "{e}");
+    assert!(
+        matches!(e, wheelleg_trainer::config::ConfigError::Invalid(_)),
+        "{e}"
+    );
+    assert!(
+        e.to_string().contains("secondary_env_steps_by_behaviour"),
+        "{e}"
+    );
     let _ = std::fs::remove_dir_all(&out);
 }
 

@@ -2,7 +2,95 @@
 //! a resume from a stored config would change.
 
 use super::*;
+use std::fmt;
+use std::path::PathBuf;
 use wheelleg_robot::RobotDescription;
+
+/// Why a config cannot be read or used; every message names the file and the key.
+#[derive(Debug)]
+pub enum ConfigError {
+    /// The file could not be read.
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// What the system said.
+        error: std::io::Error,
+    },
+    /// The text is not TOML, or a key has the wrong type or name (the message names it).
+    Toml(String),
+    /// A key of an experiment that measured no gain, set so as to switch it on.
+    Retired {
+        /// `section.key`.
+        key: String,
+        /// Its value in the file.
+        value: String,
+    },
+    /// `extends` names no config file, or the chain is too long.
+    Extends(String),
+    /// A key outside its range (the message names it and the range).
+    Invalid(String),
+    /// The robot description (`run.robot` or `--robot`) does not read or cannot be simulated.
+    Robot(String),
+    /// A stored config (a checkpoint's) does not parse, or a config does not serialize.
+    Stored(String),
+    /// One of the above, in the file `path`.
+    In {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong in it.
+        error: Box<ConfigError>,
+    },
+    /// One of the above, in the config `base` that `path` extends.
+    Base {
+        /// The extending file.
+        path: PathBuf,
+        /// The base it names.
+        base: String,
+        /// What is wrong in the base.
+        error: Box<ConfigError>,
+    },
+}
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            ConfigError::Io { path, error } => {
+                write!(f, "cannot read config {}: {error}", path.display())
+            }
+            ConfigError::Toml(what)
+            | ConfigError::Extends(what)
+            | ConfigError::Invalid(what)
+            | ConfigError::Stored(what) => f.write_str(what),
+            ConfigError::Retired { key, value } => write!(
+                f,
+                "{key} = {value}: that experiment measured no gain and was removed \
+                 (docs/results.md, \"Experiments that measured no gain\"); drop the key"
+            ),
+            ConfigError::Robot(what) => f.write_str(what),
+            ConfigError::In { path, error } => write!(f, "config {}: {error}", path.display()),
+            ConfigError::Base { path, base, error } => {
+                write!(f, "config {} extends {base}: {error}", path.display())
+            }
+        }
+    }
+}
+
+impl std::error::Error for ConfigError {}
+
+impl From<ConfigError> for String {
+    fn from(error: ConfigError) -> String {
+        error.to_string()
+    }
+}
+
+impl ConfigError {
+    fn in_file(self, path: &Path) -> ConfigError {
+        ConfigError::In {
+            path: path.to_path_buf(),
+            error: Box::new(self),
+        }
+    }
+}
 
 /// `run` keys a resumed run may change: its budget, the re-sampling of failed scenes and the
 /// shares of composed and exit scenes (which only change which scenes come next).
@@ -56,7 +144,7 @@ enum RetiredOff {
 
 /// Drops the retired keys from a config's table, or names one that would switch a removed
 /// experiment on.
-fn drop_retired(table: &mut toml::Table) -> Result<(), String> {
+fn drop_retired(table: &mut toml::Table) -> Result<(), ConfigError> {
     for (section, key, off) in RETIRED_KEYS {
         let Some(toml::Value::Table(keys)) = table.get_mut(section) else {
             continue;
@@ -72,46 +160,49 @@ fn drop_retired(table: &mut toml::Table) -> Result<(), String> {
             _ => false,
         };
         if !is_off {
-            return Err(format!(
-                "{section}.{key} = {value}: that experiment measured no gain and was removed \
-                 (docs/results.md, \"Experiments that measured no gain\"); drop the key"
-            ));
+            return Err(ConfigError::Retired {
+                key: format!("{section}.{key}"),
+                value: value.to_string(),
+            });
         }
     }
     Ok(())
 }
 
 /// Parses a config's TOML text into its table, retired keys dropped.
-fn parse_table(text: &str) -> Result<toml::Table, String> {
-    let mut table: toml::Table = text.parse().map_err(|e: toml::de::Error| e.to_string())?;
+fn parse_table(text: &str) -> Result<toml::Table, ConfigError> {
+    let mut table: toml::Table = text
+        .parse()
+        .map_err(|e: toml::de::Error| ConfigError::Toml(e.to_string()))?;
     drop_retired(&mut table)?;
     Ok(table)
 }
 
 /// A config file's keys with its `extends` chain merged beneath them.
-fn load_table(path: &Path, depth: usize) -> Result<toml::Table, String> {
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| format!("cannot read config {}: {e}", path.display()))?;
-    let mut table = parse_table(&text).map_err(|e| format!("config {}: {e}", path.display()))?;
+fn load_table(path: &Path, depth: usize) -> Result<toml::Table, ConfigError> {
+    let text = std::fs::read_to_string(path).map_err(|error| ConfigError::Io {
+        path: path.to_path_buf(),
+        error,
+    })?;
+    let mut table = parse_table(&text).map_err(|e| e.in_file(path))?;
     let base = match table.remove("extends") {
         None => return Ok(table),
         Some(toml::Value::String(base)) => base,
         Some(other) => {
-            return Err(format!(
-                "config {}: extends must name a config file, not {other}",
-                path.display()
-            ))
+            let problem = format!("extends must name a config file, not {other}");
+            return Err(ConfigError::Extends(problem).in_file(path));
         }
     };
     if depth >= MAX_EXTENDS {
-        return Err(format!(
-            "config {}: more than {MAX_EXTENDS} configs extend one another (a cycle?)",
-            path.display()
-        ));
+        let problem = format!("more than {MAX_EXTENDS} configs extend one another (a cycle?)");
+        return Err(ConfigError::Extends(problem).in_file(path));
     }
     let base_path = path.parent().unwrap_or(Path::new(".")).join(&base);
-    let mut merged = load_table(&base_path, depth + 1)
-        .map_err(|e| format!("config {} extends {base}: {e}", path.display()))?;
+    let mut merged = load_table(&base_path, depth + 1).map_err(|error| ConfigError::Base {
+        path: path.to_path_buf(),
+        base: base.clone(),
+        error: Box::new(error),
+    })?;
     merge_over(&mut merged, table);
     Ok(merged)
 }
@@ -132,10 +223,10 @@ fn merge_over(base: &mut toml::Table, over: toml::Table) {
 
 impl TrainConfig {
     /// Parses TOML text and validates it.
-    pub fn from_toml(text: &str) -> Result<TrainConfig, String> {
+    pub fn from_toml(text: &str) -> Result<TrainConfig, ConfigError> {
         let config: TrainConfig = toml::Value::Table(parse_table(text)?)
             .try_into()
-            .map_err(|e: toml::de::Error| e.to_string())?;
+            .map_err(|e: toml::de::Error| ConfigError::Toml(e.to_string()))?;
         config.validate()?;
         Ok(config)
     }
@@ -144,31 +235,31 @@ impl TrainConfig {
     /// "base.toml"` (a path relative to the file's folder) takes every key of the base, and
     /// the file's own keys replace the base's one by one, so a variant names only what it
     /// changes.
-    pub fn load(path: &Path) -> Result<TrainConfig, String> {
+    pub fn load(path: &Path) -> Result<TrainConfig, ConfigError> {
         let table = load_table(path, 0)?;
         let mut config: TrainConfig = toml::Value::Table(table)
             .try_into()
-            .map_err(|e| format!("config {}: {e}", path.display()))?;
-        config
-            .validate()
-            .map_err(|e| format!("config {}: {e}", path.display()))?;
+            .map_err(|e: toml::de::Error| ConfigError::Toml(e.to_string()).in_file(path))?;
+        config.validate().map_err(|e| e.in_file(path))?;
         if !config.run.robot.is_empty() {
             let folder = path.parent().unwrap_or(Path::new(""));
             config.robot = RobotDescription::load(&folder.join(&config.run.robot))
-                .map_err(|e| format!("config {}: run.robot: {e}", path.display()))?;
+                .map_err(|e| ConfigError::Robot(format!("run.robot: {e}")).in_file(path))?;
         }
         config
             .robot
             .simulated_geometry()
-            .map_err(|e| format!("config {}: run.robot: {e}", path.display()))?;
+            .map_err(|e| ConfigError::Robot(format!("run.robot: {e}")).in_file(path))?;
         Ok(config)
     }
 
     /// Trains for the robot described in `path` (`wheelleg train --robot FILE`), in place of
     /// the config's `run.robot`.
-    pub fn set_robot(&mut self, path: &Path) -> Result<(), String> {
-        let robot = RobotDescription::load(path)?;
-        robot.simulated_geometry()?;
+    pub fn set_robot(&mut self, path: &Path) -> Result<(), ConfigError> {
+        let robot = RobotDescription::load(path).map_err(|e| ConfigError::Robot(e.to_string()))?;
+        robot
+            .simulated_geometry()
+            .map_err(|e| ConfigError::Robot(e.to_string()))?;
         self.run.robot = path.display().to_string();
         self.robot = robot;
         Ok(())
@@ -194,16 +285,17 @@ impl TrainConfig {
         &self,
         stored: &str,
         curriculum_keys: &[&str],
-    ) -> Result<Vec<String>, String> {
+    ) -> Result<Vec<String>, ConfigError> {
         let then: TrainConfig = parse_table(stored)
             .and_then(|t| {
                 toml::Value::Table(t)
                     .try_into()
-                    .map_err(|e: toml::de::Error| e.to_string())
+                    .map_err(|e: toml::de::Error| ConfigError::Toml(e.to_string()))
             })
-            .map_err(|e| format!("stored config does not parse: {e}"))?;
+            .map_err(|e| ConfigError::Stored(format!("stored config does not parse: {e}")))?;
         let as_table = |c: &TrainConfig| {
-            toml::Table::try_from(c).map_err(|e| format!("config does not serialize: {e}"))
+            toml::Table::try_from(c)
+                .map_err(|e| ConfigError::Stored(format!("config does not serialize: {e}")))
         };
         let (then, now) = (as_table(&then)?, as_table(self)?);
         let mut keys: Vec<(&str, String)> = Vec::new();

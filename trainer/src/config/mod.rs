@@ -10,6 +10,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 mod file;
+pub use file::ConfigError;
 #[cfg(test)]
 mod tests;
 mod validate;

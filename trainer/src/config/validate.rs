@@ -4,10 +4,16 @@ use super::*;
 
 impl TrainConfig {
     /// Checks ranges, naming the offending key.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), ConfigError> {
         let r = &self.run;
         let p = &self.ppo;
-        let check = |ok: bool, what: &str| if ok { Ok(()) } else { Err(what.to_string()) };
+        let check = |ok: bool, what: &str| {
+            if ok {
+                Ok(())
+            } else {
+                Err(ConfigError::Invalid(what.to_string()))
+            }
+        };
         check(
             wheelleg_sim::generate::SceneKind::from_name(&r.scene_kind).is_some(),
             "run.scene_kind must be one of straight, around, lift, spread, squeeze, complex, composed",
@@ -67,9 +73,9 @@ impl TrainConfig {
             (0.0..=1.0).contains(&r.failure_resample_probability),
             "run.failure_resample_probability must be in [0, 1] (0: off)",
         )?;
-        crate::network::BackendKind::from_name(&r.backend).map(|_| ())?;
+        crate::network::BackendKind::from_name(&r.backend).map_err(ConfigError::Invalid)?;
         crate::conv_kernel::ConvKernel::from_name(&p.conv_kernel)
-            .map_err(|e| format!("ppo.conv_kernel: {e}"))?;
+            .map_err(|e| ConfigError::Invalid(format!("ppo.conv_kernel: {e}")))?;
         check(p.learning_rate > 0.0, "ppo.learning_rate must be positive")?;
         check(
             p.learning_rate_final.is_none_or(|lr| lr >= 0.0),
