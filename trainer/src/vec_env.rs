@@ -44,6 +44,59 @@ pub struct VecEnv {
     threads: usize,
 }
 
+/// Why environments cannot be made or restored from a checkpoint.
+#[derive(Clone, Debug, PartialEq)]
+pub enum VecEnvError {
+    /// A scene does not start an episode (the robot inside an obstacle, say).
+    Scene {
+        /// The scene's name.
+        scenario: String,
+        /// What is wrong with it.
+        problem: String,
+    },
+    /// The checkpoint holds `what` for another number of environments than the config's.
+    Count {
+        /// What is restored (environments, failure memories, start stages).
+        what: &'static str,
+        /// In the checkpoint.
+        stored: usize,
+        /// In the config.
+        configured: usize,
+    },
+    /// An environment's snapshot does not restore.
+    Snapshot {
+        /// The environment.
+        env: usize,
+        /// What is wrong with its snapshot.
+        problem: String,
+    },
+}
+
+impl std::fmt::Display for VecEnvError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            VecEnvError::Scene { scenario, problem } => write!(f, "scenario {scenario}: {problem}"),
+            VecEnvError::Count {
+                what,
+                stored,
+                configured,
+            } => write!(
+                f,
+                "checkpoint has {what} of {stored} environments, config has {configured}"
+            ),
+            VecEnvError::Snapshot { env, problem } => write!(f, "checkpoint env {env}: {problem}"),
+        }
+    }
+}
+
+impl std::error::Error for VecEnvError {}
+
+impl From<VecEnvError> for String {
+    fn from(error: VecEnvError) -> String {
+        error.to_string()
+    }
+}
+
 impl VecEnv {
     /// `num_envs` environments on fresh `kind` scenes; env `i` draws its scenes from ChaCha8
     /// seeded with `seed` on stream `i`.
@@ -53,7 +106,7 @@ impl VecEnv {
         seed: u64,
         config: EnvConfig,
         threads: usize,
-    ) -> Result<VecEnv, String> {
+    ) -> Result<VecEnv, VecEnvError> {
         VecEnv::with_start_yaw(kind, StartYaw::Any, num_envs, seed, config, threads)
     }
 
@@ -65,7 +118,7 @@ impl VecEnv {
         seed: u64,
         config: EnvConfig,
         threads: usize,
-    ) -> Result<VecEnv, String> {
+    ) -> Result<VecEnv, VecEnvError> {
         VecEnv::with_stage(kind, start_yaw, 1.0, num_envs, seed, config, threads)
     }
 
@@ -79,7 +132,7 @@ impl VecEnv {
         seed: u64,
         config: EnvConfig,
         threads: usize,
-    ) -> Result<VecEnv, String> {
+    ) -> Result<VecEnv, VecEnvError> {
         let scenes = Scenes {
             kind,
             start_yaw,
@@ -99,7 +152,7 @@ impl VecEnv {
         seed: u64,
         config: EnvConfig,
         threads: usize,
-    ) -> Result<VecEnv, String> {
+    ) -> Result<VecEnv, VecEnvError> {
         let slots = (0..num_envs)
             .map(|i| {
                 let mut rng = ChaCha8Rng::seed_from_u64(seed);
@@ -139,17 +192,22 @@ impl VecEnv {
     }
 
     /// Restores what [`Self::failure_snapshot`] saved (after [`Self::set_failure_memory`]).
-    pub fn restore_failures(&mut self, snapshot: &[String]) -> Result<(), String> {
+    pub fn restore_failures(&mut self, snapshot: &[String]) -> Result<(), VecEnvError> {
         if snapshot.len() != self.slots.len() {
-            return Err(format!(
-                "checkpoint has failure memories of {} environments, config has {}",
-                snapshot.len(),
-                self.slots.len()
-            ));
+            return Err(VecEnvError::Count {
+                what: "failure memories",
+                stored: snapshot.len(),
+                configured: self.slots.len(),
+            });
         }
         for (i, (slot, json)) in self.slots.iter_mut().zip(snapshot).enumerate() {
-            let scenes = wheelleg_sim::scenario_file::parse(json, &self.config.geometry)
-                .map_err(|e| format!("checkpoint env {i} failure memory: {e}"))?;
+            let scenes =
+                wheelleg_sim::scenario_file::parse(json, &self.config.geometry).map_err(|e| {
+                    VecEnvError::Snapshot {
+                        env: i,
+                        problem: format!("failure memory: {e}"),
+                    }
+                })?;
             slot.failures.restore(scenes);
         }
         Ok(())
@@ -181,13 +239,13 @@ impl VecEnv {
     }
 
     /// Sets the stage each env's current scene was drawn at (restoring a checkpoint).
-    pub fn set_env_stages(&mut self, stages: &[f32]) -> Result<(), String> {
+    pub fn set_env_stages(&mut self, stages: &[f32]) -> Result<(), VecEnvError> {
         if stages.len() != self.slots.len() {
-            return Err(format!(
-                "checkpoint has start stages of {} environments, config has {}",
-                stages.len(),
-                self.slots.len()
-            ));
+            return Err(VecEnvError::Count {
+                what: "start stages",
+                stored: stages.len(),
+                configured: self.slots.len(),
+            });
         }
         for (slot, &stage) in self.slots.iter_mut().zip(stages) {
             slot.stage = stage;
@@ -284,13 +342,13 @@ impl VecEnv {
 
     /// Rebuilds the envs of a snapshot taken with the same `kind`, `seed` and config, replaying
     /// each unfinished episode's actions.
-    pub fn restore(&mut self, seed: u64, snapshots: &[EnvSnapshot]) -> Result<(), String> {
+    pub fn restore(&mut self, seed: u64, snapshots: &[EnvSnapshot]) -> Result<(), VecEnvError> {
         if snapshots.len() != self.slots.len() {
-            return Err(format!(
-                "checkpoint has {} environments, config has {}",
-                snapshots.len(),
-                self.slots.len()
-            ));
+            return Err(VecEnvError::Count {
+                what: "snapshots",
+                stored: snapshots.len(),
+                configured: self.slots.len(),
+            });
         }
         for (i, (slot, snap)) in self.slots.iter_mut().zip(snapshots).enumerate() {
             let mut rng = ChaCha8Rng::seed_from_u64(seed);
@@ -298,11 +356,17 @@ impl VecEnv {
             rng.set_word_pos(snap.scene_rng_word_pos);
             let scenarios =
                 wheelleg_sim::scenario_file::parse(&snap.scenario_json, &self.config.geometry)
-                    .map_err(|e| format!("checkpoint env {i}: {e}"))?;
+                    .map_err(|e| VecEnvError::Snapshot {
+                        env: i,
+                        problem: e.to_string(),
+                    })?;
             let scenario = scenarios
                 .into_iter()
                 .next()
-                .ok_or_else(|| format!("checkpoint env {i}: no scenario"))?;
+                .ok_or_else(|| VecEnvError::Snapshot {
+                    env: i,
+                    problem: "no scenario".into(),
+                })?;
             // The stage of the restored scene is not in the snapshot (older checkpoints have
             // none); a staged run sets it afterwards with `set_env_stages`.
             let mut restored =
@@ -310,12 +374,18 @@ impl VecEnv {
             // The memory is restored separately (`restore_failures`); keep its settings.
             restored.failures = slot.failures.clone();
             for &a in &snap.actions {
-                let action = Action::from_index(a as usize)
-                    .ok_or_else(|| format!("checkpoint env {i}: bad action {a}"))?;
+                let action =
+                    Action::from_index(a as usize).ok_or_else(|| VecEnvError::Snapshot {
+                        env: i,
+                        problem: format!("bad action {a}"),
+                    })?;
                 let outcome = restored
                     .env
                     .step(action)
-                    .map_err(|_| format!("checkpoint env {i}: replay ran past the episode end"))?;
+                    .map_err(|_| VecEnvError::Snapshot {
+                        env: i,
+                        problem: "replay ran past the episode end".into(),
+                    })?;
                 restored.episode_return += outcome.reward.total();
                 restored.actions.push(a);
             }

@@ -73,9 +73,11 @@ impl EnvSlot {
         scene_rng: ChaCha8Rng,
         episodes_started: u64,
         stage: f32,
-    ) -> Result<EnvSlot, String> {
-        let env = Env::new(&scenario, config)
-            .map_err(|e| format!("scenario {}: {e:?}", scenario.name))?;
+    ) -> Result<EnvSlot, super::VecEnvError> {
+        let env = Env::new(&scenario, config).map_err(|e| super::VecEnvError::Scene {
+            scenario: scenario.name.clone(),
+            problem: format!("{e:?}"),
+        })?;
         Ok(EnvSlot {
             env,
             scenario,
