@@ -74,10 +74,9 @@ fn arrival_takes_the_one_step_the_policy_would_not() {
         .contains("untried"));
 }
 
-#[test]
-fn the_default_rule_does_not_repeat_a_refused_action_and_argmax_does() {
-    // A block straight ahead: "forward" is refused once the robot reaches it.
-    let scenario = Scenario {
+/// A block straight ahead of [`start`], the target beyond it.
+fn block_ahead() -> Scenario {
+    Scenario {
         name: "block-ahead".into(),
         start: start(),
         target: Point2::new(0.9, 0.125),
@@ -87,7 +86,13 @@ fn the_default_rule_does_not_repeat_a_refused_action_and_argmax_does() {
             0.125,
             ObstacleYaw::Deg0,
         )],
-    };
+    }
+}
+
+#[test]
+fn the_default_rule_does_not_repeat_a_refused_action_and_argmax_does() {
+    // A block straight ahead: "forward" is refused once the robot reaches it.
+    let scenario = block_ahead();
     let run = |rule| fixated_on(&scenario, &policy_with(rule)).unwrap().env;
     let argmax = run(DecisionRule::Argmax);
     assert_eq!(argmax.status(), Status::StepLimit);
@@ -192,17 +197,7 @@ fn the_guard_checks_the_robot_the_episodes_simulate() {
         geometry: long,
         ..EnvConfig::default()
     };
-    let scenario = Scenario {
-        name: "block-ahead-long-body".into(),
-        start: start(),
-        target: Point2::new(0.9, 0.125),
-        obstacles: vec![Obstacle::new(
-            ObstacleKind::Block,
-            0.625,
-            0.125,
-            ObstacleYaw::Deg0,
-        )],
-    };
+    let scenario = block_ahead();
     let run = |stack: &StackConfig| {
         let mut rng = ChaCha8Rng::seed_from_u64(0);
         run_episodes(
