@@ -44,11 +44,21 @@ fn shortest(env: &Env, config: &PlannerConfig) -> usize {
 }
 
 /// Breadth-first search over full states (exact position, yaw, clearance, track) with the
-/// simulator's transition check, the step limit and the give-up rule: the reference the
-/// planner must match. Exponential; only for tiny, restricted instances. States from which
+/// simulator's transition check, the step limit and the give-up rule (the episode's, which
+/// counts from where it started): the reference the planner must match. Exponential; only for tiny, restricted instances. States from which
 /// even straight-line travel at the longest step cannot reach the target within `depth` steps
 /// are cut, which never cuts a plan of at most `depth` steps.
 fn brute_force(env: &Env, config: &PlannerConfig, depth: usize) -> Option<usize> {
+    brute_force_within(env, config, depth, env.give_up_distance_m())
+}
+
+/// [`brute_force`] with the give-up distance `give_up_m` in place of the episode's.
+fn brute_force_within(
+    env: &Env,
+    config: &PlannerConfig,
+    depth: usize,
+    give_up_m: f32,
+) -> Option<usize> {
     let actions: Vec<Action> = (0..COUNT)
         .filter(|&i| config.allowed[i])
         .filter_map(Action::from_index)
@@ -67,7 +77,6 @@ fn brute_force(env: &Env, config: &PlannerConfig, depth: usize) -> Option<usize>
         )
     };
     let start = *env.state();
-    let give_up_m = env.distance_to_target_m() + env.config().give_up_margin_m;
     let radius_m = env.config().success_radius_m;
     let longest_m = 0.05 * std::f32::consts::SQRT_2;
     let mut seen = HashMap::from([(key(&start), 0usize)]);
@@ -170,6 +179,67 @@ fn detour_around_a_block_matches_brute_force() {
         "the block must force a detour, got {expected}"
     );
     assert_eq!(shortest(&env, &moves_only), expected);
+}
+
+/// A search from a state mid-episode, farther from the target than the start, keeps to the
+/// episode's give-up distance: one counted from the current state would allow a detour that
+/// the episode ends as too far (the stack's look-ahead and the expert labeller plan from there).
+#[test]
+fn a_search_mid_episode_keeps_the_episodes_give_up_distance() {
+    let (_, moves_only) = detour_scene();
+    let back = Action {
+        move_x: Step::Minus,
+        ..Action::IDLE
+    };
+    // The robot stands in a pocket open behind it: the way out backs away from the target,
+    // past the start, before it turns towards it.
+    let pocket = (-1..=3)
+        .map(|j| block(0.375, -0.375 + 0.25 * j as f32))
+        .chain(
+            [-0.125, 0.125]
+                .into_iter()
+                .flat_map(|x| [block(x, -0.375), block(x, 0.625)]),
+        )
+        .collect::<Vec<_>>();
+    let mut binding = 0;
+    for margin_cm in (5..=100).step_by(5) {
+        let mut env = Env::new(
+            &scene((-0.125, 0.125), 0, (0.725, 0.125), pocket.clone()),
+            EnvConfig {
+                give_up_margin_m: margin_cm as f32 / 100.0,
+                // Room for the way round the pocket.
+                arena_margin_m: 1.5,
+                ..EnvConfig::default()
+            },
+        )
+        .unwrap();
+        for _ in 0..4 {
+            if env.step(back).is_err() {
+                break;
+            }
+        }
+        if env.status().is_done() {
+            continue;
+        }
+        let expected = brute_force(&env, &moves_only, 60);
+        let from_here = brute_force_within(
+            &env,
+            &moves_only,
+            60,
+            env.distance_to_target_m() + env.config().give_up_margin_m,
+        );
+        binding += usize::from(expected != from_here);
+        // `plan` replays what it finds in the episode's rules and panics where that fails.
+        let found = match plan(&env, &moves_only).outcome {
+            PlanOutcome::Solved { actions, .. } => Some(actions.len()),
+            _ => None,
+        };
+        assert_eq!(found, expected, "give-up margin {margin_cm} cm");
+    }
+    assert!(
+        binding > 0,
+        "no margin where the episode's give-up distance binds: the test checks nothing"
+    );
 }
 
 #[test]

@@ -200,6 +200,12 @@ impl Env {
         self.target
     }
 
+    /// The distance from the target beyond which the episode gives up ([`Status::TooFar`]):
+    /// the start's distance plus the margin, wherever the robot is now.
+    pub fn give_up_distance_m(&self) -> f32 {
+        self.start_distance_m + self.config.give_up_margin_m
+    }
+
     /// Steps taken so far.
     pub fn steps(&self) -> u32 {
         self.steps
@@ -267,7 +273,7 @@ impl Env {
         let after_m = self.distance_to_target_m();
         self.status = if after_m <= self.config.success_radius_m {
             Status::Success
-        } else if after_m > self.start_distance_m + self.config.give_up_margin_m {
+        } else if after_m > self.give_up_distance_m() {
             Status::TooFar
         } else if self.steps >= self.config.max_steps {
             Status::StepLimit

@@ -184,9 +184,10 @@ impl<'a> Search<'a> {
                     half: b.half_extents(),
                 })
                 .collect(),
-            // The episode gives up beyond its start distance plus the margin; the planner starts
-            // from the current state, which is the start for every caller that plans a scene.
-            give_up_m: (env.target() - start.position).norm() + env.config().give_up_margin_m,
+            // The episode's own limit, which counts from where the episode started: a search from
+            // a state mid-episode (the stack's look-ahead, the expert labeller) that counted from
+            // the current state would allow, from a state farther out, a plan the episode ends.
+            give_up_m: env.give_up_distance_m(),
             max_steps: env
                 .config()
                 .max_steps
