@@ -75,7 +75,7 @@ start_stage_window = 3
 
 [curriculum.secondary_env_steps_by_behaviour]
 lift = 1500000
-squeeze = 1500000
+squeeze = 2500000
 "#;
 
 /// configs/baseline.toml as loaded.
