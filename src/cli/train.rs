@@ -33,8 +33,9 @@ pub enum Stage {
     /// Secondary, randomize and primary in order; each stage resumes where it stopped.
     All,
     /// Expert labels (DAgger): drive --policy through --scenes scenes with the stack, label the
-    /// states it visits with the planner's shortest way: OUT/labels.wltb, a trajectory batch
-    /// for `train primary --batch`. Resumes a killed run.
+    /// states it visits with the expert's way (--expert: the full stack's, or the planner's
+    /// shortest): OUT/labels.wltb, a trajectory batch for `train primary --batch`. Resumes a
+    /// killed run.
     Label,
 }
 
@@ -92,8 +93,9 @@ struct LabelArgs {
     /// not a proven shortest one. The states the stack fails from need it most.
     #[arg(long)]
     weighted_fallback: bool,
-    /// Plans searched at once, one thread each (default: the config's `run.threads`). The file
-    /// is the same for any number.
+    /// States labelled at once, one thread each (the planner's searches, or the full stack's
+    /// batches of 64 states; default: the config's `run.threads`). The file is the same for
+    /// any number.
     #[arg(long, value_name = "N")]
     jobs: Option<usize>,
     /// The stack that drives the policy (default: the on-board stack, `robot`).

@@ -10,7 +10,7 @@ use wheelleg_runtime::model::{Policy, Scratch};
 pub const LOG_PROBS: usize = DIMS * CHOICES;
 
 /// A policy that maps a batch of observations to per-head log-probabilities.
-pub trait BatchPolicy {
+pub trait BatchPolicy: Sync {
     /// `n` observations (`heights_m`: `n` row-major height maps in metres; `states`: `n` state
     /// vectors) to `n * LOG_PROBS` log-probabilities, head by head.
     fn log_probs(&self, heights_m: &[f32], states: &[f32], n: usize) -> Result<Vec<f32>, String>;

@@ -338,7 +338,8 @@ pub struct PrimaryInputs {
 }
 
 /// Expert labels ([`crate::trajectory::expert_labels`]): `policy` driven through `scenarios`
-/// by `label.stack`, the states it visits labelled with the planner's shortest way, into
+/// by `label.stack`, the states it visits labelled with the expert's way (the full stack's, or
+/// the planner's shortest), into
 /// `OUT/labels.wltb` (resumable), for [`run_primary_with`] to replay.
 pub fn run_label(
     policy: &dyn BatchPolicy,

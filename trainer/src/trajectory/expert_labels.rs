@@ -97,7 +97,8 @@ pub struct LabelConfig {
     /// The behaviour the labels are filed under (the batch's codes are the five secondaries';
     /// with `replay_balance = "behaviour"` the labels share that behaviour's draws).
     pub behaviour: Behaviour,
-    /// Plans searched at once, one thread each.
+    /// Plans searched (or, with `expert_stack`, batches of [`EXPERT_BATCH_STATES`] driven) at
+    /// once, one thread each.
     pub threads: usize,
     /// States planned per chunk written: the work a killed run can lose.
     pub chunk_states: usize,
@@ -478,14 +479,42 @@ pub fn label_by_stack(
     first: u64,
     config: &LabelConfig,
 ) -> Result<Vec<SourceRecord>, String> {
-    let mut records = Vec::with_capacity(states.len());
-    for (b, batch) in states.chunks(EXPERT_BATCH_STATES).enumerate() {
+    let batches: Vec<&[Trajectory]> = states.chunks(EXPERT_BATCH_STATES).collect();
+    let labelled = in_parallel(batches.len(), config.threads, |b| {
         let batch_first = first + (b * EXPERT_BATCH_STATES) as u64;
-        let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
-        rng.set_stream(2 + batch_first);
-        let scenarios: Vec<Scenario> = batch.iter().map(|t| t.scenario.clone()).collect();
-        let episodes = run_episodes(policy, &scenarios, stack, config.env, &mut rng, &mut |_| {})?;
-        for (i, (state, episode)) in batch.iter().zip(episodes).enumerate() {
+        label_stack_batch(policy, stack, batches[b], batch_first, config)
+    })
+    .map_err(|b| {
+        format!(
+            "a labelling thread panicked at states {} to {}",
+            first + (b * EXPERT_BATCH_STATES) as u64,
+            first + (b * EXPERT_BATCH_STATES + batches[b].len()) as u64 - 1
+        )
+    })?;
+    let mut records = Vec::with_capacity(states.len());
+    for batch in labelled {
+        records.extend(batch?);
+    }
+    Ok(records)
+}
+
+/// One batch of [`label_by_stack`], the first state at batch index `batch_first`.
+fn label_stack_batch(
+    policy: &dyn BatchPolicy,
+    stack: &StackConfig,
+    batch: &[Trajectory],
+    batch_first: u64,
+    config: &LabelConfig,
+) -> Result<Vec<SourceRecord>, String> {
+    let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
+    rng.set_stream(2 + batch_first);
+    let scenarios: Vec<Scenario> = batch.iter().map(|t| t.scenario.clone()).collect();
+    let episodes = run_episodes(policy, &scenarios, stack, config.env, &mut rng, &mut |_| {})?;
+    batch
+        .iter()
+        .zip(episodes)
+        .enumerate()
+        .map(|(i, (state, episode))| {
             let index = batch_first + i as u64;
             let status = episode.env.status();
             let record = if status == Status::Success && !episode.actions.is_empty() {
@@ -500,48 +529,59 @@ pub fn label_by_stack(
                         record
                     })
             };
-            records.push(record.map_err(|e| e.to_string())?);
-        }
-    }
-    Ok(records)
+            record.map_err(|e| e.to_string())
+        })
+        .collect()
 }
 
-/// Labels `states` (the first at batch index `first`), `config.threads` at once, each thread
-/// taking the next state not yet taken; the records come back in the states' order.
+/// Labels `states` (the first at batch index `first`) with the planner, `config.threads` at
+/// once; the records come back in the states' order.
 fn label_in_parallel(
     states: &[Trajectory],
     first: u64,
     config: &LabelConfig,
 ) -> Result<Vec<SourceRecord>, String> {
+    in_parallel(states.len(), config.threads, |i| {
+        label_state(&states[i], first + i as u64, config)
+    })
+    .map_err(|i| format!("a planning thread panicked at state {}", first + i as u64))?
+    .into_iter()
+    .map(|record| record.map_err(|e| e.to_string()))
+    .collect()
+}
+
+/// `work(i)` for every `i` below `count`, `threads` at once, each thread taking the next `i`
+/// not yet taken; the results come back in the order of `i`, so they do not depend on the
+/// thread count. `Err(i)`: the work on `i` panicked (a planner bug, say): the run stops with an
+/// error that names the state, and what was written before stays.
+fn in_parallel<T: Send>(
+    count: usize,
+    threads: usize,
+    work: impl Fn(usize) -> T + Sync,
+) -> Result<Vec<T>, usize> {
     let next = AtomicUsize::new(0);
-    let slots: Vec<Mutex<Option<Result<SourceRecord, BatchFileError>>>> =
-        states.iter().map(|_| Mutex::new(None)).collect();
-    let work = || loop {
+    let slots: Vec<Mutex<Option<T>>> = (0..count).map(|_| Mutex::new(None)).collect();
+    let worker = || loop {
         let i = next.fetch_add(1, Ordering::Relaxed);
-        let Some(state) = states.get(i) else {
+        if i >= count {
+            break;
+        }
+        let Ok(result) = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| work(i))) else {
             break;
         };
-        let record = label_state(state, first + i as u64, config);
         if let Ok(mut slot) = slots[i].lock() {
-            *slot = Some(record);
+            *slot = Some(result);
         }
     };
     std::thread::scope(|scope| {
-        for _ in 1..config.threads.min(states.len()) {
-            scope.spawn(work);
+        for _ in 1..threads.min(count) {
+            scope.spawn(worker);
         }
-        work();
+        worker();
     });
     slots
         .into_iter()
         .enumerate()
-        .map(|(i, slot)| {
-            let found = slot
-                .into_inner()
-                .map_err(|_| format!("a planning thread panicked at state {}", first + i as u64))?;
-            found
-                .ok_or_else(|| format!("state {} was not planned", first + i as u64))?
-                .map_err(|e| e.to_string())
-        })
+        .map(|(i, slot)| slot.into_inner().ok().flatten().ok_or(i))
         .collect()
 }

@@ -7,7 +7,7 @@ use wheelleg_sim::generate::{generate_many, SceneRobot};
 use wheelleg_stack::policy::{BatchPolicy, Int8Policy, LOG_PROBS};
 use wheelleg_trainer::trajectory::batch_file::{parse_header, scan_chunks, CHUNK_PREFIX_LEN};
 use wheelleg_trainer::trajectory::expert_labels::{
-    label_batch, visited_states, LabelConfig, LabelStats,
+    label_batch, visited_states, LabelConfig, LabelStats, EXPERT_BATCH_STATES,
 };
 
 fn shipped_weights() -> Vec<u8> {
@@ -143,6 +143,45 @@ fn labels_are_the_same_for_a_seed_and_any_thread_count() {
         &two,
     );
     assert_eq!(std::fs::read(one).unwrap(), std::fs::read(two).unwrap());
+}
+
+/// The full stack drives batches of states on as many threads as asked, and the file is the
+/// same for any thread count.
+#[test]
+fn full_stack_labels_are_the_same_for_any_thread_count() {
+    let dir = scratch("labels-full-stack-threads");
+    let bytes = shipped_weights();
+    let policy = Int8Policy::from_bytes(&bytes).unwrap();
+    let scenes = generate_many(
+        SceneRobot::shipped(),
+        SceneKind::Complex,
+        &mut ChaCha8Rng::seed_from_u64(4_000_018),
+        8,
+    );
+    let config = |threads| LabelConfig {
+        expert_stack: Some(wheelleg_stack::Preset::Full.config()),
+        every: 1,
+        threads,
+        chunk_states: 256,
+        ..small_chunks()
+    };
+    let mut files = Vec::new();
+    for threads in [1, 2] {
+        let out = dir.join(format!("threads-{threads}.wltb"));
+        let stats = label_batch(&policy, &scenes, &config(threads), &out, |_| {}).unwrap();
+        // More than one batch, so that two threads share the work.
+        assert!(
+            stats.states > 2 * EXPERT_BATCH_STATES as u64,
+            "{} states",
+            stats.states
+        );
+        files.push(std::fs::read(out).unwrap());
+    }
+    // Not assert_eq: a difference would print two files of bytes.
+    assert!(
+        files[0] == files[1],
+        "one thread and two wrote different files"
+    );
 }
 
 #[test]
