@@ -1,5 +1,5 @@
 //! `wheelleg train baseline|secondary|randomize|primary|all|label --config FILE --out runs/NAME
-//! [--seed S] [--resume] [--robot FILE]`; `primary` also `[--init CHECKPOINT] [--batch FILE]...`;
+//! [--seed S] [--resume] [--robot FILE]`; `primary` also `[--init CHECKPOINT] [--batch FILE]... [--labels FILE]...`;
 //! `label` also `--policy FILE --scenes N [--kind K] [--every K] [--max-expansions N]
 //! [--weighted-fallback] [--jobs N] [stack options]`.
 
@@ -34,7 +34,7 @@ pub enum Stage {
     All,
     /// Expert labels (DAgger): drive --policy through --scenes scenes with the stack, label the
     /// states it visits with the expert's way (--expert: the full stack's, or the planner's
-    /// shortest): OUT/labels.wltb, a trajectory batch for `train primary --batch`. Resumes a
+    /// shortest): OUT/labels.wltb, a trajectory batch for `train primary --labels`. Resumes a
     /// killed run.
     Label,
 }
@@ -53,6 +53,10 @@ struct PrimaryArgs {
     /// the secondaries' batch and a `train label` batch, say.
     #[arg(long = "batch", value_name = "FILE")]
     batches: Vec<PathBuf>,
+    /// Expert labels (`train label`; repeat the option to aggregate rounds), replayed and
+    /// cloned beside the batch, `curriculum.label_steps_per_iteration` steps per iteration.
+    #[arg(long = "labels", value_name = "FILE")]
+    labels: Vec<PathBuf>,
 }
 
 /// Who labels the states `train label` visits.
@@ -142,8 +146,16 @@ pub struct Args {
 impl Args {
     /// Refuses a stage's options given to another stage, naming the first.
     fn check_options(&self) -> Result<(), String> {
-        let PrimaryArgs { init, batches } = &self.primary;
-        let primary = [(init.is_some(), "--init"), (!batches.is_empty(), "--batch")];
+        let PrimaryArgs {
+            init,
+            batches,
+            labels,
+        } = &self.primary;
+        let primary = [
+            (init.is_some(), "--init"),
+            (!batches.is_empty(), "--batch"),
+            (!labels.is_empty(), "--labels"),
+        ];
         let l = &self.label;
         let label = [
             (l.policy.is_some(), "--policy"),
@@ -210,6 +222,7 @@ pub fn run(args: Args) -> CliResult {
             &PrimaryInputs {
                 init: args.primary.init.clone(),
                 batches: args.primary.batches.clone(),
+                labels: args.primary.labels.clone(),
             },
         )?,
         Stage::All => run_all(&config, &curriculum)?,

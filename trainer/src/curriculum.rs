@@ -23,7 +23,7 @@
 use crate::checkpoint::Checkpoint;
 use crate::config::TrainConfig;
 use crate::network_f32::NetworkF32;
-use crate::replay::ReplayOptions;
+use crate::replay::{ReplayBalance, ReplayOptions};
 use crate::runner::{train_stage, RunOptions, RunSummary, StageInputs, TRAJECTORIES_FILE};
 use crate::trajectory::batch_file::{BatchFileError, TrajectoryBatch};
 use crate::trajectory::expert_labels::{label_batch, LabelConfig, LabelStats, LABELS_FILE};
@@ -335,6 +335,9 @@ pub struct PrimaryInputs {
     /// Trajectory batches replayed together, in this order, in place of the folder's
     /// [`BATCH_FILE`]; empty: that one.
     pub batches: Vec<PathBuf>,
+    /// Expert labels ([`run_label`]; several rounds' together), replayed and cloned beside the
+    /// batch, `curriculum.label_steps_per_iteration` samples per iteration. Empty: none.
+    pub labels: Vec<PathBuf>,
 }
 
 /// Expert labels ([`crate::trajectory::expert_labels`]): `policy` driven through `scenarios`
@@ -409,6 +412,17 @@ pub fn run_primary_with(
     } else {
         load_batches(config, &inputs.batches)?
     };
+    let labels = if inputs.labels.is_empty() {
+        None
+    } else if config.curriculum.label_steps_per_iteration == 0 {
+        return Err(
+            "expert labels given but curriculum.label_steps_per_iteration is 0: they would never \
+             be replayed"
+                .into(),
+        );
+    } else {
+        Some(load_batches(config, &inputs.labels)?)
+    };
     let init = match (&inputs.init, config.curriculum.primary_init.as_str()) {
         (Some(path), _) => Some(load_init_network(config, path)?),
         (None, "scratch") => None,
@@ -442,11 +456,19 @@ pub fn run_primary_with(
                 balance: config.curriculum.replay_balance,
             },
             // Read from the curriculum section directly, so a resume must keep them.
+            labels: labels.as_ref(),
+            label_options: ReplayOptions {
+                steps: config.curriculum.label_steps_per_iteration,
+                imitation_coef: config.curriculum.label_imitation_coef,
+                balance: ReplayBalance::Trajectory,
+            },
             resume_keeps: &[
                 "replay_steps_per_iteration",
                 "primary_init",
                 "replay_imitation_coef",
                 "replay_balance",
+                "label_steps_per_iteration",
+                "label_imitation_coef",
             ],
             ..StageInputs::default()
         },

@@ -86,6 +86,11 @@ pub struct StageInputs<'a> {
     pub replay: Option<&'a TrajectoryBatch>,
     /// How many replayed samples per iteration, drawn and weighed how.
     pub replay_options: ReplayOptions,
+    /// Expert iteration: every update also learns from `label_options.steps` samples of these
+    /// expert labels, drawn and weighed as `label_options` says.
+    pub labels: Option<&'a TrajectoryBatch>,
+    /// How many expert-labelled samples per iteration, drawn and weighed how.
+    pub label_options: ReplayOptions,
     /// Algorithm 1: keep the latest `keep_trajectories` successful, collision-free episodes,
     /// labelled with this behaviour, in the run folder's [`TRAJECTORIES_FILE`].
     pub record: Option<Behaviour>,
@@ -306,28 +311,28 @@ pub fn train_stage(
         // 3. PPO update, on the on-policy samples plus (Algorithm 2) replayed ones whose
         //    advantages come from the current value function.
         ppo.config.learning_rate = config.ppo.learning_rate_at(env_steps, run.total_env_steps);
-        let update = match inputs.replay {
-            Some(batch) => {
-                let replaying = Instant::now();
-                let mut mixed = storage.samples.clone();
-                mixed.extend(&replay_samples(
-                    &ppo,
-                    batch,
-                    &inputs.replay_options,
-                    &mut sampler,
-                )?);
-                time.replay_s = replaying.elapsed().as_secs_f64();
-                let updating = Instant::now();
-                let update = ppo.update(&mixed, &mut sampler)?;
-                time.update_s = updating.elapsed().as_secs_f64();
-                update
+        let replayed = [
+            (inputs.replay, &inputs.replay_options),
+            (inputs.labels, &inputs.label_options),
+        ];
+        let update = if replayed.iter().any(|(batch, _)| batch.is_some()) {
+            let replaying = Instant::now();
+            let mut mixed = storage.samples.clone();
+            for (batch, options) in replayed {
+                if let Some(batch) = batch {
+                    mixed.extend(&replay_samples(&ppo, batch, options, &mut sampler)?);
+                }
             }
-            None => {
-                let updating = Instant::now();
-                let update = ppo.update(&storage.samples, &mut sampler)?;
-                time.update_s = updating.elapsed().as_secs_f64();
-                update
-            }
+            time.replay_s = replaying.elapsed().as_secs_f64();
+            let updating = Instant::now();
+            let update = ppo.update(&mixed, &mut sampler)?;
+            time.update_s = updating.elapsed().as_secs_f64();
+            update
+        } else {
+            let updating = Instant::now();
+            let update = ppo.update(&storage.samples, &mut sampler)?;
+            time.update_s = updating.elapsed().as_secs_f64();
+            update
         };
 
         iteration += 1;

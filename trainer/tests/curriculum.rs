@@ -236,7 +236,8 @@ fn a_primary_fine_tunes_from_a_checkpoint_on_several_batches() {
     };
     let inputs = PrimaryInputs {
         init: Some(init.clone()),
-        batches: vec![a, b],
+        batches: vec![a.clone(), b.clone()],
+        labels: Vec::new(),
     };
     let mut narrow = config.clone();
     narrow.network.hidden = vec![64];
@@ -284,5 +285,44 @@ fn a_primary_fine_tunes_from_a_checkpoint_on_several_batches() {
         distance(&after, &before),
         distance(&scratch, &before)
     );
+
+    // Expert labels given apart from the batch are replayed and cloned too: the same run with
+    // them ends elsewhere; with no label steps per iteration they are refused, not ignored.
+    let with_labels = |config: &TrainConfig, dir: &str| {
+        run_primary_with(
+            config,
+            &CurriculumOptions {
+                out: out.join(dir),
+                ..opts.clone()
+            },
+            &PrimaryInputs {
+                init: Some(init.clone()),
+                batches: vec![a.clone()],
+                labels: vec![b.clone()],
+            },
+        )
+    };
+    let without = run_primary_with(
+        &config,
+        &CurriculumOptions {
+            out: out.join("without-labels"),
+            ..opts.clone()
+        },
+        &PrimaryInputs {
+            init: Some(init.clone()),
+            batches: vec![a.clone()],
+            labels: Vec::new(),
+        },
+    )
+    .unwrap();
+    let labelled = with_labels(&config, "with-labels").unwrap();
+    assert!(
+        distance(&head(&labelled.checkpoint), &head(&without.checkpoint)) > 0.0,
+        "the labels changed nothing"
+    );
+    let mut no_label_steps = config.clone();
+    no_label_steps.curriculum.label_steps_per_iteration = 0;
+    let e = with_labels(&no_label_steps, "no-label-steps").unwrap_err();
+    assert!(e.contains("curriculum.label_steps_per_iteration"), "{e}");
     let _ = std::fs::remove_dir_all(&out);
 }

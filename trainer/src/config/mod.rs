@@ -229,6 +229,12 @@ pub struct CurriculumConfig {
     /// How replayed trajectories are drawn: `trajectory` (uniformly, the paper) or
     /// `behaviour` (each behaviour an equal share).
     pub replay_balance: ReplayBalance,
+    /// Expert-labelled steps (`train label`, given to `train primary --labels`) added to each
+    /// primary iteration beside the replayed ones, drawn uniformly over the labels: expert
+    /// iteration (DAgger). Without labels, nothing.
+    pub label_steps_per_iteration: usize,
+    /// Weight of the behaviour-cloning term on the expert-labelled samples.
+    pub label_imitation_coef: f32,
     /// Where the primary policy starts: `scratch` or a behaviour's secondary policy.
     pub primary_init: String,
     /// Softmax temperature applied to the straight-line policy's action head when another
@@ -272,6 +278,8 @@ impl Default for CurriculumConfig {
             replay_steps_per_iteration: 2_000,
             replay_imitation_coef: 0.0,
             replay_balance: ReplayBalance::Trajectory,
+            label_steps_per_iteration: 2_000,
+            label_imitation_coef: 0.5,
             primary_init: "scratch".into(),
             secondary_init_temperature: 1.0,
             secondary_entropy_coef: 0.003,

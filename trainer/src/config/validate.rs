@@ -137,6 +137,10 @@ impl TrainConfig {
             "curriculum.replay_imitation_coef must be a non-negative number",
         )?;
         check(
+            c.label_imitation_coef.is_finite() && c.label_imitation_coef >= 0.0,
+            "curriculum.label_imitation_coef must be a non-negative number",
+        )?;
+        check(
             c.secondary_entropy_coef.is_finite() && c.secondary_entropy_coef >= 0.0,
             "curriculum.secondary_entropy_coef must be a non-negative number",
         )?;
