@@ -342,8 +342,7 @@ pub struct PrimaryInputs {
 
 /// Expert labels ([`crate::trajectory::expert_labels`]): `policy` driven through `scenarios`
 /// by `label.stack`, the states it visits labelled with the expert's way (the full stack's, or
-/// the planner's shortest), into
-/// `OUT/labels.wltb` (resumable), for [`run_primary_with`] to replay.
+/// the planner's shortest), into `OUT/labels.wltb` (resumable), for [`run_primary_with`].
 pub fn run_label(
     policy: &dyn BatchPolicy,
     scenarios: &[Scenario],
@@ -455,13 +454,13 @@ pub fn run_primary_with(
                 imitation_coef: config.curriculum.replay_imitation_coef,
                 balance: config.curriculum.replay_balance,
             },
-            // Read from the curriculum section directly, so a resume must keep them.
             labels: labels.as_ref(),
             label_options: ReplayOptions {
                 steps: config.curriculum.label_steps_per_iteration,
                 imitation_coef: config.curriculum.label_imitation_coef,
                 balance: ReplayBalance::Trajectory,
             },
+            // Read from the curriculum section directly, so a resume must keep them.
             resume_keeps: &[
                 "replay_steps_per_iteration",
                 "primary_init",

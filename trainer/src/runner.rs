@@ -311,29 +311,23 @@ pub fn train_stage(
         // 3. PPO update, on the on-policy samples plus (Algorithm 2) replayed ones whose
         //    advantages come from the current value function.
         ppo.config.learning_rate = config.ppo.learning_rate_at(env_steps, run.total_env_steps);
-        let replayed = [
+        let mut mixed = None;
+        let replaying = Instant::now();
+        for (batch, options) in [
             (inputs.replay, &inputs.replay_options),
             (inputs.labels, &inputs.label_options),
-        ];
-        let update = if replayed.iter().any(|(batch, _)| batch.is_some()) {
-            let replaying = Instant::now();
-            let mut mixed = storage.samples.clone();
-            for (batch, options) in replayed {
-                if let Some(batch) = batch {
-                    mixed.extend(&replay_samples(&ppo, batch, options, &mut sampler)?);
-                }
+        ] {
+            if let Some(batch) = batch {
+                let samples = replay_samples(&ppo, batch, options, &mut sampler)?;
+                mixed
+                    .get_or_insert_with(|| storage.samples.clone())
+                    .extend(&samples);
+                time.replay_s = replaying.elapsed().as_secs_f64();
             }
-            time.replay_s = replaying.elapsed().as_secs_f64();
-            let updating = Instant::now();
-            let update = ppo.update(&mixed, &mut sampler)?;
-            time.update_s = updating.elapsed().as_secs_f64();
-            update
-        } else {
-            let updating = Instant::now();
-            let update = ppo.update(&storage.samples, &mut sampler)?;
-            time.update_s = updating.elapsed().as_secs_f64();
-            update
-        };
+        }
+        let updating = Instant::now();
+        let update = ppo.update(mixed.as_ref().unwrap_or(&storage.samples), &mut sampler)?;
+        time.update_s = updating.elapsed().as_secs_f64();
 
         iteration += 1;
         iterations_here += 1;
