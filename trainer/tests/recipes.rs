@@ -1,7 +1,9 @@
-//! The recipes users run (configs/shipped.toml, configs/baseline.toml, configs/smoke.toml) are
-//! self-contained: no `extends`, every key written out, and each resolves to exactly the config
-//! recorded here (`TrainConfig::to_toml` of the file as loaded). A change to a recipe, or to a
-//! default a recipe relies on, shows up here as a difference to review.
+//! The recipes users run (configs/shipped.toml and its exit stage configs/shipped-exit.toml,
+//! configs/baseline.toml, configs/dagger.toml, configs/smoke.toml) are self-contained: no
+//! `extends`, every key written out, and each resolves to exactly the config recorded here
+//! (`TrainConfig::to_toml` of the file as loaded). A change to a recipe, or to a default a recipe
+//! relies on, shows up here as a difference to review. The exit stage and a round of expert
+//! iteration are the shipped recipe with the keys they change, and nothing else.
 //!
 //! Run: `cargo test --release -p wheelleg-trainer --test recipes`.
 
@@ -218,12 +220,59 @@ start_stage_window = 3
 [curriculum.secondary_env_steps_by_behaviour]
 "#;
 
+/// The shipped recipe with `changes` made, each `(key = old, key = new)`; every old line must
+/// be in it once.
+fn shipped_with(changes: &[(&str, &str)]) -> String {
+    let mut text = SHIPPED.to_string();
+    for (old, new) in changes {
+        assert_eq!(
+            text.matches(old).count(),
+            1,
+            "`{old}` in the shipped recipe"
+        );
+        text = text.replace(old, new);
+    }
+    text
+}
+
+/// configs/shipped-exit.toml: the primary continued past 30 M with squeeze exit scenes, its
+/// rate falling from 0.0005 at 29 M to 0 at 33 M (the shipped file's run stops at 31 M).
+fn shipped_exit() -> String {
+    shipped_with(&[
+        ("total_env_steps = 30000000", "total_env_steps = 33000000"),
+        ("exit_share = 0.0", "exit_share = 0.15"),
+        ("learning_rate = 0.001", "learning_rate = 0.0005"),
+        (
+            "anneal_start_env_steps = 26000000",
+            "anneal_start_env_steps = 29000000",
+        ),
+    ])
+}
+
+/// configs/dagger.toml: one round from a checkpoint on the exit stage's scenes, 1 M env
+/// steps at a rate of 0.0002 annealed to 0 over the round.
+fn dagger() -> String {
+    shipped_with(&[
+        ("total_env_steps = 30000000", "total_env_steps = 1000000"),
+        ("exit_share = 0.0", "exit_share = 0.15"),
+        ("learning_rate = 0.001", "learning_rate = 0.0002"),
+        (
+            "anneal_start_env_steps = 26000000",
+            "anneal_start_env_steps = 0",
+        ),
+    ])
+}
+
 /// Each recipe with the config it must resolve to.
-const RECIPES: [(&str, &str); 3] = [
-    ("shipped.toml", SHIPPED),
-    ("baseline.toml", BASELINE),
-    ("smoke.toml", SMOKE),
-];
+fn recipes() -> [(&'static str, String); 5] {
+    [
+        ("shipped.toml", SHIPPED.to_string()),
+        ("shipped-exit.toml", shipped_exit()),
+        ("baseline.toml", BASELINE.to_string()),
+        ("dagger.toml", dagger()),
+        ("smoke.toml", SMOKE.to_string()),
+    ]
+}
 
 fn recipe(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -233,25 +282,51 @@ fn recipe(name: &str) -> PathBuf {
 
 #[test]
 fn each_recipe_resolves_to_its_recorded_config() {
-    for (name, expected) in RECIPES {
+    for (name, expected) in recipes() {
         let loaded = TrainConfig::load(&recipe(name)).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(
             loaded.to_toml(),
             expected,
             "configs/{name} resolves differently"
         );
-        let recorded = TrainConfig::from_toml(expected).unwrap_or_else(|e| panic!("{e}"));
+        let recorded = TrainConfig::from_toml(&expected).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(loaded, recorded, "configs/{name}");
     }
 }
 
 #[test]
 fn each_recipe_stands_alone() {
-    for (name, _) in RECIPES {
+    for (name, _) in recipes() {
         let text = std::fs::read_to_string(recipe(name)).unwrap();
         assert!(
             !text.contains("extends"),
             "configs/{name} must not extend another config: write every key out"
         );
     }
+}
+
+/// A resolved config without what a stage resumed past `env_steps` cannot tell apart: when
+/// composed scenes began (once begun, they stay) and the secondaries' budgets.
+fn as_resumed_past(config: &TrainConfig, env_steps: u64) -> String {
+    assert!(config.run.composed_from_env_steps <= env_steps);
+    let text = config.to_toml();
+    let text = text
+        .split('\n')
+        .filter(|line| !line.starts_with("composed_from_env_steps"))
+        .collect::<Vec<_>>()
+        .join("\n");
+    text.split("[curriculum.secondary_env_steps_by_behaviour]")
+        .next()
+        .unwrap()
+        .to_string()
+}
+
+#[test]
+fn the_exit_stage_written_out_is_the_stage_that_made_the_shipped_file() {
+    let written_out = TrainConfig::load(&recipe("shipped-exit.toml")).unwrap();
+    let as_run = TrainConfig::load(&recipe("comparisons/curriculum-bc-exit.toml")).unwrap();
+    assert_eq!(
+        as_resumed_past(&written_out, 29_000_000),
+        as_resumed_past(&as_run, 29_000_000)
+    );
 }
