@@ -18,6 +18,7 @@ use wheelleg_stack::{DecisionRule, Preset};
 use wheelleg_trainer::batch_policy::FloatPolicy;
 use wheelleg_trainer::evaluate::{evaluate, EvalOptions};
 use wheelleg_trainer::network::BackendKind;
+use wheelleg_trainer::TrainError;
 
 /// Arguments of `eval`.
 #[derive(clap::Args)]
@@ -69,14 +70,14 @@ pub struct Args {
 pub fn with_policy<T>(
     path: &Path,
     robot: &RobotDescription,
-    f: impl FnOnce(&dyn BatchPolicy) -> Result<T, String>,
-) -> Result<T, String> {
+    f: impl FnOnce(&dyn BatchPolicy) -> Result<T, TrainError>,
+) -> Result<T, Box<dyn std::error::Error>> {
     let label = path.display().to_string();
     let bytes = std::fs::read(path).map_err(|e| format!("cannot read {label}: {e}"))?;
     if bytes.starts_with(&MAGIC) {
         let policy = Int8Policy::from_bytes(&bytes).map_err(|e| format!("{label}: {e}"))?;
         robot.accepts(&policy.model().trained_for, &label)?;
-        f(&policy)
+        Ok(f(&policy)?)
     } else {
         let (checkpoint, extras) =
             wheelleg_trainer::checkpoint::Checkpoint::from_bytes_with_extras(&bytes)
@@ -87,7 +88,7 @@ pub fn with_policy<T>(
             .to_network()
             .map_err(|e| format!("{label}: {e}"))?;
         let policy = FloatPolicy::new(&net, &BackendKind::Flex.device()?)?;
-        f(&policy)
+        Ok(f(&policy)?)
     }
 }
 

@@ -2,6 +2,7 @@
 //! interface (`wheelleg_stack::policy::BatchPolicy`, which the int8 runtime policy implements
 //! too): evaluation and calibration rollouts take either.
 
+use crate::error::TrainError;
 use crate::network::{to_vec, Net};
 use crate::network_f32::NetworkF32;
 use burn::tensor::Device;
@@ -14,7 +15,7 @@ pub struct FloatPolicy {
 
 impl FloatPolicy {
     /// Copies `network` to `device` for inference.
-    pub fn new(network: &NetworkF32, device: &Device) -> Result<FloatPolicy, String> {
+    pub fn new(network: &NetworkF32, device: &Device) -> Result<FloatPolicy, TrainError> {
         Ok(FloatPolicy {
             net: Net::new(network, device, false)?,
         })

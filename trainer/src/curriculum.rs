@@ -20,12 +20,13 @@
 //! primary on the secondaries' batch plus the labels of the states its stack visits
 //! ([`crate::trajectory::expert_labels`]).
 
-use crate::checkpoint::Checkpoint;
+use crate::checkpoint::{Checkpoint, CheckpointError};
 use crate::config::TrainConfig;
+use crate::error::TrainError;
 use crate::network_f32::NetworkF32;
 use crate::replay::{ReplayBalance, ReplayOptions};
 use crate::runner::{train_stage, RunOptions, RunSummary, StageInputs, TRAJECTORIES_FILE};
-use crate::trajectory::batch_file::{BatchFileError, TrajectoryBatch};
+use crate::trajectory::batch_file::TrajectoryBatch;
 use crate::trajectory::expert_labels::{label_batch, LabelConfig, LabelStats, LABELS_FILE};
 use crate::trajectory::randomize::{randomize_batch_with, RandomizeConfig, Stats};
 use crate::trajectory::Trajectory;
@@ -60,7 +61,7 @@ pub fn secondary_dir(out: &Path, behaviour: Behaviour) -> PathBuf {
 
 /// The curriculum's behaviours the robot has, in order; those it lacks are left out
 /// ([`left_out_behaviours`] says why).
-fn behaviours(config: &TrainConfig) -> Result<Vec<Behaviour>, String> {
+fn behaviours(config: &TrainConfig) -> Result<Vec<Behaviour>, TrainError> {
     let fit = SceneRobot::of(&config.robot.robot.geometry);
     Ok(named_behaviours(config)?
         .into_iter()
@@ -70,7 +71,7 @@ fn behaviours(config: &TrainConfig) -> Result<Vec<Behaviour>, String> {
 
 /// The curriculum's behaviours the robot lacks, each with why: their secondaries are not
 /// trained and the batch holds none of their trajectories.
-pub fn left_out_behaviours(config: &TrainConfig) -> Result<Vec<(Behaviour, String)>, String> {
+pub fn left_out_behaviours(config: &TrainConfig) -> Result<Vec<(Behaviour, String)>, TrainError> {
     let fit = SceneRobot::of(&config.robot.robot.geometry);
     Ok(named_behaviours(config)?
         .into_iter()
@@ -78,15 +79,16 @@ pub fn left_out_behaviours(config: &TrainConfig) -> Result<Vec<(Behaviour, Strin
         .collect())
 }
 
-fn named_behaviours(config: &TrainConfig) -> Result<Vec<Behaviour>, String> {
+fn named_behaviours(config: &TrainConfig) -> Result<Vec<Behaviour>, TrainError> {
     config
         .curriculum
         .behaviours
         .iter()
         .map(|name| match SceneKind::from_name(name) {
             Some(SceneKind::Behaviour(b)) => Ok(b),
-            _ => Err(format!(
-                "curriculum.behaviours: {name:?} is not a behaviour"
+            _ => Err(TrainError::setting(
+                "curriculum.behaviours",
+                format!("{name:?} is not a behaviour"),
             )),
         })
         .collect()
@@ -102,7 +104,7 @@ fn run_stage(
     progress: bool,
     stop_at_env_steps: Option<u64>,
     inputs: StageInputs<'_>,
-) -> Result<RunSummary, String> {
+) -> Result<RunSummary, TrainError> {
     let resume = dir.join(crate::runner::CHECKPOINT_FILE).exists();
     let opts = RunOptions {
         out: dir.to_path_buf(),
@@ -116,35 +118,37 @@ fn run_stage(
     train_stage(config, &opts, inputs)
 }
 
-fn load_network(config: &TrainConfig, dir: &Path) -> Result<NetworkF32, String> {
+fn load_network(config: &TrainConfig, dir: &Path) -> Result<NetworkF32, TrainError> {
     load_checkpoint_network(config, &dir.join(crate::runner::CHECKPOINT_FILE))
 }
 
 /// The network of checkpoint `path`, refused when it was trained for another robot.
-fn load_checkpoint_network(config: &TrainConfig, path: &Path) -> Result<NetworkF32, String> {
+fn load_checkpoint_network(config: &TrainConfig, path: &Path) -> Result<NetworkF32, TrainError> {
     let (checkpoint, extras) = Checkpoint::load_with_extras(path)?;
     extras.check_robot(&config.robot, &path.display().to_string())?;
-    checkpoint
+    let network = checkpoint
         .network
         .to_network()
-        .map_err(|e| format!("{}: {e}", path.display()))
+        .map_err(|e| CheckpointError::In {
+            path: path.to_path_buf(),
+            error: Box::new(e),
+        })?;
+    Ok(network)
 }
 
 /// [`load_checkpoint_network`] for a run to start from: its layers must be the config's
 /// `[network]`, which the run's checkpoints will record.
-fn load_init_network(config: &TrainConfig, path: &Path) -> Result<NetworkF32, String> {
+fn load_init_network(config: &TrainConfig, path: &Path) -> Result<NetworkF32, TrainError> {
     let network = load_checkpoint_network(config, path)?;
     let wanted = config.architecture();
     if network.arch.convs != wanted.convs || network.arch.hidden != wanted.hidden {
-        return Err(format!(
-            "{}: its network (conv channels {:?}, hidden {:?}) is not the config's [network] (conv \
-             channels {:?}, hidden {:?})",
-            path.display(),
-            network.arch.convs.iter().map(|c| c.out_channels).collect::<Vec<_>>(),
-            network.arch.hidden,
-            config.network.conv_channels,
-            config.network.hidden
-        ));
+        return Err(TrainError::NetworkMismatch {
+            path: path.to_path_buf(),
+            conv_channels: network.arch.convs.iter().map(|c| c.out_channels).collect(),
+            hidden: network.arch.hidden.clone(),
+            config_conv_channels: config.network.conv_channels.clone(),
+            config_hidden: config.network.hidden.clone(),
+        });
     }
     Ok(network)
 }
@@ -188,7 +192,7 @@ fn secondary_stage(config: &TrainConfig, behaviour: Behaviour, first: bool) -> T
 
 /// Algorithm 1: one secondary policy per behaviour, straight first, the others initialised
 /// from it; each keeps its latest successful trajectories.
-pub fn run_secondary(config: &TrainConfig, opts: &CurriculumOptions) -> Result<(), String> {
+pub fn run_secondary(config: &TrainConfig, opts: &CurriculumOptions) -> Result<(), TrainError> {
     let behaviours = behaviours(config)?;
     let mut straight: Option<NetworkF32> = None;
     for (index, &behaviour) in behaviours.iter().enumerate() {
@@ -261,26 +265,27 @@ fn report_stage(name: &str, summary: &RunSummary) {
 /// behaviour has none: the batch would then teach the primary nothing of it, and the primary
 /// forgets what it cannot replay (a primary on a batch without squeeze trajectories passed 0
 /// of 200 squeeze scenes; docs/results.md).
-pub fn stored_trajectories(config: &TrainConfig, out: &Path) -> Result<Vec<Trajectory>, String> {
+pub fn stored_trajectories(
+    config: &TrainConfig,
+    out: &Path,
+) -> Result<Vec<Trajectory>, TrainError> {
     let mut all = Vec::new();
     for behaviour in behaviours(config)? {
         let path = secondary_dir(out, behaviour).join(TRAJECTORIES_FILE);
         let stored = TrajectoryBatch::load(&path).map_err(|e| {
-            format!("{e} (train the secondary policies first: wheelleg train secondary)")
+            TrainError::hint(
+                e,
+                "train the secondary policies first: wheelleg train secondary",
+            )
         })?;
         stored
             .header()
             .check_robot(&config.robot, &path.display().to_string())?;
         if stored.is_empty() {
-            let name = behaviour.name();
-            return Err(format!(
-                "secondary {name} stored no successful, collision-free episode of the task as \
-                 specified ({} is empty; with a start-stage curriculum, its start stage never \
-                 reached 1): give it more env steps \
-                 (curriculum.secondary_env_steps_by_behaviour.{name}) and resume with \
-                 `wheelleg train secondary --resume`",
-                path.display()
-            ));
+            return Err(TrainError::NoTrajectories {
+                behaviour: behaviour.name(),
+                path,
+            });
         }
         all.extend((0..stored.len()).filter_map(|i| stored.trajectory(i)));
     }
@@ -289,10 +294,15 @@ pub fn stored_trajectories(config: &TrainConfig, out: &Path) -> Result<Vec<Traje
 
 /// The trajectory batch by domain randomization (resumable: see
 /// [`crate::trajectory::batch_file`]).
-pub fn run_randomize(config: &TrainConfig, opts: &CurriculumOptions) -> Result<Stats, String> {
+pub fn run_randomize(config: &TrainConfig, opts: &CurriculumOptions) -> Result<Stats, TrainError> {
     let sources = stored_trajectories(config, &opts.out)?;
     if sources.is_empty() {
-        return Err("no successful trajectory to randomize (train the secondaries first)".into());
+        return Err(TrainError::hint(
+            TrainError::Nothing {
+                what: "successful trajectory to randomize",
+            },
+            "train the secondaries first",
+        ));
     }
     let randomize = RandomizeConfig {
         per_trajectory: config.curriculum.randomizations,
@@ -309,8 +319,7 @@ pub fn run_randomize(config: &TrainConfig, opts: &CurriculumOptions) -> Result<S
     let stats = randomize_batch_with(&sources, &randomize, &opts.out.join(BATCH_FILE), |p| {
         bar.set_position(p.sources_done);
         bar.set_message(format!("{} kept of {} tried", p.kept, p.tried));
-    })
-    .map_err(|e| e.to_string())?;
+    })?;
     bar.finish_and_clear();
     println!(
         "trajectory batch: {} sources, {} randomized scenes kept of {} tried, {} trajectories, \
@@ -348,9 +357,8 @@ pub fn run_label(
     scenarios: &[Scenario],
     label: &LabelConfig,
     opts: &CurriculumOptions,
-) -> Result<LabelStats, String> {
-    std::fs::create_dir_all(&opts.out)
-        .map_err(|e| format!("cannot create {}: {e}", opts.out.display()))?;
+) -> Result<LabelStats, TrainError> {
+    std::fs::create_dir_all(&opts.out).map_err(|e| TrainError::io(&opts.out, "create", e))?;
     let bar = if opts.progress {
         indicatif::ProgressBar::new(0)
     } else {
@@ -367,19 +375,18 @@ pub fn run_label(
 }
 
 /// Algorithm 2: PPO on complex scenes with replayed samples from the trajectory batch.
-pub fn run_primary(config: &TrainConfig, opts: &CurriculumOptions) -> Result<RunSummary, String> {
+pub fn run_primary(
+    config: &TrainConfig,
+    opts: &CurriculumOptions,
+) -> Result<RunSummary, TrainError> {
     run_primary_with(config, opts, &PrimaryInputs::default())
 }
 
 /// The trajectory batches of `paths`, each checked for the robot, as one.
-fn load_batches(config: &TrainConfig, paths: &[PathBuf]) -> Result<TrajectoryBatch, String> {
+fn load_batches(config: &TrainConfig, paths: &[PathBuf]) -> Result<TrajectoryBatch, TrainError> {
     let mut all: Option<TrajectoryBatch> = None;
     for path in paths {
-        let batch = TrajectoryBatch::load(path).map_err(|e| match e {
-            // Its message names the file already.
-            BatchFileError::Io { .. } => e.to_string(),
-            _ => format!("{}: {e}", path.display()),
-        })?;
+        let batch = TrajectoryBatch::load(path).map_err(|e| TrainError::in_file(path, e))?;
         batch
             .header()
             .check_robot(&config.robot, &path.display().to_string())?;
@@ -387,10 +394,12 @@ fn load_batches(config: &TrainConfig, paths: &[PathBuf]) -> Result<TrajectoryBat
             None => all = Some(batch),
             Some(all) => all
                 .append(batch)
-                .map_err(|e| format!("{}: {e}", path.display()))?,
+                .map_err(|e| TrainError::in_file(path, e))?,
         }
     }
-    all.ok_or_else(|| "no trajectory batch to replay".to_string())
+    all.ok_or(TrainError::Nothing {
+        what: "trajectory batch to replay",
+    })
 }
 
 /// [`run_primary`] from `inputs.init` when given, replaying `inputs.batches` when given.
@@ -398,11 +407,14 @@ pub fn run_primary_with(
     config: &TrainConfig,
     opts: &CurriculumOptions,
     inputs: &PrimaryInputs,
-) -> Result<RunSummary, String> {
+) -> Result<RunSummary, TrainError> {
     let batch = if inputs.batches.is_empty() {
         let batch_path = opts.out.join(BATCH_FILE);
         let batch = TrajectoryBatch::load(&batch_path).map_err(|e| {
-            format!("{e} (make the trajectory batch first: wheelleg train randomize)")
+            TrainError::hint(
+                e,
+                "make the trajectory batch first: wheelleg train randomize",
+            )
         })?;
         batch
             .header()
@@ -414,11 +426,10 @@ pub fn run_primary_with(
     let labels = if inputs.labels.is_empty() {
         None
     } else if config.curriculum.label_steps_per_iteration == 0 {
-        return Err(
-            "expert labels given but curriculum.label_steps_per_iteration is 0: they would never \
-             be replayed"
-                .into(),
-        );
+        return Err(TrainError::setting(
+            "curriculum.label_steps_per_iteration",
+            "0 with expert labels given: they would never be replayed",
+        ));
     } else {
         Some(load_batches(config, &inputs.labels)?)
     };
@@ -430,8 +441,9 @@ pub fn run_primary_with(
                 Some(load_network(config, &secondary_dir(&opts.out, b))?)
             }
             _ => {
-                return Err(format!(
-                    "curriculum.primary_init: {name:?} is not a behaviour"
+                return Err(TrainError::setting(
+                    "curriculum.primary_init",
+                    format!("{name:?} is not a behaviour"),
                 ))
             }
         },
@@ -477,9 +489,8 @@ pub fn run_primary_with(
 }
 
 /// The whole pipeline: secondary policies, trajectory batch, primary policy.
-pub fn run_all(config: &TrainConfig, opts: &CurriculumOptions) -> Result<RunSummary, String> {
-    std::fs::create_dir_all(&opts.out)
-        .map_err(|e| format!("cannot create {}: {e}", opts.out.display()))?;
+pub fn run_all(config: &TrainConfig, opts: &CurriculumOptions) -> Result<RunSummary, TrainError> {
+    std::fs::create_dir_all(&opts.out).map_err(|e| TrainError::io(&opts.out, "create", e))?;
     run_secondary(config, opts)?;
     run_randomize(config, opts)?;
     run_primary(config, opts)
@@ -534,6 +545,11 @@ mod tests {
         let e = stored_trajectories(&config, &out).unwrap_err();
         let _ = std::fs::remove_dir_all(&out);
         let first = behaviours[0].name();
+        assert!(
+            matches!(&e, TrainError::NoTrajectories { behaviour, .. } if *behaviour == first),
+            "{e}"
+        );
+        let e = e.to_string();
         assert!(e.contains(&format!("secondary {first} stored no")), "{e}");
         assert!(
             e.contains(&format!("secondary_env_steps_by_behaviour.{first}")),

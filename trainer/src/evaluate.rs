@@ -5,6 +5,7 @@
 //! the look-ahead and the searches), all scenarios in lock-step so that the policy is evaluated
 //! once per step on the whole batch; stochastic draws come from the caller's seeded RNG.
 
+use crate::error::TrainError;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
@@ -229,14 +230,13 @@ struct PlanLine {
 
 /// Parses the JSON of `wheelleg plan --json` into shortest step counts by scenario name; a
 /// result the planner did not prove shortest (weighted fallback, budget) counts as unknown.
-pub fn read_plan_results(json: &str) -> Result<HashMap<String, Option<usize>>, String> {
-    let file: PlanFile = serde_json::from_str(json)
-        .map_err(|e| format!("not the output of `wheelleg plan --json`: {e}"))?;
+pub fn read_plan_results(json: &str) -> Result<HashMap<String, Option<usize>>, TrainError> {
+    let file: PlanFile = serde_json::from_str(json).map_err(TrainError::NotPlanResults)?;
     let mut known = HashMap::with_capacity(file.results.len());
     for line in file.results {
         let steps = line.steps.filter(|_| line.shortest);
         if known.insert(line.name.clone(), steps).is_some() {
-            return Err(format!("scenario {:?} appears twice", line.name));
+            return Err(TrainError::ScenarioTwice { name: line.name });
         }
     }
     Ok(known)
@@ -265,7 +265,7 @@ pub fn collect_observations(
     options: &EvalOptions,
     rng: &mut impl Rng,
     limit: usize,
-) -> Result<Vec<RecordedObservation>, String> {
+) -> Result<Vec<RecordedObservation>, TrainError> {
     let mut observations = Vec::new();
     let stack = &options.stack;
     run_episodes(
@@ -279,7 +279,8 @@ pub fn collect_observations(
                 observations.push((decision.height_map_m.to_vec(), decision.state.to_vec()));
             }
         },
-    )?;
+    )
+    .map_err(TrainError::Stack)?;
     Ok(observations)
 }
 
@@ -289,7 +290,7 @@ pub fn evaluate(
     scenarios: &[Scenario],
     options: &EvalOptions,
     rng: &mut impl Rng,
-) -> Result<EvalReport, String> {
+) -> Result<EvalReport, TrainError> {
     let stack = &options.stack;
     let episodes = run_episodes(
         policy,
@@ -298,7 +299,8 @@ pub fn evaluate(
         options.env_config,
         rng,
         &mut |_| {},
-    )?;
+    )
+    .map_err(TrainError::Stack)?;
     let planner = PlannerConfig {
         max_expansions: options.planner_expansions,
         ..PlannerConfig::default()
@@ -308,12 +310,11 @@ pub fn evaluate(
         let env = &episode.env;
         let success = env.status() == Status::Success;
         let planner_steps = if let Some(known) = &options.known_shortest {
-            *known
-                .get(&s.name)
-                .ok_or_else(|| format!("the planner results name no scenario {:?}", s.name))?
+            *known.get(&s.name).ok_or_else(|| TrainError::NoPlanResult {
+                name: s.name.clone(),
+            })?
         } else if success && options.planner_expansions > 0 {
-            let fresh = Env::new(s, options.env_config)
-                .map_err(|e| format!("scenario {}: {e:?}", s.name))?;
+            let fresh = Env::new(s, options.env_config)?;
             match plan(&fresh, &planner).outcome {
                 PlanOutcome::Solved { actions, .. } => Some(actions.len()),
                 _ => None,

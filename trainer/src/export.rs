@@ -4,6 +4,7 @@
 //! atomic write.
 
 use crate::batch_policy::FloatPolicy;
+use crate::error::TrainError;
 use crate::evaluate::{collect_observations, EvalOptions, RecordedObservation};
 use crate::network_f32::NetworkF32;
 use crate::quantize::qat::fine_tune;
@@ -119,7 +120,7 @@ pub fn rollout_observations(
     kind: SceneKind,
     seed: u64,
     count: usize,
-) -> Result<Vec<RecordedObservation>, String> {
+) -> Result<Vec<RecordedObservation>, TrainError> {
     let mut scenes_rng = ChaCha8Rng::seed_from_u64(seed);
     let mut actions_rng = ChaCha8Rng::seed_from_u64(seed);
     actions_rng.set_stream(1);
@@ -147,7 +148,9 @@ pub fn rollout_observations(
             count - observations.len(),
         )?;
         if more.is_empty() {
-            return Err("rollouts produced no observations".into());
+            return Err(TrainError::Nothing {
+                what: "observations from the rollouts",
+            });
         }
         observations.extend(more);
     }
@@ -168,12 +171,14 @@ pub fn export_policy(
     device: &Device,
     source: &str,
     options: &ExportOptions,
-) -> Result<(Vec<u8>, ModelCard), String> {
+) -> Result<(Vec<u8>, ModelCard), TrainError> {
     options.qat.validate()?;
-    let holdout_seed = options
-        .seed
-        .checked_add(1)
-        .ok_or("the calibration seed must be below u64::MAX (held-out scenes use seed + 1)")?;
+    let holdout_seed = options.seed.checked_add(1).ok_or_else(|| {
+        TrainError::setting(
+            "calibration seed",
+            "must be below u64::MAX (held-out scenes use seed + 1)",
+        )
+    })?;
     // Every observation set comes from the original network's rollouts, so the held-out set
     // and the calibration set are the same with and without fine-tuning.
     let float = FloatPolicy::new(network, device)?;
@@ -192,7 +197,7 @@ pub fn export_policy(
         options.holdout_observations,
     )?;
     let calibrate_and_quantize =
-        |net: &NetworkF32| -> Result<(Calibration, QuantizedNetwork, Vec<u8>), String> {
+        |net: &NetworkF32| -> Result<(Calibration, QuantizedNetwork, Vec<u8>), TrainError> {
             let mut calibration = Calibration::from_observations(
                 net,
                 calibration_set
@@ -203,16 +208,15 @@ pub fn export_policy(
             let quantized = QuantizedNetwork {
                 robot: options.robot.clone(),
                 ..quantize(net, &calibration, options.range)
-                    .map_err(|e| format!("quantize: {e}"))?
+                    .map_err(|e| TrainError::stage("quantize", e))?
             };
             let bytes = quantized
                 .to_bytes()
-                .map_err(|e| format!("encode weights: {e}"))?;
+                .map_err(|e| TrainError::stage("encode weights", e))?;
             Ok((calibration, quantized, bytes))
         };
-    let measure = |bytes: &[u8]| -> Result<Agreement, String> {
-        let policy = Int8Policy::from_bytes(bytes)
-            .map_err(|e| format!("the runtime refuses the exported weights: {e}"))?;
+    let measure = |bytes: &[u8]| -> Result<Agreement, TrainError> {
+        let policy = Int8Policy::from_bytes(bytes).map_err(TrainError::Refused)?;
         // Always against the original float network: that is the policy that was trained.
         agreement(network, &policy, &holdout)
     };
@@ -250,8 +254,7 @@ pub fn export_policy(
         (calibration, quantized, bytes, Some(card))
     };
     let agreement = measure(&bytes)?;
-    let policy = Int8Policy::from_bytes(&bytes)
-        .map_err(|e| format!("the runtime refuses the exported weights: {e}"))?;
+    let policy = Int8Policy::from_bytes(&bytes).map_err(TrainError::Refused)?;
     let (parameters, macs_per_decision) = (policy.model().parameter_count(), policy.model().macs());
     let (state_bits, logit_bits) = (policy.model().state_bits(), policy.model().logit_bits());
     drop(policy);

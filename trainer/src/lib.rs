@@ -4,6 +4,7 @@
 //! path from the float network to the bytes the robot runs. Read in this order:
 //!
 //! - [`config`]: every hyperparameter, from a TOML file.
+//! - [`error`]: why a run, evaluation, export or plot stopped ([`TrainError`]).
 //! - [`network`]: the actor-critic CNN as a burn graph over the [`network_f32`] parameters.
 //! - [`conv_kernel`]: the conv stack's specialised training kernel (im2col + GEMM).
 //! - [`vec_env`]: many simulator episodes stepped in lock-step over the cores.
@@ -29,6 +30,7 @@ pub mod checkpoint;
 pub mod config;
 pub mod conv_kernel;
 pub mod curriculum;
+pub mod error;
 pub mod evaluate;
 pub mod export;
 pub mod network;
@@ -41,3 +43,5 @@ pub mod runner;
 pub mod storage;
 pub mod trajectory;
 pub mod vec_env;
+
+pub use error::TrainError;

@@ -10,6 +10,7 @@
 //! Shapes: conv stack (ReLU) over the 1 x 32 x 32 height map, flatten CHW, append the 4 state
 //! features, dense stack (ReLU), then the action head (5 heads x 3 logits) and the value head.
 
+use crate::error::TrainError;
 use crate::network_f32::{Architecture, Conv2dF32, DenseF32, NetworkF32, ACTION_LOGITS};
 use burn::tensor::activation::{log_softmax, relu};
 use burn::tensor::module::conv2d;
@@ -33,28 +34,31 @@ pub enum BackendKind {
 }
 
 impl BackendKind {
-    /// Parses a name as used in configs and on the command line.
-    pub fn from_name(name: &str) -> Result<BackendKind, String> {
+    /// Parses a name as used in configs (`run.backend`).
+    pub fn from_name(name: &str) -> Result<BackendKind, TrainError> {
         match name {
             "flex" => Ok(BackendKind::Flex),
             "cuda" => Ok(BackendKind::Cuda),
-            other => Err(format!("unknown backend {other:?} (expected flex or cuda)")),
+            other => Err(TrainError::setting(
+                "run.backend",
+                format!("unknown backend {other:?} (expected flex or cuda)"),
+            )),
         }
     }
 
     /// The burn device, or an error naming the cargo feature to enable.
     #[allow(unreachable_code)]
-    pub fn device(self) -> Result<Device, String> {
+    pub fn device(self) -> Result<Device, TrainError> {
         match self {
             BackendKind::Flex => {
                 #[cfg(feature = "flex")]
                 return Ok(Device::flex());
-                Err("backend flex needs the cargo feature `flex`".into())
+                Err(TrainError::BackendNotBuilt { backend: "flex" })
             }
             BackendKind::Cuda => {
                 #[cfg(feature = "cuda")]
                 return Ok(Device::cuda(0));
-                Err("backend cuda needs the cargo feature `cuda`".into())
+                Err(TrainError::BackendNotBuilt { backend: "cuda" })
             }
         }
     }
@@ -155,7 +159,7 @@ pub struct Forward {
 impl Net {
     /// Copies `net` to `device`. With `track_grad`, every parameter records gradients (the
     /// device must then be an autodiff device: `device.autodiff()`).
-    pub fn new(net: &NetworkF32, device: &Device, track_grad: bool) -> Result<Net, String> {
+    pub fn new(net: &NetworkF32, device: &Device, track_grad: bool) -> Result<Net, TrainError> {
         Net::with_tracking(net, device, track_grad, track_grad)
     }
 
@@ -168,9 +172,11 @@ impl Net {
         device: &Device,
         track_convs: bool,
         track_dense: bool,
-    ) -> Result<Net, String> {
+    ) -> Result<Net, TrainError> {
         let Some(value_head) = &net.value_head else {
-            return Err("the actor-critic network needs a value head".into());
+            return Err(TrainError::Shape(
+                "the actor-critic network needs a value head".into(),
+            ));
         };
         let conv = |c: &Conv2dF32| {
             let s = c.spec;
@@ -314,15 +320,15 @@ pub fn to_vec<const D: usize>(t: Tensor<D>) -> Vec<f32> {
 }
 
 /// Checks that the policy has the layout the trainer assumes (15 action logits, value head).
-pub fn check_policy_shape(net: &NetworkF32) -> Result<(), String> {
+pub fn check_policy_shape(net: &NetworkF32) -> Result<(), TrainError> {
     if net.action_head.out_features != ACTION_LOGITS {
-        return Err(format!(
+        return Err(TrainError::Shape(format!(
             "action head has {} outputs, expected {ACTION_LOGITS}",
             net.action_head.out_features
-        ));
+        )));
     }
     if net.value_head.is_none() {
-        return Err("network has no value head".into());
+        return Err(TrainError::Shape("network has no value head".into()));
     }
     Ok(())
 }

@@ -9,6 +9,7 @@
 //! Text is drawn with plotters' pure-Rust `ab_glyph` renderer in the simulator's vendored
 //! DejaVu Sans (`wheelleg_sim::render::FONT`), or from the TTF file `font` when one is given.
 
+use crate::error::TrainError;
 use crate::runner::{read_metrics, IterationMetrics};
 use plotters::prelude::*;
 use std::path::{Path, PathBuf};
@@ -18,17 +19,19 @@ const USER_FONT: &str = "wheelleg-plot-user";
 
 /// The font family the text is drawn in: the TTF file `font`, registered now, or the vendored
 /// one.
-fn font_family(font: Option<&Path>) -> Result<&'static str, String> {
+fn font_family(font: Option<&Path>) -> Result<&'static str, TrainError> {
     let Some(path) = font else {
-        wheelleg_sim::render::register_font().map_err(|e| e.to_string())?;
+        wheelleg_sim::render::register_font().map_err(|e| TrainError::Plot(e.to_string()))?;
         return Ok(wheelleg_sim::render::FONT);
     };
-    let bytes =
-        std::fs::read(path).map_err(|e| format!("cannot read font {}: {e}", path.display()))?;
+    let bytes = std::fs::read(path).map_err(|e| TrainError::io(path, "read font", e))?;
     // plotters keeps fonts for the process lifetime; one leaked copy per plot call is fine.
     let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
-    plotters::style::register_font(USER_FONT, FontStyle::Normal, bytes)
-        .map_err(|_| format!("{} is not a usable TTF font", path.display()))?;
+    plotters::style::register_font(USER_FONT, FontStyle::Normal, bytes).map_err(|_| {
+        TrainError::Font {
+            path: path.to_path_buf(),
+        }
+    })?;
     Ok(USER_FONT)
 }
 
@@ -45,7 +48,7 @@ pub struct RunGroup {
 
 impl RunGroup {
     /// Parses `DIR` (a group of one, labelled by the folder name) or `LABEL=DIR[,DIR...]`.
-    pub fn parse(text: &str) -> Result<RunGroup, String> {
+    pub fn parse(text: &str) -> Result<RunGroup, TrainError> {
         let (label, dirs) = match text.split_once('=') {
             Some((label, dirs)) => (label.to_string(), dirs),
             None => {
@@ -62,9 +65,9 @@ impl RunGroup {
             .map(PathBuf::from)
             .collect();
         if label.is_empty() || runs.is_empty() {
-            return Err(format!(
-                "{text:?}: a curve is DIR or LABEL=DIR[,DIR...] with a label and a folder"
-            ));
+            return Err(TrainError::Curve {
+                text: text.to_string(),
+            });
         }
         Ok(RunGroup { label, runs })
     }
@@ -121,9 +124,11 @@ pub fn plot_runs(
     font: Option<&Path>,
     size: (u32, u32),
     smooth_iterations: usize,
-) -> Result<(), String> {
+) -> Result<(), TrainError> {
     if groups.is_empty() {
-        return Err("no runs to plot".into());
+        return Err(TrainError::Nothing {
+            what: "runs to plot",
+        });
     }
     let data: Vec<(String, Vec<Vec<IterationMetrics>>)> = groups
         .iter()
@@ -138,7 +143,7 @@ pub fn plot_runs(
                 .collect::<Result<Vec<Vec<_>>, _>>()?;
             Ok((g.label.clone(), runs))
         })
-        .collect::<Result<_, String>>()?;
+        .collect::<Result<_, TrainError>>()?;
     let font = font_family(font)?;
     let panels: [(&str, Series); 4] = [
         ("success rate", |m| Some(m.success_rate)),
@@ -151,7 +156,7 @@ pub fn plot_runs(
     let tmp = out.with_extension("tmp.png");
     {
         let root = BitMapBackend::new(&tmp, size).into_drawing_area();
-        root.fill(&WHITE).map_err(|e| e.to_string())?;
+        root.fill(&WHITE).map_err(plot_error)?;
         let areas = root.split_evenly((2, 2));
         let max_steps = data
             .iter()
@@ -181,14 +186,14 @@ pub fn plot_runs(
                 .x_label_area_size(30)
                 .y_label_area_size(50)
                 .build_cartesian_2d(0f32..max_steps, (lo - pad)..(hi + pad))
-                .map_err(|e| e.to_string())?;
+                .map_err(plot_error)?;
             chart
                 .configure_mesh()
                 .label_style((font, 12))
                 .x_desc("env steps")
                 .x_label_formatter(&|x| format!("{:.2}M", x / 1e6))
                 .draw()
-                .map_err(|e| e.to_string())?;
+                .map_err(plot_error)?;
             for (k, (name, points)) in bands.iter().enumerate() {
                 let colour = Palette99::pick(k).to_rgba();
                 let spread = points.iter().any(|p| p.3 > p.2);
@@ -204,12 +209,12 @@ pub fn plot_runs(
                             outline,
                             colour.mix(0.2).filled(),
                         )))
-                        .map_err(|e| e.to_string())?;
+                        .map_err(plot_error)?;
                 }
                 let mean: Vec<(f32, f32)> = points.iter().map(|p| (p.0, p.1)).collect();
                 let drawn = chart
                     .draw_series(LineSeries::new(mean, colour.stroke_width(2)))
-                    .map_err(|e| e.to_string())?;
+                    .map_err(plot_error)?;
                 drawn
                     .label(name.to_string())
                     .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour));
@@ -221,12 +226,17 @@ pub fn plot_runs(
                 .border_style(BLACK)
                 .position(SeriesLabelPosition::LowerRight)
                 .draw()
-                .map_err(|e| e.to_string())?;
+                .map_err(plot_error)?;
         }
         root.present()
-            .map_err(|e| format!("cannot write {}: {e}", tmp.display()))?;
+            .map_err(|e| TrainError::Plot(format!("cannot write {}: {e}", tmp.display())))?;
     }
-    std::fs::rename(&tmp, out).map_err(|e| format!("cannot move plot to {}: {e}", out.display()))
+    std::fs::rename(&tmp, out).map_err(|e| TrainError::io(out, "move plot to", e))
+}
+
+/// A plotters error, whose type depends on the drawing backend, as its message.
+fn plot_error(e: impl std::fmt::Display) -> TrainError {
+    TrainError::Plot(e.to_string())
 }
 
 #[cfg(test)]
@@ -243,10 +253,12 @@ mod tests {
         assert_eq!(g.runs.len(), 2);
         assert!(RunGroup::parse("primary=")
             .unwrap_err()
+            .to_string()
             .contains("LABEL=DIR"));
-        assert!(RunGroup::parse("=runs/a")
-            .unwrap_err()
-            .contains("LABEL=DIR"));
+        assert!(matches!(
+            RunGroup::parse("=runs/a"),
+            Err(TrainError::Curve { text }) if text == "=runs/a"
+        ));
     }
 
     #[test]

@@ -11,6 +11,7 @@
 
 use crate::config::PpoConfig;
 use crate::conv_kernel::{self, ConvKernel, ConvTape};
+use crate::error::TrainError;
 use crate::network::{self, Net};
 use crate::network_f32::NetworkF32;
 use crate::storage::Batch;
@@ -18,6 +19,7 @@ use burn::tensor::{Device, Tensor, TensorData};
 use rand::seq::SliceRandom;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
+use std::mem::take;
 use std::sync::{Mutex, PoisonError};
 use wheelleg_runtime::action::{CHOICES, DIMS};
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
@@ -166,9 +168,9 @@ const EVAL_CHUNK: usize = 1024;
 
 impl Ppo {
     /// A learner for `net` on `device` (a plain device; autodiff is added for updates).
-    pub fn new(net: NetworkF32, config: PpoConfig, device: Device) -> Result<Ppo, String> {
+    pub fn new(net: NetworkF32, config: PpoConfig, device: Device) -> Result<Ppo, TrainError> {
         network::check_policy_shape(&net)?;
-        ConvKernel::from_name(&config.conv_kernel).map_err(|e| format!("ppo.conv_kernel: {e}"))?;
+        ConvKernel::from_name(&config.conv_kernel)?;
         let adam = Adam::new(&net);
         Ok(Ppo {
             config,
@@ -191,9 +193,8 @@ impl Ppo {
         heights_m: &[f32],
         states: &[f32],
         n: usize,
-    ) -> Result<PolicyOutput, String> {
-        let kernel = ConvKernel::from_name(&self.config.conv_kernel)
-            .map_err(|e| format!("ppo.conv_kernel: {e}"))?;
+    ) -> Result<PolicyOutput, TrainError> {
+        let kernel = ConvKernel::from_name(&self.config.conv_kernel)?;
         let net = Net::new(&self.net, &self.device, false)?;
         let mut out = PolicyOutput {
             log_probs: Vec::with_capacity(n * DIMS * CHOICES),
@@ -243,7 +244,7 @@ impl Ppo {
         states: &[f32],
         n: usize,
         rng: &mut impl Rng,
-    ) -> Result<Acted, String> {
+    ) -> Result<Acted, TrainError> {
         let out = self.evaluate(heights_m, states, n)?;
         let mut acted = Acted {
             choices: Vec::with_capacity(n * DIMS),
@@ -260,11 +261,11 @@ impl Ppo {
 
     /// `config.epochs` passes over `batch` in shuffled minibatches; stops early when the
     /// approximate KL exceeds `config.target_kl`.
-    pub fn update(&mut self, batch: &Batch, rng: &mut impl Rng) -> Result<UpdateStats, String> {
+    pub fn update(&mut self, batch: &Batch, rng: &mut impl Rng) -> Result<UpdateStats, TrainError> {
         let n = batch.len();
         let mb = self.config.minibatch_size.min(n);
         if mb < 2 {
-            return Err(format!("batch of {n} samples is too small for an update"));
+            return Err(TrainError::BatchTooSmall { samples: n });
         }
         let mut order: Vec<usize> = (0..n).collect();
         let mut sums = UpdateStats::default();
@@ -300,20 +301,48 @@ impl Ppo {
     }
 
     /// Forward, loss, backward, global-norm clip and Adam on the samples `idx` of `batch`.
-    pub fn minibatch_step(&mut self, batch: &Batch, idx: &[usize]) -> Result<UpdateStats, String> {
-        let c = &self.config;
-        let rows = Minibatch::gather(batch, idx, c.normalize_advantages);
-        let b = rows.len;
-        let kernel =
-            ConvKernel::from_name(&c.conv_kernel).map_err(|e| format!("ppo.conv_kernel: {e}"))?;
+    pub fn minibatch_step(
+        &mut self,
+        batch: &Batch,
+        idx: &[usize],
+    ) -> Result<UpdateStats, TrainError> {
+        let mut rows = Minibatch::gather(batch, idx, self.config.normalize_advantages);
         let device = self.device.clone().autodiff();
-        // Native kernel: the conv features enter burn's graph as a leaf whose gradient feeds
-        // the kernel's backward below; burn differentiates everything after them.
-        let (net, fwd, features_leaf) = match kernel {
+        let tracked = self.forward_tracked(&mut rows, &device)?;
+        let loss = ppo_loss(tracked.forward, rows.loss_inputs(&device), &self.config);
+        let mut grads = self.gradients(&tracked.net, tracked.features_leaf, &loss.total)?;
+        let stats = loss.stats(self.config.clip_epsilon);
+        if !stats.policy_loss.is_finite() || !stats.value_loss.is_finite() {
+            return Err(TrainError::Diverged {
+                policy_loss: stats.policy_loss,
+                value_loss: stats.value_loss,
+            });
+        }
+        let c = &self.config;
+        clip_global_norm(&mut grads, c.max_grad_norm);
+        self.adam
+            .apply(&mut self.net, &grads, c.learning_rate, c.adam_epsilon);
+        Ok(stats)
+    }
+
+    /// The minibatch's forward pass in a graph burn can differentiate. With the native kernel
+    /// the conv features enter the graph as a leaf whose gradient [`Ppo::gradients`] feeds to
+    /// the kernel's backward; burn differentiates everything after them.
+    fn forward_tracked(
+        &mut self,
+        rows: &mut Minibatch,
+        device: &Device,
+    ) -> Result<TrackedForward, TrainError> {
+        let b = rows.len;
+        match ConvKernel::from_name(&self.config.conv_kernel)? {
             ConvKernel::Burn => {
-                let net = Net::new(&self.net, &device, true)?;
-                let fwd = net.forward(rows.heights, rows.states, b);
-                (net, fwd, None)
+                let net = Net::new(&self.net, device, true)?;
+                let forward = net.forward(take(&mut rows.heights), take(&mut rows.states), b);
+                Ok(TrackedForward {
+                    net,
+                    forward,
+                    features_leaf: None,
+                })
             }
             ConvKernel::Native => {
                 let arch = &self.net.arch;
@@ -327,32 +356,34 @@ impl Ppo {
                 )?;
                 let leaf = Tensor::<2>::from_data(
                     TensorData::new(features, [b, arch.features_len()]),
-                    &device,
+                    device,
                 )
                 .require_grad();
-                let net = Net::with_tracking(&self.net, &device, false, true)?;
-                let fwd = net.forward_from_features(leaf.clone(), rows.states, b);
-                (net, fwd, Some(leaf))
+                let net = Net::with_tracking(&self.net, device, false, true)?;
+                let forward = net.forward_from_features(leaf.clone(), take(&mut rows.states), b);
+                Ok(TrackedForward {
+                    net,
+                    forward,
+                    features_leaf: Some(leaf),
+                })
             }
-        };
-        let data1 = |v: Vec<f32>| Tensor::<1>::from_data(TensorData::new(v, [b]), &device);
-        let one_hot =
-            Tensor::<3>::from_data(TensorData::new(rows.one_hot, [b, DIMS, CHOICES]), &device);
-        let imitates = rows.imitation.iter().any(|&w| w != 0.0);
-        let loss = ppo_loss(
-            fwd,
-            one_hot,
-            data1(rows.old_log_probs),
-            data1(rows.advantages),
-            data1(rows.returns),
-            imitates.then(|| data1(rows.imitation)),
-            c,
-        );
-        let grads = loss.total.backward();
+        }
+    }
+
+    /// Every parameter's gradient of `total`, in `network::parameters` order: burn's for the
+    /// layers in its graph, the native kernel's for the convs when `features_leaf` stands in
+    /// for them.
+    fn gradients(
+        &mut self,
+        net: &Net,
+        features_leaf: Option<Tensor<2>>,
+        total: &Tensor<1>,
+    ) -> Result<Vec<Vec<f32>>, TrainError> {
+        let grads = total.backward();
         let mut g = net.gradients(&grads);
         if let Some(leaf) = features_leaf {
-            let d_features =
-                network::grad_vec(&leaf, &grads).ok_or("no gradient reached the conv features")?;
+            let d_features = network::grad_vec(&leaf, &grads)
+                .ok_or_else(|| TrainError::Shape("no gradient reached the conv features".into()))?;
             let conv_grads =
                 conv_kernel::backward(&self.net.convs, &mut self.conv_tape, &d_features)?;
             // `parameters` order starts with each conv's weights then bias.
@@ -361,35 +392,18 @@ impl Ppo {
                 g[2 * l + 1] = cg.bias;
             }
         }
-
-        let (approx_kl, clip_fraction) =
-            ratio_diagnostics(&network::to_vec(loss.log_ratio.detach()), c.clip_epsilon);
-        let scalar = |t: Tensor<1>| {
-            network::to_vec(t.detach())
-                .first()
-                .copied()
-                .unwrap_or(f32::NAN)
-        };
-        let stats = UpdateStats {
-            policy_loss: scalar(loss.policy),
-            value_loss: scalar(loss.value),
-            entropy: scalar(loss.entropy),
-            approx_kl,
-            clip_fraction,
-            gradient_steps: 1,
-            kl_stopped: false,
-        };
-        if !stats.policy_loss.is_finite() || !stats.value_loss.is_finite() {
-            return Err(format!(
-                "loss became non-finite (policy {}, value {}): lower ppo.learning_rate",
-                stats.policy_loss, stats.value_loss
-            ));
-        }
-        clip_global_norm(&mut g, c.max_grad_norm);
-        self.adam
-            .apply(&mut self.net, &g, c.learning_rate, c.adam_epsilon);
-        Ok(stats)
+        Ok(g)
     }
+}
+
+/// A minibatch's forward pass with the graph its gradients come from.
+struct TrackedForward {
+    /// The layers burn differentiates.
+    net: Net,
+    /// Their outputs.
+    forward: network::Forward,
+    /// The conv features as a graph leaf, when the native kernel computed them.
+    features_leaf: Option<Tensor<2>>,
 }
 
 /// The samples of one minibatch, gathered from a rollout [`Batch`] for the loss.
@@ -445,6 +459,24 @@ impl Minibatch {
         }
         rows
     }
+
+    /// The loss's per-sample inputs as tensors on `device` (the height maps and states have
+    /// gone to the forward pass).
+    fn loss_inputs(self, device: &Device) -> LossInputs {
+        let b = self.len;
+        let data1 = |v: Vec<f32>| Tensor::<1>::from_data(TensorData::new(v, [b]), device);
+        let imitates = self.imitation.iter().any(|&w| w != 0.0);
+        LossInputs {
+            one_hot: Tensor::<3>::from_data(
+                TensorData::new(self.one_hot, [b, DIMS, CHOICES]),
+                device,
+            ),
+            old_log_probs: data1(self.old_log_probs),
+            advantages: data1(self.advantages),
+            returns: data1(self.returns),
+            imitation: imitates.then(|| data1(self.imitation)),
+        }
+    }
 }
 
 /// The loss of one minibatch and its terms, on the autodiff device.
@@ -461,19 +493,31 @@ struct Loss {
     log_ratio: Tensor<1>,
 }
 
-/// The paper's loss (the module's Eq. 1 and 2) on the forward pass `fwd` of a minibatch whose
-/// actions are `one_hot`, with the rollout's log-probabilities `old_log_probs`, advantages and
-/// returns: `lambda_1 * -eta_PPO + lambda_2 * L_v - c_H * H`, and where `imitation` weights
-/// replayed samples, their behaviour cloning `-mean(w * log pi(a|s))`.
-fn ppo_loss(
-    fwd: network::Forward,
+/// What the loss reads besides the forward pass, one entry per sample.
+struct LossInputs {
+    /// `[b, DIMS, CHOICES]`: each head's action taken, one-hot.
     one_hot: Tensor<3>,
+    /// `log pi_old(a|s)` from the rollout.
     old_log_probs: Tensor<1>,
+    /// `A`, the advantages.
     advantages: Tensor<1>,
+    /// The value targets.
     returns: Tensor<1>,
+    /// Behaviour cloning weights of replayed and labelled samples; `None` when all are 0.
     imitation: Option<Tensor<1>>,
-    c: &PpoConfig,
-) -> Loss {
+}
+
+/// The paper's loss (the module's Eq. 1 and 2) on the forward pass `fwd` of a minibatch:
+/// `lambda_1 * -eta_PPO + lambda_2 * L_v - c_H * H`, and where `imitation` weights replayed
+/// samples, their behaviour cloning `-mean(w * log pi(a|s))`.
+fn ppo_loss(fwd: network::Forward, inputs: LossInputs, c: &PpoConfig) -> Loss {
+    let LossInputs {
+        one_hot,
+        old_log_probs,
+        advantages,
+        returns,
+        imitation,
+    } = inputs;
     let b = advantages.dims()[0];
     // psi = pi(a|s) / pi_old(a|s), from the sum of the five heads' log-probabilities.
     let new_lp: Tensor<1> = (fwd.log_probs.clone() * one_hot)
@@ -508,6 +552,31 @@ fn ppo_loss(
         value,
         entropy,
         log_ratio,
+    }
+}
+
+impl Loss {
+    /// The minibatch's diagnostics: the loss terms' values and the ratio's KL and clip fraction.
+    fn stats(&self, clip_epsilon: f32) -> UpdateStats {
+        let (approx_kl, clip_fraction) = ratio_diagnostics(
+            &network::to_vec(self.log_ratio.clone().detach()),
+            clip_epsilon,
+        );
+        let scalar = |t: &Tensor<1>| {
+            network::to_vec(t.clone().detach())
+                .first()
+                .copied()
+                .unwrap_or(f32::NAN)
+        };
+        UpdateStats {
+            policy_loss: scalar(&self.policy),
+            value_loss: scalar(&self.value),
+            entropy: scalar(&self.entropy),
+            approx_kl,
+            clip_fraction,
+            gradient_steps: 1,
+            kl_stopped: false,
+        }
     }
 }
 

@@ -19,6 +19,7 @@
 //! - `replay_balance = "behaviour"`: draw a behaviour uniformly, then one of its
 //!   trajectories, so each behaviour gets an equal share however many successes it stored.
 
+use crate::error::TrainError;
 use crate::ppo::Ppo;
 use crate::storage::{Batch, RolloutStorage};
 use crate::trajectory::batch_file::TrajectoryBatch;
@@ -57,7 +58,7 @@ pub fn replay_samples(
     batch: &TrajectoryBatch,
     options: &ReplayOptions,
     rng: &mut impl Rng,
-) -> Result<Batch, String> {
+) -> Result<Batch, TrainError> {
     let steps = options.steps;
     let mut out = Batch::default();
     if batch.is_empty() || steps == 0 {
@@ -72,10 +73,10 @@ pub fn replay_samples(
         };
         let trajectory = batch
             .trajectory(index)
-            .ok_or_else(|| format!("trajectory batch has no trajectory {index}"))?;
+            .ok_or(TrainError::NoTrajectory { index })?;
         let replayed = trajectory
             .replay_observations(env_config)
-            .map_err(|e| format!("replaying trajectory {index}: {e}"))?;
+            .map_err(|e| TrainError::stage(format!("replaying trajectory {index}"), e))?;
         let n = replayed.len();
         if n == 0 {
             continue;

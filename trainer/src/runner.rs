@@ -7,6 +7,7 @@
 
 use crate::checkpoint::{Checkpoint, CheckpointExtras, NetworkRecord, StartStageState};
 use crate::config::TrainConfig;
+use crate::error::TrainError;
 use crate::network::{init_policy, BackendKind};
 use crate::network_f32::NetworkF32;
 use crate::ppo::Ppo;
@@ -102,7 +103,7 @@ pub struct StageInputs<'a> {
 }
 
 /// Trains a policy with PPO on fresh scenes of `config.run.scene_kind` (the baseline).
-pub fn train(config: &TrainConfig, opts: &RunOptions) -> Result<RunSummary, String> {
+pub fn train(config: &TrainConfig, opts: &RunOptions) -> Result<RunSummary, TrainError> {
     train_stage(config, opts, StageInputs::default())
 }
 
@@ -111,21 +112,28 @@ pub fn train_stage(
     config: &TrainConfig,
     opts: &RunOptions,
     inputs: StageInputs<'_>,
-) -> Result<RunSummary, String> {
+) -> Result<RunSummary, TrainError> {
     config.validate()?;
     let run = &config.run;
-    let kind = SceneKind::from_name(&run.scene_kind).ok_or("bad run.scene_kind")?;
+    let kind = SceneKind::from_name(&run.scene_kind).ok_or_else(|| {
+        TrainError::setting(
+            "run.scene_kind",
+            format!("{:?} is no kind of scene", run.scene_kind),
+        )
+    })?;
     wheelleg_sim::generate::SceneRobot::of(&config.robot.robot.geometry)
         .has_kind(kind)
         .map_err(|why| {
-            format!(
-                "run.scene_kind {}: robot '{}' has no such scenes: {why}",
-                run.scene_kind, config.robot.name
+            TrainError::setting(
+                "run.scene_kind",
+                format!(
+                    "{}: robot '{}' has no such scenes: {why}",
+                    run.scene_kind, config.robot.name
+                ),
             )
         })?;
     let device = BackendKind::from_name(&run.backend)?.device()?;
-    std::fs::create_dir_all(&opts.out)
-        .map_err(|e| format!("cannot create {}: {e}", opts.out.display()))?;
+    std::fs::create_dir_all(&opts.out).map_err(|e| TrainError::io(&opts.out, "create", e))?;
     let ckpt_path = opts.out.join(CHECKPOINT_FILE);
     let metrics_path = opts.out.join(METRICS_FILE);
     let env_config = config.episode_rules();
@@ -172,33 +180,28 @@ pub fn train_stage(
         extras.check_robot(&config.robot, &ckpt_path.display().to_string())?;
         let changes = config
             .changes_from_stored(&c.config_toml, inputs.resume_keeps)
-            .map_err(|e| format!("{}: {e}", ckpt_path.display()))?;
+            .map_err(|e| TrainError::in_file(&ckpt_path, e))?;
         if !changes.is_empty() {
-            return Err(format!(
-                "{} was written with a different config ({}); resume with the run's own {}",
-                ckpt_path.display(),
-                changes.join(", "),
-                opts.out.join("config.toml").display()
-            ));
+            return Err(TrainError::ConfigChanged {
+                checkpoint: ckpt_path,
+                changes,
+                config: opts.out.join("config.toml"),
+            });
         }
         if c.seed != opts.seed {
-            return Err(format!(
-                "{} belongs to seed {}, not {}",
-                ckpt_path.display(),
-                c.seed,
-                opts.seed
-            ));
+            return Err(TrainError::SeedChanged {
+                checkpoint: ckpt_path,
+                stored: c.seed,
+                requested: opts.seed,
+            });
         }
         ppo.net = c.network.to_network()?;
         ppo.adam = c.adam;
         sampler.set_word_pos(c.sampler_word_pos);
         envs.restore(env_seed, &c.envs)?;
         if let Some(schedule) = schedule.as_mut() {
-            let state = extras.start_stage.ok_or_else(|| {
-                format!(
-                    "{} holds no start-stage state but the config has run.start_stage < 1",
-                    ckpt_path.display()
-                )
+            let state = extras.start_stage.ok_or_else(|| TrainError::NoStartStage {
+                checkpoint: ckpt_path.clone(),
             })?;
             schedule.restore(state.stage, &state.window)?;
             envs.set_stage(state.stage);
@@ -210,23 +213,20 @@ pub fn train_stage(
         }
         (iteration, env_steps, elapsed_before) = (c.iteration, c.env_steps, c.elapsed_s);
         if inputs.record.is_some() && trajectories_path.exists() {
-            let stored = TrajectoryBatch::load(&trajectories_path).map_err(|e| e.to_string())?;
+            let stored = TrajectoryBatch::load(&trajectories_path)?;
             solved.extend((0..stored.len()).filter_map(|i| stored.trajectory(i)));
         }
         truncate_metrics(&metrics_path, iteration)?;
         // A resume may change the budget and the other resumable keys: the folder's config
         // then says what the run now is, as the checkpoint does.
-        wheelleg_sim::atomic_write(&opts.out.join("config.toml"), config.to_toml().as_bytes())
-            .map_err(|e| format!("cannot write config.toml: {e}"))?;
+        write_config(config, &opts.out)?;
     } else {
         if ckpt_path.exists() {
-            return Err(format!(
-                "{} already holds a run; pass --resume to continue it or choose another --out",
-                opts.out.display()
-            ));
+            return Err(TrainError::RunExists {
+                out: opts.out.clone(),
+            });
         }
-        wheelleg_sim::atomic_write(&opts.out.join("config.toml"), config.to_toml().as_bytes())
-            .map_err(|e| format!("cannot write config.toml: {e}"))?;
+        write_config(config, &opts.out)?;
         let _ = std::fs::remove_file(&metrics_path);
     }
 
@@ -235,13 +235,12 @@ pub fn train_stage(
     } else {
         ProgressBar::hidden()
     };
-    bar.set_style(
-        ProgressStyle::with_template(
-            "{elapsed_precise} [{bar:30}] {human_pos}/{human_len} steps, ETA {eta} | {msg}",
-        )
-        .map_err(|e| e.to_string())?
-        .progress_chars("=> "),
-    );
+    // A constant template, so it parses; the default bar stands in should indicatif refuse it.
+    let style = ProgressStyle::with_template(
+        "{elapsed_precise} [{bar:30}] {human_pos}/{human_len} steps, ETA {eta} | {msg}",
+    )
+    .unwrap_or_else(|_| ProgressStyle::default_bar());
+    bar.set_style(style.progress_chars("=> "));
     bar.set_position(env_steps);
 
     let mut storage = RolloutStorage::new(n, steps_per_env);
@@ -430,15 +429,22 @@ fn mix_at(run: &crate::config::RunConfig, env_steps: u64) -> (f64, f64) {
 }
 
 /// The fence of the run's exit scenes (`run.exit_behaviour`).
-fn exit_behaviour(run: &crate::config::RunConfig) -> Result<Behaviour, String> {
+fn exit_behaviour(run: &crate::config::RunConfig) -> Result<Behaviour, TrainError> {
     Behaviour::from_name(&run.exit_behaviour)
         .filter(|b| b.has_fence())
         .ok_or_else(|| {
-            format!(
-                "run.exit_behaviour: no fence named {:?}",
-                run.exit_behaviour
+            TrainError::setting(
+                "run.exit_behaviour",
+                format!("no fence named {:?}", run.exit_behaviour),
             )
         })
+}
+
+/// Writes the run's config into its folder (atomically), as `config.toml`.
+fn write_config(config: &TrainConfig, out: &Path) -> Result<(), TrainError> {
+    let path = out.join("config.toml");
+    wheelleg_sim::atomic_write(&path, config.to_toml().as_bytes())
+        .map_err(|e| TrainError::io(&path, "write", e))
 }
 
 /// Writes the stored trajectories as a trajectory batch of originals only (no randomized
@@ -449,7 +455,7 @@ fn save_trajectories(
     trajectories: &[Trajectory],
     env: EnvConfig,
     robot: &wheelleg_robot::RobotDescription,
-) -> Result<(), String> {
+) -> Result<(), TrainError> {
     let temp = path.with_extension("new");
     let _ = std::fs::remove_file(&temp);
     let _ = std::fs::remove_file(partial_path(&temp));
@@ -460,8 +466,8 @@ fn save_trajectories(
         robot: robot.clone(),
         ..RandomizeConfig::default()
     };
-    randomize_batch_with(trajectories, &config, &temp, |_| {}).map_err(|e| e.to_string())?;
-    std::fs::rename(&temp, path).map_err(|e| format!("cannot write {}: {e}", path.display()))
+    randomize_batch_with(trajectories, &config, &temp, |_| {})?;
+    std::fs::rename(&temp, path).map_err(|e| TrainError::io(path, "write", e))
 }
 
 #[cfg(test)]

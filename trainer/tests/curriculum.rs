@@ -16,6 +16,7 @@ use wheelleg_trainer::curriculum::{
 use wheelleg_trainer::runner::{read_metrics, CHECKPOINT_FILE};
 use wheelleg_trainer::trajectory::batch_file::TrajectoryBatch;
 use wheelleg_trainer::trajectory::expert_labels::{label_batch, LabelConfig};
+use wheelleg_trainer::TrainError;
 
 fn tiny_config() -> TrainConfig {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/smoke.toml");
@@ -111,7 +112,9 @@ fn the_primary_stage_names_the_missing_batch() {
         progress: false,
         stop_at_env_steps: None,
     };
-    let e = wheelleg_trainer::curriculum::run_primary(&tiny_config(), &opts).unwrap_err();
+    let e = wheelleg_trainer::curriculum::run_primary(&tiny_config(), &opts)
+        .unwrap_err()
+        .to_string();
     assert!(
         e.contains("batch.wltb") && e.contains("wheelleg train randomize"),
         "{e}"
@@ -222,6 +225,7 @@ fn a_primary_fine_tunes_from_a_checkpoint_on_several_batches() {
     assert!(both
         .append(foreign)
         .unwrap_err()
+        .to_string()
         .contains("different episode rules"));
 
     let init = PathBuf::from(concat!(
@@ -242,7 +246,11 @@ fn a_primary_fine_tunes_from_a_checkpoint_on_several_batches() {
     let mut narrow = config.clone();
     narrow.network.hidden = vec![64];
     let e = run_primary_with(&narrow, &opts, &inputs).unwrap_err();
-    assert!(e.contains("[network]"), "{e}");
+    assert!(
+        matches!(&e, TrainError::NetworkMismatch { path, .. } if *path == init),
+        "{e}"
+    );
+    assert!(e.to_string().contains("[network]"), "{e}");
 
     let summary = run_primary_with(&config, &opts, &inputs).unwrap();
     assert_eq!(summary.env_steps, 2000);
@@ -323,6 +331,15 @@ fn a_primary_fine_tunes_from_a_checkpoint_on_several_batches() {
     let mut no_label_steps = config.clone();
     no_label_steps.curriculum.label_steps_per_iteration = 0;
     let e = with_labels(&no_label_steps, "no-label-steps").unwrap_err();
-    assert!(e.contains("curriculum.label_steps_per_iteration"), "{e}");
+    assert!(
+        matches!(
+            e,
+            TrainError::Setting {
+                key: "curriculum.label_steps_per_iteration",
+                ..
+            }
+        ),
+        "{e}"
+    );
     let _ = std::fs::remove_dir_all(&out);
 }

@@ -16,6 +16,7 @@ use wheelleg_trainer::export::{export_policy, ExportOptions};
 use wheelleg_trainer::network::BackendKind;
 use wheelleg_trainer::quantize::Int8Policy;
 use wheelleg_trainer::runner::{read_metrics, train, train_stage, RunOptions, StageInputs};
+use wheelleg_trainer::TrainError;
 
 fn temp_dir(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("wheelleg-{name}-{}", std::process::id()));
@@ -129,7 +130,8 @@ fn a_resumed_run_matches_an_uninterrupted_one() {
     // "Killed" after two iterations, then resumed.
     train(&config, &opts(split.clone(), false, Some(2))).unwrap();
     let refused = train(&config, &opts(split.clone(), false, None)).unwrap_err();
-    assert!(refused.contains("--resume"), "{refused}");
+    assert!(matches!(refused, TrainError::RunExists { .. }), "{refused}");
+    assert!(refused.to_string().contains("--resume"), "{refused}");
     let b = train(&config, &opts(split.clone(), true, None)).unwrap();
     let (ca, cb) = (
         Checkpoint::load(&a.checkpoint).unwrap(),
@@ -149,7 +151,9 @@ fn a_resumed_run_matches_an_uninterrupted_one() {
     // A different config is refused.
     let mut other = config.clone();
     other.ppo.clip_epsilon *= 2.0;
-    let e = train(&other, &opts(split.clone(), true, None)).unwrap_err();
+    let e = train(&other, &opts(split.clone(), true, None))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("different config"), "{e}");
     assert!(
         e.contains("ppo.clip_epsilon: "),
@@ -162,7 +166,9 @@ fn a_resumed_run_matches_an_uninterrupted_one() {
         resume_keeps: &["replay_imitation_coef"],
         ..StageInputs::default()
     };
-    let e = train_stage(&replay, &opts(split.clone(), true, None), keeps).unwrap_err();
+    let e = train_stage(&replay, &opts(split.clone(), true, None), keeps)
+        .unwrap_err()
+        .to_string();
     assert!(
         e.contains("curriculum.replay_imitation_coef: 0.0 -> 0.5"),
         "{e}"

@@ -137,7 +137,7 @@ fn fine_tuning_is_deterministic_and_checks_its_inputs() {
         ..options.clone()
     })
     .unwrap_err();
-    assert!(error.contains("learning rate"), "{error}");
+    assert!(error.to_string().contains("learning rate"), "{error}");
     let short = vec![(vec![0.0; 10], vec![0.0; 4])];
     let error = fine_tune(
         &network,
@@ -148,7 +148,7 @@ fn fine_tuning_is_deterministic_and_checks_its_inputs() {
         &options,
     )
     .unwrap_err();
-    assert!(error.contains("cells"), "{error}");
+    assert!(error.to_string().contains("cells"), "{error}");
     let error = fine_tune(&network, &device, &[], &observations, &settings, &options).unwrap_err();
-    assert!(error.contains("observations"), "{error}");
+    assert!(error.to_string().contains("observations"), "{error}");
 }

@@ -73,9 +73,10 @@ impl TrainConfig {
             (0.0..=1.0).contains(&r.failure_resample_probability),
             "run.failure_resample_probability must be in [0, 1] (0: off)",
         )?;
-        crate::network::BackendKind::from_name(&r.backend).map_err(ConfigError::Invalid)?;
+        crate::network::BackendKind::from_name(&r.backend)
+            .map_err(|e| ConfigError::Invalid(e.to_string()))?;
         crate::conv_kernel::ConvKernel::from_name(&p.conv_kernel)
-            .map_err(|e| ConfigError::Invalid(format!("ppo.conv_kernel: {e}")))?;
+            .map_err(|e| ConfigError::Invalid(e.to_string()))?;
         check(p.learning_rate > 0.0, "ppo.learning_rate must be positive")?;
         check(
             p.learning_rate_final.is_none_or(|lr| lr >= 0.0),

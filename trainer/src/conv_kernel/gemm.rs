@@ -15,6 +15,8 @@
 
 #![allow(unsafe_code)]
 
+use crate::error::TrainError;
+
 /// A read-only matrix view: element `(r, c)` is `data[r * row_stride + c * col_stride]`.
 #[derive(Clone, Copy, Debug)]
 pub struct MatRef<'a> {
@@ -73,22 +75,24 @@ pub fn matmul(
     lhs: MatRef<'_>,
     rhs: MatRef<'_>,
     accumulate: bool,
-) -> Result<(), String> {
+) -> Result<(), TrainError> {
     let (m, k, n) = (lhs.rows, lhs.cols, rhs.cols);
     if rhs.rows != k {
-        return Err(format!(
+        return Err(TrainError::Shape(format!(
             "matmul: lhs is {m}x{k} but rhs has {} rows",
             rhs.rows
-        ));
+        )));
     }
     if dst.len() != m * n {
-        return Err(format!(
+        return Err(TrainError::Shape(format!(
             "matmul: destination holds {} values, expected {m}x{n}",
             dst.len()
-        ));
+        )));
     }
     if !lhs.fits() || !rhs.fits() {
-        return Err("matmul: a matrix view reaches past its slice".into());
+        return Err(TrainError::Shape(
+            "matmul: a matrix view reaches past its slice".into(),
+        ));
     }
     if m == 0 || n == 0 {
         return Ok(());

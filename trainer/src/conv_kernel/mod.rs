@@ -32,6 +32,7 @@ mod im2col;
 
 use self::gemm::{matmul, MatRef};
 use self::im2col::{col2im, im2col};
+use crate::error::TrainError;
 use crate::network_f32::{Conv2dF32, ConvSpec};
 use rayon::prelude::*;
 
@@ -51,12 +52,13 @@ pub enum ConvKernel {
 
 impl ConvKernel {
     /// Parses a name as used in configs (`ppo.conv_kernel`).
-    pub fn from_name(name: &str) -> Result<ConvKernel, String> {
+    pub fn from_name(name: &str) -> Result<ConvKernel, TrainError> {
         match name {
             "native" => Ok(ConvKernel::Native),
             "burn" => Ok(ConvKernel::Burn),
-            other => Err(format!(
-                "unknown conv kernel {other:?} (expected \"native\" or \"burn\")"
+            other => Err(TrainError::setting(
+                "ppo.conv_kernel",
+                format!("unknown conv kernel {other:?} (expected \"native\" or \"burn\")"),
             )),
         }
     }
@@ -138,35 +140,35 @@ fn set_len(v: &mut Vec<f32>, len: usize) -> &mut [f32] {
 }
 
 /// Checks the layers against each other and the map size; returns each layer's geometry.
-fn geometry(convs: &[Conv2dF32], rows: usize, cols: usize) -> Result<Vec<Geometry>, String> {
+fn geometry(convs: &[Conv2dF32], rows: usize, cols: usize) -> Result<Vec<Geometry>, TrainError> {
     let (mut h, mut w, mut channels) = (rows, cols, 1);
     let mut out = Vec::with_capacity(convs.len());
     for (i, c) in convs.iter().enumerate() {
         let s = c.spec;
         if s.in_channels != channels {
-            return Err(format!(
+            return Err(TrainError::Shape(format!(
                 "conv {i} reads {} channels but its input has {channels}",
                 s.in_channels
-            ));
+            )));
         }
         if s.kernel == 0
             || s.stride == 0
             || h + 2 * s.padding < s.kernel
             || w + 2 * s.padding < s.kernel
         {
-            return Err(format!(
+            return Err(TrainError::Shape(format!(
                 "conv {i}: kernel {} stride {} padding {} does not fit a {h}x{w} input",
                 s.kernel, s.stride, s.padding
-            ));
+            )));
         }
         let weights = s.out_channels * s.in_channels * s.kernel * s.kernel;
         if c.weights.len() != weights || c.bias.len() != s.out_channels {
-            return Err(format!(
+            return Err(TrainError::Shape(format!(
                 "conv {i}: {} weights and {} biases, expected {weights} and {}",
                 c.weights.len(),
                 c.bias.len(),
                 s.out_channels
-            ));
+            )));
         }
         let g = Geometry {
             spec: s,
@@ -225,7 +227,7 @@ pub fn forward(
     cols: usize,
     heights_m: &[f32],
     batch: usize,
-) -> Result<(Vec<f32>, ConvTape), String> {
+) -> Result<(Vec<f32>, ConvTape), TrainError> {
     let mut tape = ConvTape::default();
     let features = forward_into(convs, rows, cols, heights_m, batch, &mut tape)?;
     Ok((features, tape))
@@ -238,7 +240,7 @@ pub fn features(
     cols: usize,
     heights_m: &[f32],
     batch: usize,
-) -> Result<Vec<f32>, String> {
+) -> Result<Vec<f32>, TrainError> {
     forward(convs, rows, cols, heights_m, batch).map(|(f, _)| f)
 }
 
@@ -250,15 +252,15 @@ pub fn forward_into(
     heights_m: &[f32],
     batch: usize,
     tape: &mut ConvTape,
-) -> Result<Vec<f32>, String> {
+) -> Result<Vec<f32>, TrainError> {
     tape.batch = 0;
     tape.geometry = geometry(convs, rows, cols)?;
     let map_len = rows * cols;
     if heights_m.len() != batch * map_len {
-        return Err(format!(
+        return Err(TrainError::Shape(format!(
             "conv forward: {} height values for {batch} maps of {rows}x{cols}",
             heights_m.len()
-        ));
+        )));
     }
     tape.weights_hwc = convs.iter().map(|c| to_hwc(&c.weights, c.spec)).collect();
     let per_sample = features_len(&tape.geometry, rows, cols);
@@ -297,7 +299,7 @@ fn forward_chunk(
     samples: usize,
     chunk: &mut ChunkTape,
     features: &mut [f32],
-) -> Result<(), String> {
+) -> Result<(), TrainError> {
     chunk.samples = samples;
     chunk.cols.resize_with(convs.len(), Vec::new);
     chunk.outs.resize_with(convs.len(), Vec::new);
@@ -348,7 +350,7 @@ pub fn backward(
     convs: &[Conv2dF32],
     tape: &mut ConvTape,
     d_features: &[f32],
-) -> Result<Vec<ConvGradients>, String> {
+) -> Result<Vec<ConvGradients>, TrainError> {
     if convs.len() != tape.geometry.len()
         || convs
             .iter()
@@ -360,21 +362,25 @@ pub fn backward(
                     || c.bias.len() != c.spec.out_channels
             })
     {
-        return Err("conv backward: the layers differ from the recorded forward pass".into());
+        return Err(TrainError::Shape(
+            "conv backward: the layers differ from the recorded forward pass".into(),
+        ));
     }
     let Some(last) = tape.geometry.last() else {
         return Ok(Vec::new());
     };
     let per_sample = last.spec.out_channels * last.out_pixels();
     if d_features.len() != tape.batch * per_sample {
-        return Err(format!(
+        return Err(TrainError::Shape(format!(
             "conv backward: {} feature gradients for {} samples of {per_sample}",
             d_features.len(),
             tape.batch
-        ));
+        )));
     }
     if tape.chunks.iter().map(|c| c.samples).sum::<usize>() != tape.batch {
-        return Err("conv backward: the tape holds no complete forward pass".into());
+        return Err(TrainError::Shape(
+            "conv backward: the tape holds no complete forward pass".into(),
+        ));
     }
     let mut starts = Vec::with_capacity(tape.chunks.len());
     let mut start = 0;
@@ -391,7 +397,7 @@ pub fn backward(
             let d = &d_features[start..start + chunk.samples * per_sample];
             backward_chunk(geometry, weights, chunk, d)
         })
-        .collect::<Result<_, String>>()?;
+        .collect::<Result<_, TrainError>>()?;
     // Fixed summation order (chunk order): the same bits for any thread count.
     let mut total: Vec<ConvGradients> = convs
         .iter()
@@ -422,7 +428,7 @@ fn backward_chunk(
     weights_hwc: &[Vec<f32>],
     chunk: &mut ChunkTape,
     d_features: &[f32],
-) -> Result<Vec<ConvGradients>, String> {
+) -> Result<Vec<ConvGradients>, TrainError> {
     let samples = chunk.samples;
     let layers = geometry.len();
     let mut grads: Vec<Option<ConvGradients>> = vec![None; layers];
@@ -446,7 +452,11 @@ fn backward_chunk(
         let (g, w) = (&geometry[l], &weights_hwc[l]);
         let (out, col) = match (chunk.outs.get(l), chunk.cols.get(l)) {
             (Some(o), Some(c)) => (o, c),
-            _ => return Err("conv backward: the tape holds no complete forward pass".into()),
+            _ => {
+                return Err(TrainError::Shape(
+                    "conv backward: the tape holds no complete forward pass".into(),
+                ))
+            }
         };
         let d_out = &mut chunk.d_out;
         // Through the ReLU: the gradient passes where the pre-activation was positive, the

@@ -10,7 +10,7 @@ use wheelleg_stack::Preset;
 
 /// [`Fixated`] on `scenario` alone through `stack`, without the planner. What each layer
 /// does is tested with the stack (`stack/tests/episodes.rs`); here, what the report says.
-fn fixated_on(scenario: &Scenario, stack: StackConfig) -> Result<EvalReport, String> {
+fn fixated_on(scenario: &Scenario, stack: StackConfig) -> Result<EvalReport, TrainError> {
     let options = EvalOptions {
         stack,
         planner_expansions: 0,

@@ -2,6 +2,7 @@
 //! figure), per action dimension, on observations the calibration did not see.
 
 use super::Int8Policy;
+use crate::error::TrainError;
 use crate::network_f32::NetworkF32;
 use serde::Serialize;
 use wheelleg_runtime::action::{CHOICES, DIMS};
@@ -48,7 +49,7 @@ pub fn agreement(
     float: &NetworkF32,
     int8: &Int8Policy<'_>,
     observations: &[crate::evaluate::RecordedObservation],
-) -> Result<Agreement, String> {
+) -> Result<Agreement, TrainError> {
     let mut same = [0usize; DIMS];
     let mut whole = 0usize;
     let mut error_sum = 0.0f64;
@@ -56,7 +57,7 @@ pub fn agreement(
         let (float_logits, _) = float.forward(height_m, state);
         let int8_logits = int8
             .evaluate_m(height_m, state)
-            .map_err(|e| format!("int8 policy: {e:?}"))?
+            .map_err(TrainError::Infer)?
             .action_logits_f32();
         let mut all = true;
         for (dim, (f, q)) in float_logits

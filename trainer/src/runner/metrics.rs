@@ -2,6 +2,7 @@
 //! goes and cut back to the checkpoint on resume.
 
 use super::METRICS_FILE;
+use crate::error::TrainError;
 use crate::ppo::UpdateStats;
 use crate::vec_env::EpisodeStats;
 use serde::{Deserialize, Serialize};
@@ -82,19 +83,23 @@ pub fn summarise(episodes: &[EpisodeStats]) -> (f32, f32, f32, Option<f32>) {
     (mean_return, success, collision_free, steps)
 }
 
-pub(super) fn append_metrics(path: &Path, m: &IterationMetrics) -> Result<(), String> {
-    let line = serde_json::to_string(m).map_err(|e| e.to_string())?;
+pub(super) fn append_metrics(path: &Path, m: &IterationMetrics) -> Result<(), TrainError> {
+    let line = serde_json::to_string(m).map_err(|error| TrainError::Metrics {
+        path: path.to_path_buf(),
+        line: None,
+        error,
+    })?;
     let mut f = std::fs::OpenOptions::new()
         .create(true)
         .append(true)
         .open(path)
-        .map_err(|e| format!("cannot open {}: {e}", path.display()))?;
-    writeln!(f, "{line}").map_err(|e| format!("cannot write {}: {e}", path.display()))
+        .map_err(|e| TrainError::io(path, "open", e))?;
+    writeln!(f, "{line}").map_err(|e| TrainError::io(path, "write", e))
 }
 
 /// Drops metric lines after `iteration` (written after the checkpoint a resume starts from), so
 /// the log has each iteration exactly once.
-pub(super) fn truncate_metrics(path: &Path, iteration: u64) -> Result<(), String> {
+pub(super) fn truncate_metrics(path: &Path, iteration: u64) -> Result<(), TrainError> {
     let Ok(text) = std::fs::read_to_string(path) else {
         return Ok(());
     };
@@ -106,19 +111,22 @@ pub(super) fn truncate_metrics(path: &Path, iteration: u64) -> Result<(), String
         .map(|l| format!("{l}\n"))
         .collect();
     wheelleg_sim::atomic_write(path, kept.as_bytes())
-        .map_err(|e| format!("cannot rewrite {}: {e}", path.display()))
+        .map_err(|e| TrainError::io(path, "rewrite", e))
 }
 
 /// Reads a run's metrics (for plots).
-pub fn read_metrics(run: &Path) -> Result<Vec<IterationMetrics>, String> {
+pub fn read_metrics(run: &Path) -> Result<Vec<IterationMetrics>, TrainError> {
     let path = run.join(METRICS_FILE);
-    let text = std::fs::read_to_string(&path)
-        .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    let text = std::fs::read_to_string(&path).map_err(|e| TrainError::io(&path, "read", e))?;
     text.lines()
         .enumerate()
         .filter(|(_, l)| !l.trim().is_empty())
         .map(|(i, l)| {
-            serde_json::from_str(l).map_err(|e| format!("{} line {}: {e}", path.display(), i + 1))
+            serde_json::from_str(l).map_err(|error| TrainError::Metrics {
+                path: path.clone(),
+                line: Some(i + 1),
+                error,
+            })
         })
         .collect()
 }

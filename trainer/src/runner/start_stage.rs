@@ -1,6 +1,8 @@
 //! The start-stage curriculum's schedule (`run.start_stage`): which stage of the scenes a run
 //! draws next, advanced on the success of the episodes started at the current stage.
 
+use crate::error::TrainError;
+
 /// The start-stage curriculum's schedule (`run.start_stage`): the stage of the scenes drawn
 /// next, advanced by `run.start_stage_step` (up to 1, the task as specified) each time the
 /// success rate of the episodes started at the current stage, over the last
@@ -37,12 +39,12 @@ impl StartStageSchedule {
     }
 
     /// Continues from a checkpoint's stage and window.
-    pub fn restore(&mut self, stage: f32, window: &[(u32, u32)]) -> Result<(), String> {
+    pub fn restore(&mut self, stage: f32, window: &[(u32, u32)]) -> Result<(), TrainError> {
         if !(stage.is_finite() && (0.0..=1.0).contains(&stage)) || window.len() > self.window_len {
-            return Err(format!(
-                "checkpoint start stage {stage} with {} window entries does not fit this run",
-                window.len()
-            ));
+            return Err(TrainError::StartStageMismatch {
+                stage,
+                entries: window.len(),
+            });
         }
         self.stage = stage;
         self.window = window.iter().copied().collect();

@@ -39,6 +39,7 @@ use super::batch_file::{
 };
 use super::randomize::{randomize_source, RandomizeConfig};
 use super::Trajectory;
+use crate::error::TrainError;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use std::path::Path;
@@ -126,26 +127,35 @@ impl Default for LabelConfig {
 
 impl LabelConfig {
     /// Checks the settings, naming the first that cannot work.
-    pub fn check(&self) -> Result<(), String> {
-        self.stack.check()?;
+    pub fn check(&self) -> Result<(), TrainError> {
+        self.stack.check().map_err(TrainError::Stack)?;
         if self.every == 0 {
-            return Err("every must be at least 1 (1 labels every visited state)".into());
+            return Err(TrainError::setting(
+                "every",
+                "must be at least 1 (1 labels every visited state)",
+            ));
         }
         if self.planner_expansions == 0 {
-            return Err("the planner needs at least 1 expansion".into());
+            return Err(TrainError::setting(
+                "planner_expansions",
+                "the planner needs at least 1 expansion",
+            ));
         }
         if self.threads == 0 {
-            return Err("threads must be at least 1".into());
+            return Err(TrainError::setting("threads", "must be at least 1"));
         }
         if self.chunk_states == 0 {
-            return Err("chunk_states must be at least 1".into());
+            return Err(TrainError::setting("chunk_states", "must be at least 1"));
         }
         if let Some(set) = wheelleg_sim::seeds::measuring_set(self.seed) {
-            return Err(format!(
-                "seed {} makes {set}, which measure the policy; label scenes of another seed \
-                 ({} + round, say)",
-                self.seed,
-                wheelleg_sim::seeds::EXPERT_LABELS
+            return Err(TrainError::setting(
+                "seed",
+                format!(
+                    "{} makes {set}, which measure the policy; label scenes of another seed ({} + \
+                     round, say)",
+                    self.seed,
+                    wheelleg_sim::seeds::EXPERT_LABELS
+                ),
             ));
         }
         Ok(())
@@ -203,7 +213,7 @@ pub fn visited_states(
     policy: &dyn BatchPolicy,
     scenarios: &[Scenario],
     config: &LabelConfig,
-) -> Result<Visited, String> {
+) -> Result<Visited, TrainError> {
     config.check()?;
     let mut path: Vec<Vec<(u32, RobotState)>> = vec![Vec::new(); scenarios.len()];
     let mut decisions = 0u64;
@@ -223,7 +233,8 @@ pub fn visited_states(
                 seen.push((decision.env.steps(), state));
             }
         },
-    )?;
+    )
+    .map_err(TrainError::Stack)?;
     let mut visited = Visited {
         episodes: episodes.len(),
         decisions,
@@ -400,12 +411,14 @@ pub fn label_batch(
     config: &LabelConfig,
     out: &Path,
     mut progress: impl FnMut(Progress),
-) -> Result<LabelStats, String> {
+) -> Result<LabelStats, TrainError> {
     if scenarios.is_empty() {
-        return Err("no scenes to label".into());
+        return Err(TrainError::Nothing {
+            what: "scenes to label",
+        });
     }
     let visited = visited_states(policy, scenarios, config)?;
-    let header = config.header(&visited.states).map_err(|e| e.to_string())?;
+    let header = config.header(&visited.states)?;
     let mut stats = LabelStats {
         episodes: visited.episodes,
         successes: visited.successes,
@@ -414,22 +427,23 @@ pub fn label_batch(
         ..LabelStats::default()
     };
     if out.exists() {
-        let bytes = std::fs::read(out).map_err(|e| format!("{}: {e}", out.display()))?;
-        let (found, start) = parse_header(&bytes).map_err(|e| format!("{}: {e}", out.display()))?;
+        let bytes = std::fs::read(out).map_err(|e| TrainError::io(out, "read", e))?;
+        let (found, start) = parse_header(&bytes).map_err(|e| TrainError::in_file(out, e))?;
         if let Some((field, in_file, requested)) = found.first_difference(&header) {
-            return Err(format!(
-                "{} holds labels made with {field} = {in_file}, requested {requested} (another \
-                 policy, stack, scene set or planner setting): delete it or choose another --out",
-                out.display()
-            ));
+            return Err(TrainError::LabelsDiffer {
+                path: out.to_path_buf(),
+                field,
+                in_file,
+                requested,
+            });
         }
-        TrajectoryBatch::from_bytes(&bytes).map_err(|e| format!("{}: {e}", out.display()))?;
+        TrajectoryBatch::from_bytes(&bytes).map_err(|e| TrainError::in_file(out, e))?;
         stats.count_chunks(&scan_chunks(&bytes, &found, start).chunks);
         stats.resumed_at_state = stats.states;
         stats.file_bytes = bytes.len() as u64;
         return Ok(stats);
     }
-    let in_file = |e: BatchFileError| format!("{}: {e}", partial_path(out).display());
+    let in_file = |e: BatchFileError| TrainError::in_file(partial_path(out), e);
     let (mut writer, resume) = BatchWriter::resume(out, &header).map_err(in_file)?;
     stats.resumed_at_state = resume.next_source;
     stats.discarded_tail_bytes = resume.discarded_tail_bytes;
@@ -463,7 +477,7 @@ pub fn label_batch(
     stats.file_bytes = writer.bytes();
     writer
         .finish(out)
-        .map_err(|e| format!("{}: {e}", out.display()))?;
+        .map_err(|e| TrainError::in_file(out, e))?;
     Ok(stats)
 }
 
@@ -478,18 +492,16 @@ pub fn label_by_stack(
     states: &[Trajectory],
     first: u64,
     config: &LabelConfig,
-) -> Result<Vec<SourceRecord>, String> {
+) -> Result<Vec<SourceRecord>, TrainError> {
     let batches: Vec<&[Trajectory]> = states.chunks(EXPERT_BATCH_STATES).collect();
     let labelled = in_parallel(batches.len(), config.threads, |b| {
         let batch_first = first + (b * EXPERT_BATCH_STATES) as u64;
         label_stack_batch(policy, stack, batches[b], batch_first, config)
     })
-    .map_err(|b| {
-        format!(
-            "a labelling thread panicked at states {} to {}",
-            first + (b * EXPERT_BATCH_STATES) as u64,
-            first + (b * EXPERT_BATCH_STATES + batches[b].len()) as u64 - 1
-        )
+    .map_err(|b| TrainError::Panicked {
+        work: "labelling",
+        first: first + (b * EXPERT_BATCH_STATES) as u64,
+        last: first + (b * EXPERT_BATCH_STATES + batches[b].len()) as u64 - 1,
     })?;
     let mut records = Vec::with_capacity(states.len());
     for batch in labelled {
@@ -505,11 +517,12 @@ fn label_stack_batch(
     batch: &[Trajectory],
     batch_first: u64,
     config: &LabelConfig,
-) -> Result<Vec<SourceRecord>, String> {
+) -> Result<Vec<SourceRecord>, TrainError> {
     let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
     rng.set_stream(2 + batch_first);
     let scenarios: Vec<Scenario> = batch.iter().map(|t| t.scenario.clone()).collect();
-    let episodes = run_episodes(policy, &scenarios, stack, config.env, &mut rng, &mut |_| {})?;
+    let episodes = run_episodes(policy, &scenarios, stack, config.env, &mut rng, &mut |_| {})
+        .map_err(TrainError::Stack)?;
     batch
         .iter()
         .zip(episodes)
@@ -529,7 +542,7 @@ fn label_stack_batch(
                         record
                     })
             };
-            record.map_err(|e| e.to_string())
+            record.map_err(TrainError::from)
         })
         .collect()
 }
@@ -540,13 +553,17 @@ fn label_in_parallel(
     states: &[Trajectory],
     first: u64,
     config: &LabelConfig,
-) -> Result<Vec<SourceRecord>, String> {
+) -> Result<Vec<SourceRecord>, TrainError> {
     in_parallel(states.len(), config.threads, |i| {
         label_state(&states[i], first + i as u64, config)
     })
-    .map_err(|i| format!("a planning thread panicked at state {}", first + i as u64))?
+    .map_err(|i| TrainError::Panicked {
+        work: "planning",
+        first: first + i as u64,
+        last: first + i as u64,
+    })?
     .into_iter()
-    .map(|record| record.map_err(|e| e.to_string()))
+    .map(|record| record.map_err(TrainError::from))
     .collect()
 }
 

@@ -27,11 +27,12 @@ use wheelleg_robot::RobotDescription;
 mod stats;
 
 use super::sweep::{EssentialArea, DEFAULT_MARGIN_M};
-use super::Trajectory;
+use super::{ReplayError, Trajectory};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 pub use stats::{Progress, Stats};
 use std::collections::HashSet;
+use std::fmt;
 use std::path::Path;
 use wheelleg_sim::env::{EnvConfig, Status};
 use wheelleg_sim::obstacle::{cell_centre_m, Obstacle, ObstacleKind, ObstacleYaw, GRID_CELL_M};
@@ -176,11 +177,61 @@ pub struct Prepared {
     pub placements: Vec<PackedObstacle>,
 }
 
+/// Why a source cannot be randomized; its text is the reason the source's record stores.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Unusable {
+    /// It does not replay (with or without its undone actions), or its essential area cannot
+    /// be marked.
+    Replay(ReplayError),
+    /// Its replay ends elsewhere than at the target.
+    Missed(Status),
+    /// An obstacle is not centred on a grid cell, so the file cannot store it.
+    OffGrid {
+        /// The obstacle's index in the scene.
+        index: usize,
+        /// Its centre, metres.
+        x: f32,
+        /// See `x`.
+        y: f32,
+    },
+    /// Without its undone actions it no longer succeeds, or some action becomes invalid.
+    UndoneActions,
+}
+
+impl fmt::Display for Unusable {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Unusable::Replay(e) => write!(f, "{e}"),
+            Unusable::Missed(status) => write!(f, "does not reach the target ({status:?})"),
+            Unusable::OffGrid { index, x, y } => write!(
+                f,
+                "obstacle {index} at ({x}, {y}) is not on a 0.25 m grid-cell centre"
+            ),
+            Unusable::UndoneActions => f.write_str("does not replay without its undone actions"),
+        }
+    }
+}
+
+impl std::error::Error for Unusable {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            Unusable::Replay(e) => Some(e),
+            _ => None,
+        }
+    }
+}
+
+impl From<ReplayError> for Unusable {
+    fn from(e: ReplayError) -> Self {
+        Unusable::Replay(e)
+    }
+}
+
 /// Checks a source and computes what randomizing it needs; `Err` says why it cannot be used.
-pub fn prepare(trajectory: &Trajectory, config: &RandomizeConfig) -> Result<Prepared, String> {
-    let replay = trajectory.replay(config.env).map_err(|e| e.to_string())?;
+pub fn prepare(trajectory: &Trajectory, config: &RandomizeConfig) -> Result<Prepared, Unusable> {
+    let replay = trajectory.replay(config.env)?;
     if !replay.success() {
-        return Err(format!("does not reach the target ({:?})", replay.status));
+        return Err(Unusable::Missed(replay.status));
     }
     let packed: Vec<PackedObstacle> = trajectory
         .scenario
@@ -188,25 +239,21 @@ pub fn prepare(trajectory: &Trajectory, config: &RandomizeConfig) -> Result<Prep
         .iter()
         .enumerate()
         .map(|(i, o)| {
-            PackedObstacle::pack(o).ok_or_else(|| {
-                format!(
-                    "obstacle {i} at ({}, {}) is not on a 0.25 m grid-cell centre",
-                    o.centre.x, o.centre.y
-                )
+            PackedObstacle::pack(o).ok_or(Unusable::OffGrid {
+                index: i,
+                x: o.centre.x,
+                y: o.centre.y,
             })
         })
         .collect::<Result<_, _>>()?;
-    let mut source = trajectory
-        .without_undone_actions(config.env)
-        .map_err(|e| e.to_string())?;
+    let mut source = trajectory.without_undone_actions(config.env)?;
     // What is stored is what is replayed: obstacles exactly as they come back from the file.
     source.scenario.obstacles = packed.iter().filter_map(PackedObstacle::unpack).collect();
-    let replay = source.replay(config.env).map_err(|e| e.to_string())?;
+    let replay = source.replay(config.env)?;
     if !replay.success() || replay.invalid_actions > 0 {
-        return Err("does not replay without its undone actions".into());
+        return Err(Unusable::UndoneActions);
     }
-    let area = EssentialArea::of_trajectory(&source, config.env, config.essential_margin_m)
-        .map_err(|e| e.to_string())?;
+    let area = EssentialArea::of_trajectory(&source, config.env, config.essential_margin_m)?;
     let (kept, dropped): (Vec<PackedObstacle>, Vec<PackedObstacle>) = packed
         .iter()
         .partition(|p| p.unpack().is_some_and(|o| area.intersects_obstacle(&o)));
@@ -308,7 +355,7 @@ pub fn randomize_source(
     let prepared = match prepare(trajectory, config) {
         Ok(p) => p,
         Err(reason) => {
-            record.rejected = reason;
+            record.rejected = reason.to_string();
             record.actions.clear();
             return Ok(record);
         }

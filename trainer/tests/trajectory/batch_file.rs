@@ -213,7 +213,8 @@ fn a_batch_names_its_robot_and_is_refused_for_another() {
     assert!(back.check_robot(&strider, "batch.wltb").is_ok());
     let err = back
         .check_robot(&RobotDescription::shipped(), "batch.wltb")
-        .unwrap_err();
+        .unwrap_err()
+        .to_string();
     assert!(
         err.contains("robot 'strider'") && err.contains("robot 'wheelleg'"),
         "{err}"
@@ -223,5 +224,12 @@ fn a_batch_names_its_robot_and_is_refused_for_another() {
         .0
         .check_robot(&strider, "batch.wltb")
         .unwrap_err();
-    assert!(err.contains("the name differs"), "{err}");
+    assert!(
+        matches!(
+            err,
+            wheelleg_trainer::TrainError::BatchRobot { part: "name", .. }
+        ),
+        "{err}"
+    );
+    assert!(err.to_string().contains("the name differs"), "{err}");
 }

@@ -38,6 +38,7 @@ use super::build::{quantize_for_version, QuantizedLayer, QuantizedNetwork};
 use super::calibrate::{ActionRange, Calibration, RangeMethod};
 use super::params::ActQuant;
 use crate::batch_policy::FloatPolicy;
+use crate::error::TrainError;
 use crate::evaluate::RecordedObservation;
 use crate::network::{self, to_vec};
 use crate::network_f32::{DenseF32, NetworkF32, Trace};
@@ -103,48 +104,52 @@ impl Default for QatOptions {
 
 impl QatOptions {
     /// Checks every setting, naming the bad one (and its `wheelleg export` flag).
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), TrainError> {
+        let bad = |key, problem: String| Err(TrainError::setting(key, problem));
         if !(self.learning_rate.is_finite() && self.learning_rate > 0.0) {
-            return Err(format!(
-                "QAT learning rate (--qat-lr) {} must be a positive finite number",
-                self.learning_rate
-            ));
+            return bad(
+                "QAT learning rate (--qat-lr)",
+                format!("{} must be a positive finite number", self.learning_rate),
+            );
         }
         if self.steps > 0 && self.batch == 0 {
-            return Err("QAT batch (--qat-batch) must be at least 1".into());
+            return bad("QAT batch (--qat-batch)", "must be at least 1".into());
         }
         if self.steps > 0 && self.observations == 0 {
-            return Err("QAT observations (--qat-observations) must be at least 1".into());
+            return bad(
+                "QAT observations (--qat-observations)",
+                "must be at least 1".into(),
+            );
         }
         if !(self.temperature.is_finite() && self.temperature > 0.0) {
-            return Err(format!(
-                "QAT temperature (--qat-temperature) {} must be positive",
-                self.temperature
-            ));
+            return bad(
+                "QAT temperature (--qat-temperature)",
+                format!("{} must be positive", self.temperature),
+            );
         }
         if !(self.near_tie_weight.is_finite() && self.near_tie_weight >= 0.0) {
-            return Err(format!(
-                "QAT near-tie weight (--qat-near-tie-weight) {} must be at least 0",
-                self.near_tie_weight
-            ));
+            return bad(
+                "QAT near-tie weight (--qat-near-tie-weight)",
+                format!("{} must be at least 0", self.near_tie_weight),
+            );
         }
         if !(self.near_tie_margin.is_finite() && self.near_tie_margin > 0.0) {
-            return Err(format!(
-                "QAT near-tie margin (--qat-near-tie-margin) {} must be positive",
-                self.near_tie_margin
-            ));
+            return bad(
+                "QAT near-tie margin (--qat-near-tie-margin)",
+                format!("{} must be positive", self.near_tie_margin),
+            );
         }
         if self.recalibrate_every == 0 {
-            return Err(
-                "QAT recalibration interval (--qat-recalibrate-every) must be at least 1 step"
-                    .into(),
+            return bad(
+                "QAT recalibration interval (--qat-recalibrate-every)",
+                "must be at least 1 step".into(),
             );
         }
         if !(self.max_grad_norm.is_finite() && self.max_grad_norm >= 0.0) {
-            return Err(format!(
-                "QAT gradient norm limit {} must be at least 0",
-                self.max_grad_norm
-            ));
+            return bad(
+                "QAT gradient norm limit",
+                format!("{} must be at least 0", self.max_grad_norm),
+            );
         }
         Ok(())
     }
@@ -183,7 +188,7 @@ pub fn fine_tune(
     training_set: &[RecordedObservation],
     settings: &QatSettings,
     options: &QatOptions,
-) -> Result<(NetworkF32, QatReport), String> {
+) -> Result<(NetworkF32, QatReport), TrainError> {
     let (method, action_range, version) = (settings.range, settings.action_range, settings.version);
     options.validate()?;
     network::check_policy_shape(teacher)?;
@@ -198,7 +203,9 @@ pub fn fine_tune(
         ));
     }
     if calibration_set.is_empty() || training_set.is_empty() {
-        return Err("QAT needs calibration and training observations".into());
+        return Err(TrainError::Nothing {
+            what: "calibration or training observations for QAT (it needs both)",
+        });
     }
     let arch = &teacher.arch;
     let cells = arch.height_rows * arch.height_cols;
@@ -207,12 +214,12 @@ pub fn fine_tune(
         .chain(calibration_set)
         .find(|(h, s)| h.len() != cells || s.len() != arch.state_len)
     {
-        return Err(format!(
+        return Err(TrainError::Shape(format!(
             "QAT observation of {} cells and {} state values; the network reads {cells} and {}",
             h.len(),
             s.len(),
             arch.state_len
-        ));
+        )));
     }
 
     // Teacher targets: log-probabilities per dimension at the distillation temperature, and
@@ -223,7 +230,9 @@ pub fn fine_tune(
     let mut weights = Vec::with_capacity(n * DIMS);
     for chunk in training_set.chunks(CHUNK) {
         let (heights, states) = flatten(chunk);
-        let out = teacher_policy.log_probs(&heights, &states, chunk.len())?;
+        let out = teacher_policy
+            .log_probs(&heights, &states, chunk.len())
+            .map_err(TrainError::Stack)?;
         for head in out.chunks_exact(CHOICES) {
             // Log-probabilities differ from logits by a constant per head: same margins.
             let mut sorted = head.to_vec();
@@ -298,9 +307,7 @@ pub fn fine_tune(
             .copied()
             .unwrap_or(f32::NAN);
         if !loss_value.is_finite() {
-            return Err(format!(
-                "QAT loss became non-finite at step {step}: lower the QAT learning rate"
-            ));
+            return Err(TrainError::QatDiverged { step });
         }
         losses.push(loss_value);
         let grads = loss.backward();
@@ -410,7 +417,8 @@ mod tests {
         assert!(QatOptions::default().validate().is_ok());
         let bad = |options: QatOptions, word: &str| {
             let error = options.validate().unwrap_err();
-            assert!(error.contains(word), "{error}");
+            assert!(matches!(error, TrainError::Setting { .. }), "{error}");
+            assert!(error.to_string().contains(word), "{error}");
         };
         let base = QatOptions {
             steps: 10,

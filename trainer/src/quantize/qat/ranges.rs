@@ -13,7 +13,7 @@ pub(super) fn calibrate_batched(
     device: &Device,
     observations: &[RecordedObservation],
     action_range: ActionRange,
-) -> Result<Calibration, String> {
+) -> Result<Calibration, TrainError> {
     let mut calibration = Calibration::new(network);
     calibration.action_range = action_range;
     for chunk in observations.chunks(CHUNK) {
@@ -137,9 +137,9 @@ pub(super) fn fake_quant_params(
     calibration: &Calibration,
     method: RangeMethod,
     version: u16,
-) -> Result<(FakeQuant, QuantizedNetwork), String> {
+) -> Result<(FakeQuant, QuantizedNetwork), TrainError> {
     let quantized = quantize_for_version(student, calibration, method, version)
-        .map_err(|e| format!("QAT: quantize the student: {e}"))?;
+        .map_err(|e| TrainError::stage("QAT: quantize the student", e))?;
     let action_output = quantized.action_head.layer.output;
     let action = if version >= 2 {
         (action_output, f32::from(i16::MIN), f32::from(i16::MAX))

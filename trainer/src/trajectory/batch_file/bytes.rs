@@ -126,23 +126,31 @@ pub struct ChunkScan {
 }
 
 /// Checks that a decoded chunk is well-formed and continues the sources where the previous
-/// chunk ended.
-fn check_chunk(chunk: &Chunk, header: &BatchHeader, next_source: u64) -> Result<(), String> {
+/// chunk ended; `corrupt` makes the error of a reason.
+fn check_chunk(
+    chunk: &Chunk,
+    header: &BatchHeader,
+    next_source: u64,
+    corrupt: impl Fn(String) -> BatchFileError,
+) -> Result<(), BatchFileError> {
     if chunk.first_source != next_source {
-        return Err(format!(
+        return Err(corrupt(format!(
             "starts at source {}, expected {next_source}",
             chunk.first_source
-        ));
+        )));
     }
     if chunk.sources.is_empty() {
-        return Err("holds no sources".into());
+        return Err(corrupt("holds no sources".into()));
     }
     if next_source + chunk.sources.len() as u64 > header.sources {
-        return Err(format!("runs past the header's {} sources", header.sources));
+        return Err(corrupt(format!(
+            "runs past the header's {} sources",
+            header.sources
+        )));
     }
     let max_scenes = header.per_trajectory as usize + usize::from(header.include_original);
     for (i, s) in chunk.sources.iter().enumerate() {
-        let at = |what: String| format!("source {}: {what}", next_source + i as u64);
+        let at = |what: String| corrupt(format!("source {}: {what}", next_source + i as u64));
         if behaviour_of_code(s.behaviour).is_none() {
             return Err(at(format!("unknown behaviour code {}", s.behaviour)));
         }
@@ -236,8 +244,8 @@ pub fn scan_chunks(bytes: &[u8], header: &BatchHeader, start: usize) -> ChunkSca
                 break;
             }
         };
-        if let Err(reason) = check_chunk(&chunk, header, scan.sources_done) {
-            scan.problem = Some(corrupt(reason));
+        if let Err(problem) = check_chunk(&chunk, header, scan.sources_done, corrupt) {
+            scan.problem = Some(problem);
             break;
         }
         scan.sources_done += chunk.sources.len() as u64;

@@ -130,23 +130,25 @@ impl TrajectoryBatch {
     /// both (the secondaries' batch and expert labels, say). The header stays this batch's:
     /// refused, naming what differs, when the two batches replay under other episode rules or
     /// were driven by another robot, since a trajectory holds only under its own.
-    pub fn append(&mut self, other: TrajectoryBatch) -> Result<(), String> {
+    pub fn append(&mut self, other: TrajectoryBatch) -> Result<(), TrainError> {
         if other.env_config() != self.env_config() {
-            return Err(format!(
+            return Err(TrainError::Incompatible(format!(
                 "the batches replay under different episode rules ({:?} and {:?})",
                 self.env_config(),
                 other.env_config()
-            ));
+            )));
         }
         if other.header.robot != self.header.robot {
-            return Err(format!(
+            return Err(TrainError::Incompatible(format!(
                 "the batches hold trajectories of different robots ('{}' and '{}')",
                 self.header.robot().name,
                 other.header.robot().name
-            ));
+            )));
         }
         let offset = |len: usize| {
-            u32::try_from(len).map_err(|_| "more than 2^32 scenes or obstacles in memory")
+            u32::try_from(len).map_err(|_| {
+                TrainError::Incompatible("more than 2^32 scenes or obstacles in memory".into())
+            })
         };
         let (sources, scenes, obstacles) = (
             offset(self.sources.len())?,

@@ -25,6 +25,7 @@
 //! source, so nothing is lost.
 
 use super::{behaviour_code, behaviour_of_code, Trajectory};
+use crate::error::TrainError;
 use core::fmt;
 use nalgebra::Point2;
 use serde::{Deserialize, Serialize};
@@ -112,15 +113,16 @@ impl BatchHeader {
     }
 
     /// Refuses a batch made for another robot than `robot`, naming both.
-    pub fn check_robot(&self, robot: &RobotDescription, what: &str) -> Result<(), String> {
+    pub fn check_robot(&self, robot: &RobotDescription, what: &str) -> Result<(), TrainError> {
         let made = self.robot();
         match robot.difference(&made.trained_for()) {
             None => Ok(()),
-            Some(part) => Err(format!(
-                "{what} holds trajectories of robot '{}', and this run trains robot '{}' (the \
-                 {part} differs): replay only a robot's own trajectories",
-                made.name, robot.name
-            )),
+            Some(part) => Err(TrainError::BatchRobot {
+                what: what.to_string(),
+                batch_robot: made.name.clone(),
+                run_robot: robot.name.clone(),
+                part,
+            }),
         }
     }
 
