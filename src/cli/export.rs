@@ -39,8 +39,8 @@ pub struct Args {
     #[arg(long, default_value_t = 10_000)]
     holdout: usize,
     /// Range of each tensor: `minmax`, or `percentile:LOW:HIGH` (e.g. percentile:0.01:99.99).
-    #[arg(long, default_value = "minmax")]
-    range: String,
+    #[arg(long, default_value = "minmax", value_parser = parse_range)]
+    range: RangeMethod,
     /// Action head range from `contenders` (each head's two largest logits: what decides the
     /// argmax the robot acts on) or `all-logits`.
     #[arg(long, value_enum, default_value_t = ActionRangeArg::Contenders)]
@@ -83,7 +83,7 @@ fn parse_range(text: &str) -> Result<RangeMethod, String> {
     if text == "minmax" {
         return Ok(RangeMethod::MinMax);
     }
-    let bad = || format!("--range {text:?}: expected `minmax` or `percentile:LOW:HIGH`");
+    let bad = || format!("{text:?}: expected `minmax` or `percentile:LOW:HIGH`");
     let mut parts = text.split(':');
     match (parts.next(), parts.next(), parts.next(), parts.next()) {
         (Some("percentile"), Some(low), Some(high), None) => {
@@ -91,7 +91,7 @@ fn parse_range(text: &str) -> Result<RangeMethod, String> {
             let high: f32 = high.parse().map_err(|_| bad())?;
             if !(0.0..high).contains(&low) || high > 100.0 {
                 return Err(format!(
-                    "--range {text:?}: percentiles must satisfy 0 <= LOW < HIGH <= 100"
+                    "{text:?}: percentiles must satisfy 0 <= LOW < HIGH <= 100"
                 ));
             }
             Ok(RangeMethod::Percentile { low, high })
@@ -141,7 +141,7 @@ pub fn run(args: Args) -> CliResult {
         seed: args.seed,
         calibration_observations: args.calibration,
         holdout_observations: args.holdout,
-        range: parse_range(&args.range)?,
+        range: args.range,
         robot: extras.robot()?,
     };
     let network = checkpoint.network.to_network()?;
