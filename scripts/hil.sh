@@ -24,5 +24,5 @@ bash scripts/embedded-toolchain.sh >&2
 (cd controller && nice -n 10 cargo +nightly build --quiet --release --bin wheelleg-controller &&
     nice -n 10 cargo +nightly build --quiet --release --bin wheelleg-controller \
         --features emulated-clock --target-dir target/emulated-clock)
-WHEELLEG_HIL_SCENES="${HIL_SCENES:-2}" WHEELLEG_HIL_SKIP="${HIL_SKIP:-0}" nice -n 10 cargo test --quiet --release --test hil -- \
-    --test-threads=1 --nocapture
+WHEELLEG_HIL_SCENES="${HIL_SCENES:-2}" WHEELLEG_HIL_SKIP="${HIL_SKIP:-0}" nice -n 10 cargo test --quiet --workspace --release --test hil -- \
+    --ignored --test-threads=1 --nocapture

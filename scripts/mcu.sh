@@ -42,7 +42,8 @@ rm -rf "$work"
 mkdir -p "$work"
 
 log "writing test vectors (host runtime, held-out scenes)"
-nice -n 10 cargo build --quiet --release --example mcu_vectors >&2
+# The workspace's feature set, as scripts/test.sh builds it: a package's own set rebuilds burn.
+nice -n 10 cargo build --quiet --workspace --release --bins --examples >&2
 vectors_json="$("$root/target/release/examples/mcu_vectors" vectors "$work" --decisions "$decisions")"
 log "vectors: $vectors_json"
 
@@ -151,7 +152,6 @@ fi
 # and saved by QEMU's monitor at the end. The fault tests and the equivalence with the host's
 # closed loop are scripts/hil.sh's.
 log "the production image in the loop (held-out complex-0), for its RAM"
-nice -n 10 cargo build --quiet --release --bin wheelleg >&2
 hil=true
 set +e
 "$root/target/release/wheelleg" demo --controller qemu --firmware "$elf" \

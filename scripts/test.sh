@@ -11,19 +11,22 @@ export PROPTEST_RNG_SEED="${PROPTEST_RNG_SEED:-20261124}"
 # The SLCAN demo runs controller and motors in real time against a 2 mm tracking tolerance; the
 # other closed-loop tests beside it on a 2-core machine starve it past that, so it runs alone.
 realtime=demo_binary_runs_the_loop_through_an_slcan_adapter
+# Every cargo command here builds the whole workspace's feature set (`--workspace`, with the
+# examples, which bring the dev-dependencies' features): a single package's own set (`-p`) differs
+# in features of shared crates (libc, either) and rebuilds burn and everything above it.
 cargo test --workspace --release -- --skip "$realtime"
-cargo test --release -p wheelleg --test closed_loop "$realtime"
+cargo test --workspace --release --test closed_loop "$realtime"
+cargo build --quiet --workspace --release --bins --examples
 
 bash runtime/nostd-check/check.sh
 
 log="$(mktemp -d)/bus.log"
-cargo run --quiet --release -p wheelleg-firmware-sim --example closed_loop_log -- "$log"
+target/release/examples/closed_loop_log "$log"
 python3 tools/check_dbc.py "$log"
 
 # A second robot's bus: the demo on robots/strider.toml (nodes 21 to 36) writes a log that
 # decodes with the DBC written for that robot.
 strider="$(mktemp -d)"
-cargo build --quiet --release --bin wheelleg
 target/release/wheelleg generate --robot robots/strider.toml --kind straight --count 1 \
     --seed 3 --out "$strider/scene.json" >/dev/null
 target/release/wheelleg demo --robot robots/strider.toml --planner \
@@ -39,5 +42,4 @@ if [ ! -x "$venv/bin/python" ]; then
     python3 -m venv "$venv"
 fi
 "$venv/bin/python" -m pip install --quiet --disable-pip-version-check -r tools/requirements-slcan.txt
-cargo build --quiet --release -p wheelleg-firmware-sim --bin firmware_sim
 "$venv/bin/python" tools/slcan_python_can.py --firmware-sim target/release/firmware_sim

@@ -14,7 +14,7 @@ policy="${1:?usage: scripts/validate.sh POLICY [STACK]}"
 stack="${2:-robot}"
 seed=3000000
 bin=target/release/wheelleg
-[ -x "$bin" ] || cargo build --quiet --release --bin wheelleg
+[ -x "$bin" ] || cargo build --quiet --workspace --release --bins --examples
 
 sets=target/validation
 mkdir -p "$sets"

@@ -1,8 +1,10 @@
 //! The controller firmware in the loop (`src/hil`): the production image in QEMU, the world and
 //! the simulated motors on the host, joined by the observation link and the SLCAN adapter link.
 //!
-//! Run by `scripts/hil.sh` once the image is built (it needs `scripts/embedded-toolchain.sh`'s
-//! QEMU and nightly toolchain); without QEMU every test prints a SKIPPED line and passes.
+//! Run by `scripts/hil.sh` (`cargo test --workspace --release --test hil -- --ignored`), which
+//! installs `scripts/embedded-toolchain.sh`'s QEMU and nightly toolchain and builds the images:
+//! the tests take minutes, so the workspace's plain test run leaves them out. Without QEMU every
+//! test prints a SKIPPED line and passes.
 //!
 //! - `WHEELLEG_HIL_SCENES` held-out complex scenes (default 2; after the first
 //!   `WHEELLEG_HIL_SKIP`, default 0) reach exactly the
@@ -108,6 +110,7 @@ fn run(
 }
 
 #[test]
+#[ignore = "the firmware in QEMU, minutes: scripts/hil.sh runs it"]
 fn firmware_in_the_loop_reaches_the_in_process_outcomes() {
     let Some(image) = image(
         "firmware_in_the_loop_reaches_the_in_process_outcomes",
@@ -322,6 +325,7 @@ fn after_last_step(episode: &HilEpisode) -> u32 {
 }
 
 #[test]
+#[ignore = "the firmware in QEMU, minutes: scripts/hil.sh runs it"]
 fn a_silent_axis_stops_the_robot_within_the_health_timeout() {
     let knee = Axis::Joint(LegId::ALL[1], Joint::Knee);
     let episodes = expect_stop(
@@ -341,6 +345,7 @@ fn a_silent_axis_stops_the_robot_within_the_health_timeout() {
 }
 
 #[test]
+#[ignore = "the firmware in QEMU, minutes: scripts/hil.sh runs it"]
 fn lost_frames_on_the_can_link_stop_the_robot() {
     expect_stop(
         "lost_frames_on_the_can_link_stop_the_robot",
@@ -357,6 +362,7 @@ fn lost_frames_on_the_can_link_stop_the_robot() {
 }
 
 #[test]
+#[ignore = "the firmware in QEMU, minutes: scripts/hil.sh runs it"]
 fn a_dead_can_link_stops_the_robot_within_the_adapter_timeout() {
     expect_stop(
         "a_dead_can_link_stops_the_robot_within_the_adapter_timeout",
@@ -373,6 +379,7 @@ fn a_dead_can_link_stops_the_robot_within_the_adapter_timeout() {
 }
 
 #[test]
+#[ignore = "the firmware in QEMU, minutes: scripts/hil.sh runs it"]
 fn a_stalled_observation_link_stops_the_robot_within_its_timeout() {
     expect_stop(
         "a_stalled_observation_link_stops_the_robot_within_its_timeout",
@@ -388,6 +395,7 @@ fn a_stalled_observation_link_stops_the_robot_within_its_timeout() {
 }
 
 #[test]
+#[ignore = "the firmware in QEMU, minutes: scripts/hil.sh runs it"]
 fn corrupt_observation_frames_are_refused_and_stop_the_robot() {
     let episodes = expect_stop(
         "corrupt_observation_frames_are_refused_and_stop_the_robot",
@@ -420,6 +428,7 @@ fn in_process_outcome(scene: &Scenario, weights: &[u8]) -> (wheelleg_sim::env::S
 }
 
 #[test]
+#[ignore = "the firmware in QEMU, minutes: scripts/hil.sh runs it"]
 fn on_the_emulated_clock_every_period_is_on_time_and_the_outcomes_hold() {
     let test = "on_the_emulated_clock_every_period_is_on_time_and_the_outcomes_hold";
     let Some(image) = image(test, PlantClock::Emulated) else {
@@ -484,6 +493,7 @@ fn on_the_emulated_clock_every_period_is_on_time_and_the_outcomes_hold() {
 }
 
 #[test]
+#[ignore = "the firmware in QEMU, minutes: scripts/hil.sh runs it"]
 fn a_slow_decision_holds_the_robot_and_then_it_goes_on() {
     let test = "a_slow_decision_holds_the_robot_and_then_it_goes_on";
     let Some(image) = image(test, PlantClock::Emulated) else {
@@ -539,6 +549,7 @@ fn weights_for(robot: &wheelleg_robot::RobotDescription) -> Vec<u8> {
 }
 
 #[test]
+#[ignore = "the firmware in QEMU, minutes: scripts/hil.sh runs it"]
 fn another_robot_s_weights_run_on_the_firmware() {
     use rand::SeedableRng;
     use wheelleg_sim::generate::{generate, SceneRobot};

@@ -17,7 +17,7 @@ if ! command -v valgrind >/dev/null; then
     echo "callgrind_policy: valgrind not found (apt-get install valgrind)" >&2
     exit 1
 fi
-(cd "$root" && cargo build --quiet --release -p wheelleg-trainer --example decisions)
+(cd "$root" && cargo build --quiet --workspace --release --example decisions)
 bin="${CARGO_TARGET_DIR:-$root/target}/release/examples/decisions"
 # shellcheck source=tools/callgrind_lib.sh
 source "$root/tools/callgrind_lib.sh"

@@ -34,7 +34,7 @@ cp "$root/sim/examples/plan_file.rs" "$old_src/sim/examples/plan_file.rs"
 
 build() { # tree, target dir, name
     (cd "$1" && CARGO_TARGET_DIR=$2 nice -n 5 \
-        cargo build --quiet --release -p wheelleg-sim --example plan_file -j"$jobs")
+        cargo build --quiet --workspace --release --example plan_file -j"$jobs")
     cp "$2/release/examples/plan_file" "$out/plan_file.$3"
 }
 echo "building the old planner ($(git -C "$old_src" rev-parse --short HEAD)) and the new one ($(git -C "$root" rev-parse --short HEAD)$(git -C "$root" diff --quiet HEAD -- sim || echo ', with changes'))"

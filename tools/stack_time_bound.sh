@@ -11,7 +11,7 @@ set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 weights="${1:-$root/weights/policy.wlw}"
 n="${2:-100}"
-(cd "$root" && cargo build --quiet --release -p wheelleg-runtime --example stack_probe)
+(cd "$root" && cargo build --quiet --workspace --release --example stack_probe)
 bin="${CARGO_TARGET_DIR:-$root/target}/release/examples/stack_probe"
 "$bin" "$weights"
 if ! command -v valgrind >/dev/null; then

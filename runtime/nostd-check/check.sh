@@ -9,7 +9,9 @@ out="$here/target/check"
 mkdir -p "$out"
 
 # A weights file and the decision the host takes on the check's observation.
-expected="$(cd "$root" && cargo run --quiet --release -p wheelleg-trainer --example random_policy -- "$out/policy.wlw")"
+# The workspace's feature set, as scripts/test.sh builds it: the trainer's own set rebuilds burn.
+(cd "$root" && cargo build --quiet --workspace --release --bins --examples)
+expected="$("$root/target/release/examples/random_policy" "$out/policy.wlw")"
 
 # The binary itself (its own workspace, panic = "abort").
 (cd "$here" && CARGO_TARGET_DIR="$here/target" WHEELLEG_POLICY="$out/policy.wlw" cargo build --quiet --release)
