@@ -249,11 +249,16 @@ fn shipped_exit() -> String {
     ])
 }
 
-/// configs/dagger.toml: one round from a checkpoint on the exit stage's scenes, 1 M env
-/// steps at a rate of 0.0002 annealed to 0 over the round.
+/// configs/dagger.toml: one round from a checkpoint on the exit stage's scenes (composed ones
+/// from its first step, since the round counts its own env steps from 0), 1 M env steps at a
+/// rate of 0.0002 annealed to 0 over the round.
 fn dagger() -> String {
     shipped_with(&[
         ("total_env_steps = 30000000", "total_env_steps = 1000000"),
+        (
+            "composed_from_env_steps = 10000000",
+            "composed_from_env_steps = 0",
+        ),
         ("exit_share = 0.0", "exit_share = 0.15"),
         ("learning_rate = 0.001", "learning_rate = 0.0002"),
         (
