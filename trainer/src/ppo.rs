@@ -14,7 +14,7 @@ use crate::conv_kernel::{self, ConvKernel, ConvTape};
 use crate::error::TrainError;
 use crate::network::{self, Net};
 use crate::network_f32::NetworkF32;
-use crate::storage::Batch;
+use crate::storage::{Batch, Minibatch};
 use burn::tensor::{Device, Tensor, TensorData};
 use rand::seq::SliceRandom;
 use rand::Rng;
@@ -406,60 +406,7 @@ struct TrackedForward {
     features_leaf: Option<Tensor<2>>,
 }
 
-/// The samples of one minibatch, gathered from a rollout [`Batch`] for the loss.
-struct Minibatch {
-    len: usize,
-    heights: Vec<f32>,
-    states: Vec<f32>,
-    /// `[len, DIMS, CHOICES]`: each head's action taken, one-hot.
-    one_hot: Vec<f32>,
-    old_log_probs: Vec<f32>,
-    advantages: Vec<f32>,
-    returns: Vec<f32>,
-    /// The clone term's weight of each sample (0 for on-policy samples).
-    imitation: Vec<f32>,
-}
-
 impl Minibatch {
-    /// The samples `idx` of `batch`, the advantages normalised over the minibatch when
-    /// `normalize_advantages`.
-    fn gather(batch: &Batch, idx: &[usize], normalize_advantages: bool) -> Minibatch {
-        let b = idx.len();
-        let mut rows = Minibatch {
-            len: b,
-            heights: Vec::with_capacity(b * HEIGHT_MAP_CELLS),
-            states: Vec::with_capacity(b * STATE_LEN),
-            one_hot: vec![0.0f32; b * DIMS * CHOICES],
-            old_log_probs: Vec::with_capacity(b),
-            advantages: Vec::with_capacity(b),
-            returns: Vec::with_capacity(b),
-            imitation: Vec::with_capacity(b),
-        };
-        for (k, &i) in idx.iter().enumerate() {
-            rows.heights.extend_from_slice(
-                &batch.heights_m[i * HEIGHT_MAP_CELLS..(i + 1) * HEIGHT_MAP_CELLS],
-            );
-            rows.states
-                .extend_from_slice(&batch.states[i * STATE_LEN..(i + 1) * STATE_LEN]);
-            for h in 0..DIMS {
-                rows.one_hot[(k * DIMS + h) * CHOICES + batch.actions[i * DIMS + h] as usize] = 1.0;
-            }
-            rows.old_log_probs.push(batch.old_log_probs[i]);
-            rows.advantages.push(batch.advantages[i]);
-            rows.returns.push(batch.returns[i]);
-            rows.imitation
-                .push(batch.imitation.get(i).copied().unwrap_or(0.0));
-        }
-        if normalize_advantages {
-            let adv = &mut rows.advantages;
-            let mean = adv.iter().sum::<f32>() / b as f32;
-            let var = adv.iter().map(|a| (a - mean) * (a - mean)).sum::<f32>() / (b as f32 - 1.0);
-            let std = var.sqrt() + 1e-8;
-            adv.iter_mut().for_each(|a| *a = (*a - mean) / std);
-        }
-        rows
-    }
-
     /// The loss's per-sample inputs as tensors on `device` (the height maps and states have
     /// gone to the forward pass).
     fn loss_inputs(self, device: &Device) -> LossInputs {

@@ -1,9 +1,10 @@
 //! Rollout storage: what `num_envs` environments saw and did over `steps_per_env` lock-step
 //! steps, and the advantages and returns computed from it (GAE).
 //!
-//! Layout is step-major: sample `t * num_envs + e` is env `e` at step `t`.
+//! Layout is step-major: sample `t * num_envs + e` is env `e` at step `t`. An update reads it
+//! in [`Minibatch`]es.
 
-use wheelleg_runtime::action::DIMS;
+use wheelleg_runtime::action::{CHOICES, DIMS};
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
 
 /// Training samples ready for a PPO update (on-policy or replayed alike).
@@ -174,6 +175,67 @@ impl RolloutStorage {
             .map(|(a, v)| a + v)
             .collect();
         self.samples.advantages = advantages;
+    }
+}
+
+/// The samples of one minibatch, gathered from a rollout [`Batch`] for the loss.
+pub struct Minibatch {
+    /// Samples.
+    pub len: usize,
+    /// `[len, HEIGHT_MAP_CELLS]`: the height maps, metres.
+    pub heights: Vec<f32>,
+    /// `[len, STATE_LEN]`: the states.
+    pub states: Vec<f32>,
+    /// `[len, DIMS, CHOICES]`: each head's action taken, one-hot.
+    pub one_hot: Vec<f32>,
+    /// The rollout's log-probability of each action taken.
+    pub old_log_probs: Vec<f32>,
+    /// The advantages, normalised over the minibatch where asked.
+    pub advantages: Vec<f32>,
+    /// The value targets.
+    pub returns: Vec<f32>,
+    /// The clone term's weight of each sample (0 for on-policy samples).
+    pub imitation: Vec<f32>,
+}
+
+impl Minibatch {
+    /// The samples `idx` of `batch`, the advantages normalised over the minibatch when
+    /// `normalize_advantages`.
+    pub fn gather(batch: &Batch, idx: &[usize], normalize_advantages: bool) -> Minibatch {
+        let b = idx.len();
+        let mut rows = Minibatch {
+            len: b,
+            heights: Vec::with_capacity(b * HEIGHT_MAP_CELLS),
+            states: Vec::with_capacity(b * STATE_LEN),
+            one_hot: vec![0.0f32; b * DIMS * CHOICES],
+            old_log_probs: Vec::with_capacity(b),
+            advantages: Vec::with_capacity(b),
+            returns: Vec::with_capacity(b),
+            imitation: Vec::with_capacity(b),
+        };
+        for (k, &i) in idx.iter().enumerate() {
+            rows.heights.extend_from_slice(
+                &batch.heights_m[i * HEIGHT_MAP_CELLS..(i + 1) * HEIGHT_MAP_CELLS],
+            );
+            rows.states
+                .extend_from_slice(&batch.states[i * STATE_LEN..(i + 1) * STATE_LEN]);
+            for h in 0..DIMS {
+                rows.one_hot[(k * DIMS + h) * CHOICES + batch.actions[i * DIMS + h] as usize] = 1.0;
+            }
+            rows.old_log_probs.push(batch.old_log_probs[i]);
+            rows.advantages.push(batch.advantages[i]);
+            rows.returns.push(batch.returns[i]);
+            rows.imitation
+                .push(batch.imitation.get(i).copied().unwrap_or(0.0));
+        }
+        if normalize_advantages {
+            let adv = &mut rows.advantages;
+            let mean = adv.iter().sum::<f32>() / b as f32;
+            let var = adv.iter().map(|a| (a - mean) * (a - mean)).sum::<f32>() / (b as f32 - 1.0);
+            let std = var.sqrt() + 1e-8;
+            adv.iter_mut().for_each(|a| *a = (*a - mean) / std);
+        }
+        rows
     }
 }
 
