@@ -15,14 +15,16 @@ fn defaults_follow_the_paper_and_round_trip() {
 fn every_shipped_config_and_every_stored_config_loads() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
     let mut loaded = 0;
-    for entry in std::fs::read_dir(root.join("configs")).unwrap() {
-        let path = entry.unwrap().path();
-        if path.extension().is_some_and(|e| e == "toml") {
-            TrainConfig::load(&path).unwrap_or_else(|e| panic!("{e}"));
-            loaded += 1;
+    for folder in ["configs", "configs/comparisons"] {
+        for entry in std::fs::read_dir(root.join(folder)).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_some_and(|e| e == "toml") {
+                TrainConfig::load(&path).unwrap_or_else(|e| panic!("{e}"));
+                loaded += 1;
+            }
         }
     }
-    assert!(loaded >= 5, "{loaded} configs");
+    assert!(loaded >= 15, "{loaded} configs");
     // What `--resume` reads back from run folders that earlier versions wrote (while retired
     // keys existed, so they hold them): one of each kind, kept as fixtures.
     let mut stored = 0;
