@@ -99,12 +99,6 @@ impl fmt::Display for CheckpointError {
 
 impl std::error::Error for CheckpointError {}
 
-impl From<CheckpointError> for String {
-    fn from(error: CheckpointError) -> String {
-        error.to_string()
-    }
-}
-
 /// The architecture as stored (network_f32's types stay serde-free for the no_std side).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ArchRecord {

@@ -91,12 +91,6 @@ impl std::fmt::Display for VecEnvError {
 
 impl std::error::Error for VecEnvError {}
 
-impl From<VecEnvError> for String {
-    fn from(error: VecEnvError) -> String {
-        error.to_string()
-    }
-}
-
 impl VecEnv {
     /// `num_envs` environments on fresh `kind` scenes; env `i` draws its scenes from ChaCha8
     /// seeded with `seed` on stream `i`.

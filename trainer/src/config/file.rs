@@ -77,12 +77,6 @@ impl fmt::Display for ConfigError {
 
 impl std::error::Error for ConfigError {}
 
-impl From<ConfigError> for String {
-    fn from(error: ConfigError) -> String {
-        error.to_string()
-    }
-}
-
 impl ConfigError {
     fn in_file(self, path: &Path) -> ConfigError {
         ConfigError::In {
