@@ -8,6 +8,7 @@ use nalgebra::Point2;
 use rand::SeedableRng;
 use std::collections::BTreeMap;
 use wheelleg_runtime::action::{Action, Step};
+use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::env::{Env, EnvConfig};
 use wheelleg_sim::generate::{
     generate_many, Behaviour, ComposedEnding, ComposedVariant, SceneKind, COMPOSED_PAIRS,
@@ -155,12 +156,12 @@ fn each_fence_of_every_variant_needs_its_behaviour() {
             }
             let (frozen, with_behaviour) = leg_filters(*behaviour);
             assert!(
-                fence_blocks(&fence, &lattice_legs(frozen)),
+                fence_blocks(&fence, &WHEELLEG, &lattice_legs(&WHEELLEG, frozen)),
                 "{name}: the {} fence must block frozen legs",
                 behaviour.name()
             );
             assert!(
-                !fence_blocks(&fence, &lattice_legs(with_behaviour)),
+                !fence_blocks(&fence, &WHEELLEG, &lattice_legs(&WHEELLEG, with_behaviour)),
                 "{name}: the {} fence must let the behaviour through",
                 behaviour.name()
             );
@@ -331,7 +332,7 @@ fn a_scene_of_every_variant_is_solvable() {
     };
     let firsts = first_of_each_variant(&sample());
     let scenes: Vec<Scenario> = firsts.values().map(|(_, s)| s.clone()).collect();
-    let paths = prove_solvable(&scenes, all_but_last, &frozen);
+    let paths = prove_solvable(&scenes, &WHEELLEG, all_but_last, &[frozen]);
     for ((variant, scene), path) in firsts.values().zip(paths) {
         for behaviour in &variant.fences {
             let passing = wheelleg_sim::generate::SceneRobot::shipped().passing_legs(*behaviour);

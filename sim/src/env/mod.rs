@@ -23,7 +23,7 @@ mod way_there;
 
 pub use guard_map::GuardMap;
 pub(crate) use way_proof::{proof_cap_m, prove_way, ProofPose, WayClearance};
-pub(crate) use way_there::horizontal_reach_m;
+pub(crate) use way_there::{horizontal_reach_at_track_m, horizontal_reach_m};
 
 /// Motion shorter than this that cannot be proven clear of an obstacle counts as touching it
 /// (see [`Env::check_transition`]): 0.1 mm, far below what a real robot tracks, far above

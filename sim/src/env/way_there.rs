@@ -449,12 +449,18 @@ fn yaw_change_rad(from: &RobotState, to: &RobotState) -> f32 {
 }
 
 /// A bound on how far any robot part reaches horizontally from the body centre, in any pose:
-/// the body's corner, or a wheel at the widest track (the knees stay inside the wheels'
-/// reach: they are at most a thigh's length outboard of the hips), plus the largest part radius.
+/// [`horizontal_reach_at_track_m`] at the widest track.
 pub(crate) fn horizontal_reach_m(geometry: &RobotGeometry) -> f32 {
+    horizontal_reach_at_track_m(geometry, geometry.track_range_m[1])
+}
+
+/// A bound on how far any robot part reaches horizontally from the body centre at a track of
+/// `track_m` or narrower: the body's corner, or a wheel (the knees stay inside the wheels'
+/// reach: they are at most a thigh's length outboard of the hips), plus the largest part radius.
+pub(crate) fn horizontal_reach_at_track_m(geometry: &RobotGeometry, track_m: f32) -> f32 {
     let body = (0.5 * geometry.body_length_m).hypot(0.5 * geometry.body_width_m);
     let wheel = (geometry.hip_x_m + geometry.wheel_radius_m)
-        .hypot(0.5 * geometry.track_range_m[1] + 0.5 * geometry.wheel_width_m);
+        .hypot(0.5 * track_m + 0.5 * geometry.wheel_width_m);
     let knee = geometry
         .hip_x_m
         .hypot(geometry.hip_y_m + geometry.thigh_m + geometry.link_radius_m);

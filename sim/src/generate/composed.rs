@@ -194,9 +194,11 @@ pub(super) fn composed_scene(
     let Layout { start, target } = layout(rng, 0.5, start_yaw);
     let path_cell = cell_index(start.position.y);
     // The first fence as in the behaviour scenes: its first row in the first cell whose centre
-    // is at least 0.45 m ahead of the start, so the robot starts clear of it at any yaw.
-    let mut first_row = cell_index(start.position.x + 0.45) + 1;
-    if cell_centre_m(first_row - 1) >= start.position.x + 0.45 {
+    // is at least the robot's fence lead ahead of the start, so the robot starts clear of it
+    // at any yaw.
+    let lead_m = robot.fence_lead_m();
+    let mut first_row = cell_index(start.position.x + lead_m) + 1;
+    if cell_centre_m(first_row - 1) >= start.position.x + lead_m {
         first_row -= 1;
     }
     let mut opening = path_cell;

@@ -114,15 +114,17 @@ pub(super) fn behaviour_scene(
     name: String,
     start_yaw: StartYaw,
 ) -> (Scenario, Passage) {
-    // The fence (or block) stands in the first cell at least 0.45 m ahead of the start, so the
-    // robot starts clear of it at any yaw; the target is at least `beyond` past its centre.
+    // The fence (or block) stands in the first cell at least the robot's fence lead ahead of the
+    // start, so the robot starts clear of it at any yaw; the target is at least `beyond` past
+    // its centre.
     let beyond_m = match behaviour {
         Behaviour::Around => 0.45,
         _ => 0.25,
     };
-    let lay = layout(rng, 0.45 + beyond_m, start_yaw);
-    let fence_x = cell_centre_m(cell_index(lay.start.position.x + 0.45) + 1);
-    let fence_x = if fence_x - GRID_CELL_M >= lay.start.position.x + 0.45 {
+    let lead_m = robot.fence_lead_m();
+    let lay = layout(rng, lead_m + beyond_m, start_yaw);
+    let fence_x = cell_centre_m(cell_index(lay.start.position.x + lead_m) + 1);
+    let fence_x = if fence_x - GRID_CELL_M >= lay.start.position.x + lead_m {
         fence_x - GRID_CELL_M
     } else {
         fence_x

@@ -44,6 +44,8 @@ pub struct SceneRobot {
     fences: [Result<(i32, i32), String>; 3],
     /// How far beside an around block's centre the way past it runs, on the start lattice.
     around_offset_m: f32,
+    /// How far ahead of the start the first fence row's centre stands at least.
+    fence_lead_m: f32,
 }
 
 impl SceneRobot {
@@ -63,6 +65,7 @@ impl SceneRobot {
             geometry: *geometry,
             fences,
             around_offset_m: around_offset_m(geometry),
+            fence_lead_m: fence_lead_m(geometry),
         }
     }
 
@@ -116,6 +119,12 @@ impl SceneRobot {
     /// How far beside an around block's centre the way past it runs.
     pub(super) fn around_offset_m(&self) -> f32 {
         self.around_offset_m
+    }
+
+    /// How far ahead of the start the first fence row's (or the around block's) centre stands
+    /// at least, so that the robot in its default pose turns on the spot at the start.
+    pub(super) fn fence_lead_m(&self) -> f32 {
+        self.fence_lead_m
     }
 
     fn fence(&self, behaviour: Behaviour) -> Result<(i32, i32), String> {
@@ -206,6 +215,14 @@ fn passing_pose(geometry: &RobotGeometry, behaviour: Behaviour) -> Result<(i32, 
 
 /// Beside an around block: the block's half width, the default pose's half width and 0.10 m
 /// of free space, rounded up to the start lattice (0.40 m for the shipped robot).
+/// The fence lead: the default pose's horizontal reach, half a block and [`FENCE_MARGIN_M`];
+/// never under 0.45 m, the lead the shipped robot's scenes were built with (its own is 0.44 m).
+fn fence_lead_m(geometry: &RobotGeometry) -> f32 {
+    let reach_m = crate::env::horizontal_reach_at_track_m(geometry, geometry.default_track_m);
+    let block_half_m = 0.5 * crate::obstacle::ObstacleKind::Block.size_m().0;
+    (reach_m + block_half_m + FENCE_MARGIN_M).max(0.45)
+}
+
 fn around_offset_m(geometry: &RobotGeometry) -> f32 {
     let half_width_m = RobotParts::new(
         geometry,

@@ -8,7 +8,7 @@
 use nalgebra::Point2;
 use wheelleg_runtime::action::Action;
 use wheelleg_runtime::leg::LegConfig;
-use wheelleg_runtime::robot::WHEELLEG;
+use wheelleg_runtime::robot::{RobotGeometry, WHEELLEG};
 use wheelleg_sim::collision::{ObstacleSet, RobotParts};
 use wheelleg_sim::env::{Env, EnvConfig, Status};
 use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig};
@@ -18,16 +18,40 @@ use wheelleg_sim::state::RobotState;
 /// Which (clearance steps, track steps) leg configurations a test allows.
 pub type LegFilter = fn(i32, i32) -> bool;
 
-/// Leg configurations on the action lattice that the legs can reach, filtered.
-pub fn lattice_legs(keep: impl Fn(i32, i32) -> bool) -> Vec<LegConfig> {
+/// The robots the scene proofs run for: the shipped one and `robots/strider.toml`, a larger
+/// one whose passing poses differ (lift +2, squeeze -10 track steps with one clearance step
+/// down).
+pub fn robots() -> [(&'static str, RobotGeometry); 2] {
+    let strider = wheelleg_robot::RobotDescription::load(std::path::Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../robots/strider.toml"
+    )))
+    .and_then(|d| d.simulated_geometry())
+    .expect("robots/strider.toml");
+    [("wheelleg", WHEELLEG), ("strider", strider)]
+}
+
+/// The episode settings for `geometry`.
+pub fn env_config(geometry: &RobotGeometry) -> EnvConfig {
+    EnvConfig {
+        geometry: *geometry,
+        ..EnvConfig::default()
+    }
+}
+
+/// Leg configurations on the action lattice (steps from the default pose, as
+/// `RobotState::leg_config` places them) that the legs of `geometry` can reach, filtered.
+pub fn lattice_legs(geometry: &RobotGeometry, keep: impl Fn(i32, i32) -> bool) -> Vec<LegConfig> {
+    let state = |clearance_steps, track_steps| RobotState {
+        clearance_steps,
+        track_steps,
+        ..RobotState::new(Point2::origin(), 0)
+    };
     let mut out = Vec::new();
-    for clearance_steps in -4..=6 {
-        for track_steps in -10..=10 {
-            let legs = LegConfig {
-                clearance_m: 0.12 + 0.02 * clearance_steps as f32,
-                track_m: 0.36 + 0.02 * track_steps as f32,
-            };
-            if keep(clearance_steps, track_steps) && WHEELLEG.is_reachable(legs) {
+    for clearance_steps in -15..=15 {
+        for track_steps in -15..=15 {
+            let legs = state(clearance_steps, track_steps).leg_config(geometry);
+            if keep(clearance_steps, track_steps) && geometry.is_reachable(legs) {
                 out.push(legs);
             }
         }
@@ -40,7 +64,7 @@ pub fn lattice_legs(keep: impl Fn(i32, i32) -> bool) -> Vec<LegConfig> {
 /// fence's middle. If, with either of those points anywhere in a band one step wide around its
 /// line, every lateral position across the arena (5 mm apart), every yaw and every allowed leg
 /// configuration collides, no sequence of steps gets across.
-pub fn fence_blocks(scene: &Scenario, legs: &[LegConfig]) -> bool {
+pub fn fence_blocks(scene: &Scenario, geometry: &RobotGeometry, legs: &[LegConfig]) -> bool {
     let first_x = scene
         .obstacles
         .iter()
@@ -51,14 +75,15 @@ pub fn fence_blocks(scene: &Scenario, legs: &[LegConfig]) -> bool {
         .iter()
         .map(|o| o.centre.x)
         .fold(f32::NAN, f32::max);
-    free_pose_near_line(scene, legs, first_x, WHEELLEG.hip_x_m).is_none()
-        || free_pose_near_line(scene, legs, 0.5 * (first_x + last_x), 0.0).is_none()
+    free_pose_near_line(scene, geometry, legs, first_x, geometry.hip_x_m).is_none()
+        || free_pose_near_line(scene, geometry, legs, 0.5 * (first_x + last_x), 0.0).is_none()
 }
 
 /// A pose that does not collide with the robot's point `ahead_m` in front of its centre within
 /// 4 cm of the line x = `line_x`, if any: (that point's x, body centre y, yaw in degrees, legs).
 pub fn free_pose_near_line(
     scene: &Scenario,
+    geometry: &RobotGeometry,
     legs: &[LegConfig],
     line_x: f32,
     ahead_m: f32,
@@ -76,7 +101,7 @@ pub fn free_pose_near_line(
                 let yaw = (yaw_steps as f32 * 5.0).to_radians();
                 let centre = Point2::new(x - ahead_m * yaw.cos(), y - ahead_m * yaw.sin());
                 for &l in legs {
-                    let free = RobotParts::new(&WHEELLEG, centre, yaw, l)
+                    let free = RobotParts::new(geometry, centre, yaw, l)
                         .is_ok_and(|p| !obstacles.collides(&p));
                     if free {
                         return Some((x, centre.y, yaw_steps as f32 * 5.0, l));
@@ -89,20 +114,21 @@ pub fn free_pose_near_line(
 }
 
 /// Proves every scene solvable: `prefix` (actions taken first, each of which must be valid),
-/// then a plan by the weighted search with `config` (the planner replays what it returns in
-/// the simulator), and the whole sequence replayed to success in a fresh episode. Panics on a
+/// then a plan by the first of the weighted searches `configs` that finds one (the planner
+/// replays what it returns in the simulator), and the whole sequence replayed to success in a fresh episode. Panics on a
 /// scene it does not solve; returns per scene the states the plan passes through, start
 /// included.
 pub fn prove_solvable(
     scenes: &[Scenario],
+    geometry: &RobotGeometry,
     prefix: impl Fn(&Scenario) -> Vec<Action>,
-    config: &PlannerConfig,
+    configs: &[PlannerConfig],
 ) -> Vec<Vec<RobotState>> {
     let mut paths = Vec::new();
     let mut most = (0, String::new());
     let clock = std::time::Instant::now();
     for scene in scenes {
-        let fresh = Env::new(scene, EnvConfig::default()).unwrap();
+        let fresh = Env::new(scene, env_config(geometry)).unwrap();
         let mut env = fresh.clone();
         let mut actions = prefix(scene);
         for (i, &action) in actions.iter().enumerate() {
@@ -111,16 +137,23 @@ pub fn prove_solvable(
         }
         // A prefix may end at the target already: then there is nothing left to plan.
         if env.status() != Status::Success {
-            let found = plan(&env, config);
-            match found.outcome {
-                PlanOutcome::Solved { actions: rest, .. } => actions.extend(rest),
-                other => panic!(
-                    "{}: {other:?} after {} expansions",
-                    scene.name, found.expansions
-                ),
+            // The first search that finds a plan proves the scene solvable.
+            let mut effort = Vec::new();
+            let solved = configs.iter().find_map(|config| {
+                let found = plan(&env, config);
+                effort.push((found.outcome.clone(), found.expansions));
+                match found.outcome {
+                    PlanOutcome::Solved { actions, .. } => Some(actions),
+                    _ => None,
+                }
+            });
+            match solved {
+                Some(rest) => actions.extend(rest),
+                None => panic!("{}: no search finds a plan: {effort:?}", scene.name),
             }
-            if found.expansions >= most.0 {
-                most = (found.expansions, scene.name.clone());
+            let expansions = effort.iter().map(|(_, e)| e).sum();
+            if expansions >= most.0 {
+                most = (expansions, scene.name.clone());
             }
         }
         let mut replay = fresh;
