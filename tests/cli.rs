@@ -488,17 +488,23 @@ fn robot_refuses_bad_descriptions_and_urdfs_by_name() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// The shipped policy's tensors in a version 3 file trained for `robot`.
+/// The shipped policy's tensors in a file of the current version trained for `robot`.
 fn weights_for(robot: &wheelleg_robot::RobotDescription) -> Vec<u8> {
-    use wheelleg_runtime::model::format::RobotRecord;
     use wheelleg_runtime::model::format::FORMAT_VERSION;
     use wheelleg_runtime::model::load::open_envelope;
     let shipped =
         std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/weights/policy.wlw")).unwrap();
     let (_, payload) = open_envelope(&shipped).unwrap();
     let mut payload = payload.to_vec();
-    let record = RobotRecord::of(&robot.name, &robot.robot, robot.bit_rate_bps);
-    payload.extend(postcard::to_allocvec(&record).unwrap());
+    payload.extend(
+        wheelleg_trainer::quantize::file_bytes::robot_bytes(
+            FORMAT_VERSION,
+            &robot.name,
+            &robot.robot,
+            robot.bit_rate_bps,
+        )
+        .unwrap(),
+    );
     wheelleg_trainer::quantize::file_bytes::envelope_bytes(FORMAT_VERSION, &payload).unwrap()
 }
 

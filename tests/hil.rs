@@ -537,13 +537,20 @@ fn a_slow_decision_holds_the_robot_and_then_it_goes_on() {
 
 /// The shipped network with `robot`'s record: weights a controller takes as trained for it.
 fn weights_for(robot: &wheelleg_robot::RobotDescription) -> Vec<u8> {
-    use wheelleg_runtime::model::format::{RobotRecord, FORMAT_VERSION};
+    use wheelleg_runtime::model::format::FORMAT_VERSION;
     use wheelleg_runtime::model::load::open_envelope;
     let shipped = std::fs::read(root().join("weights/policy.wlw")).expect("weights");
     let (_, payload) = open_envelope(&shipped).expect("shipped envelope");
     let mut payload = payload.to_vec();
-    let record = RobotRecord::of(&robot.name, &robot.robot, robot.bit_rate_bps);
-    payload.extend(postcard::to_allocvec(&record).expect("record"));
+    payload.extend(
+        wheelleg_trainer::quantize::file_bytes::robot_bytes(
+            FORMAT_VERSION,
+            &robot.name,
+            &robot.robot,
+            robot.bit_rate_bps,
+        )
+        .expect("record"),
+    );
     wheelleg_trainer::quantize::file_bytes::envelope_bytes(FORMAT_VERSION, &payload)
         .expect("weights file")
 }

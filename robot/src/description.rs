@@ -211,6 +211,14 @@ pub struct WheelKeys {
     pub radius_m: f64,
     /// Wheel width along its axle.
     pub width_m: f64,
+    /// Where the wheel's centre sits along its axle from the wheel mount's joint, outward
+    /// (negative: inward); 0 when not given, and then not written.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub offset_m: f64,
+}
+
+fn is_zero(value: &f64) -> bool {
+    *value == 0.0
 }
 
 /// `[pose]`.
@@ -354,7 +362,7 @@ impl DescriptionFile {
             gear_ratios: entries.map(|(_, _, e)| e.gear_ratio as f32),
             bit_rate_bps: self.can.bit_rate_bps,
         };
-        let robot = trained_for(record)
+        let robot = trained_for(record, self.wheels.offset_m as f32)
             .map_err(|e| DescriptionError::new(String::new(), format!("{e}")))?
             .robot;
         Ok(RobotDescription {
@@ -377,6 +385,7 @@ impl DescriptionFile {
             link_radius_m: self.legs.link_radius_m as f32,
             wheel_radius_m: self.wheels.radius_m as f32,
             wheel_width_m: self.wheels.width_m as f32,
+            wheel_offset_m: self.wheels.offset_m as f32,
             hip_range_rad: narrow(self.legs.hip_range_rad),
             knee_range_rad: narrow(self.legs.knee_range_rad),
             track_range_m: narrow(self.pose.track_range_m),
@@ -410,6 +419,7 @@ impl DescriptionFile {
             wheels: WheelKeys {
                 radius_m: decimal(g.wheel_radius_m),
                 width_m: decimal(g.wheel_width_m),
+                offset_m: decimal(g.wheel_offset_m),
             },
             pose: PoseKeys {
                 clearance_range_m: pair(g.clearance_range_m),

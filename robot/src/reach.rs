@@ -137,7 +137,7 @@ impl Section {
             underside_m: pose.clearance_m,
             links: [
                 (yz(points.hip), yz(points.knee)),
-                (yz(points.knee), yz(points.wheel)),
+                (yz(points.knee), yz(points.wheel_mount)),
             ],
             link_radius_m: g.link_radius_m,
             wheel_inner_m: points.wheel.y - 0.5 * g.wheel_width_m,

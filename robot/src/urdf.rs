@@ -84,6 +84,7 @@ struct LegRead {
     knee_range_rad: [f64; 2],
     wheel_radius_m: f64,
     wheel_width_m: f64,
+    wheel_offset_m: f64,
 }
 
 struct Tree<'a> {
@@ -229,12 +230,13 @@ fn read_leg(
     let frame_mount = frame_knee * isometry(&mount.origin);
     sign(mount, &frame_mount)?;
     let wheel = tree.next(&mount.child.link, "wheel", urdf_rs::JointType::Continuous)?;
-    let offset = Vector3::from(wheel.origin.xyz.0);
-    if offset.norm() > TOLERANCE {
+    // The wheel may sit along its axle from the mount (body y at zero angles), not across it.
+    let offset = frame_mount.rotation * Vector3::from(wheel.origin.xyz.0);
+    let wheel_offset_m = offset.dot(&outward);
+    if (offset - outward * wheel_offset_m).norm() > TOLERANCE {
         return refuse(format!(
-            "joint '{}' is {:.4} m from the wheel mount's joint; the wheel turns on the mount's axis, no offset along or across its axle",
-            wheel.name,
-            offset.norm()
+            "joint '{}' sits at ({:.4}, {:.4}, {:.4}) from the wheel mount's joint in the body frame; the wheel turns on the mount's axle, offset along it (body y) only",
+            wheel.name, offset.x, offset.y, offset.z
         ));
     }
     let frame_wheel = frame_mount * isometry(&wheel.origin);
@@ -292,6 +294,7 @@ fn read_leg(
         knee_range_rad: limits(knee, k_knee)?,
         wheel_radius_m,
         wheel_width_m,
+        wheel_offset_m,
     })
 }
 
@@ -400,6 +403,7 @@ pub fn import(text: &str) -> Result<RobotDescription, UrdfError> {
             ),
             ("wheel radius", leg.wheel_radius_m, first.wheel_radius_m),
             ("wheel width", leg.wheel_width_m, first.wheel_width_m),
+            ("wheel offset", leg.wheel_offset_m, first.wheel_offset_m),
         ];
         if let Some((what, a, b)) = pairs.iter().find(|(_, a, b)| !close(*a, *b)) {
             return refuse(format!(
@@ -443,6 +447,7 @@ pub fn import(text: &str) -> Result<RobotDescription, UrdfError> {
         wheels: WheelKeys {
             radius_m: first.wheel_radius_m,
             width_m: first.wheel_width_m,
+            offset_m: first.wheel_offset_m,
         },
         pose: PoseKeys {
             clearance_range_m: [0.0, 0.0],
@@ -679,7 +684,9 @@ pub fn export(description: &RobotDescription) -> String {
             0.0,
         ));
         out.push_str(&format!(
-            "  <joint name=\"{prefix}_wheel\" type=\"continuous\">\n    <origin xyz=\"0 0 0\"/>\n    <parent link=\"{mount}\"/>\n    <child link=\"{wheel}\"/>\n    <axis xyz=\"0 1 0\"/>\n  </joint>\n"
+            "  <joint name=\"{prefix}_wheel\" type=\"continuous\">\n    <origin xyz=\"0 {} 0\"/>\n    <parent link=\"{mount}\"/>\n    <child link=\"{wheel}\"/>\n    <axis xyz=\"0 1 0\"/>\n  </joint>\n",
+            // `+ 0.0` writes a zero offset on a right leg as 0, not -0.
+            num(side * g.wheel_offset_m + 0.0)
         ));
     }
     let file = DescriptionFile::from_description(description);

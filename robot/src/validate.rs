@@ -123,6 +123,17 @@ fn numbers(file: &DescriptionFile) -> Result<(), DescriptionError> {
     range("legs.knee_range_rad", l.knee_range_rad)?;
     positive("wheels.radius_m", w.radius_m)?;
     positive("wheels.width_m", w.width_m)?;
+    let most_m = 0.5 * w.width_m + l.link_radius_m;
+    if !w.offset_m.is_finite() || w.offset_m.abs() > most_m {
+        return Err(error(
+            "wheels.offset_m",
+            format!(
+                "{} m is more than half the wheel's width plus the link radius ({most_m} m) either \
+                 way: the axle from the wheel mount to the wheel would stand clear of both",
+                w.offset_m
+            ),
+        ));
+    }
     range("pose.clearance_range_m", p.clearance_range_m)?;
     positive("pose.clearance_range_m", p.clearance_range_m[0])?;
     range("pose.track_range_m", p.track_range_m)?;

@@ -20,6 +20,7 @@ fn geometry_bits(g: &RobotGeometry) -> Vec<u32> {
         g.link_radius_m,
         g.wheel_radius_m,
         g.wheel_width_m,
+        g.wheel_offset_m,
         g.hip_range_rad[0],
         g.hip_range_rad[1],
         g.knee_range_rad[0],
@@ -76,10 +77,20 @@ fn the_shipped_file_is_the_compiled_robot_bit_for_bit() {
 
 #[test]
 fn a_written_description_reads_back_to_itself() {
-    for text in [SHIPPED_TOML, include_str!("../../robots/strider.toml")] {
+    let offset = SHIPPED_TOML.replace("width_m = 0.04\n", "width_m = 0.04\noffset_m = 0.03\n");
+    for text in [
+        SHIPPED_TOML,
+        include_str!("../../robots/strider.toml"),
+        offset.as_str(),
+    ] {
         let description = RobotDescription::from_toml(text).unwrap();
         let again = RobotDescription::from_toml(&description.to_toml()).unwrap();
         assert_eq!(again, description);
+        // The offset is written only where there is one.
+        assert_eq!(
+            description.to_toml().contains("offset_m"),
+            description.robot.geometry.wheel_offset_m != 0.0
+        );
         assert!(
             description.to_toml().contains("thigh_m = "),
             "{}",
@@ -113,6 +124,16 @@ fn bad_descriptions_are_refused_naming_the_key() {
         (edited("shank_m = 0.16\n", ""), "legs", "missing field `shank_m`"),
         (edited("[wheels]", "[wheels"), "", "TOML parse error"),
         (edited("length_m = 0.50", "length_m = -0.50"), "body.length_m", "above 0"),
+        (
+            edited("width_m = 0.04\n", "width_m = 0.04\noffset_m = 0.04\n"),
+            "wheels.offset_m",
+            "more than half the wheel's width plus the link radius (0.032 m)",
+        ),
+        (
+            edited("width_m = 0.04\n", "width_m = 0.04\noffset_m = nan\n"),
+            "wheels.offset_m",
+            "NaN m is more than",
+        ),
         (
             edited("thigh_m = 0.08", "thigh_m = \"long\""),
             "legs.thigh_m",

@@ -10,12 +10,48 @@ fn strider() -> RobotDescription {
     RobotDescription::from_toml(include_str!("../../robots/strider.toml")).unwrap()
 }
 
+/// The strider with its wheels `offset_m` outboard of the wheel mounts (its own: 15 mm).
+fn strider_offset(offset_m: f64) -> RobotDescription {
+    let text = include_str!("../../robots/strider.toml")
+        .replace("offset_m = 0.015\n", &format!("offset_m = {offset_m}\n"));
+    RobotDescription::from_toml(&text).unwrap()
+}
+
 #[test]
 fn an_exported_urdf_imports_to_the_same_description() {
-    for description in [RobotDescription::shipped(), strider()] {
+    for description in [
+        RobotDescription::shipped(),
+        strider(),
+        strider_offset(0.04),
+        strider_offset(-0.01),
+    ] {
         let urdf = export(&description);
         assert_eq!(import(&urdf).unwrap(), description, "{urdf}");
     }
+}
+
+#[test]
+fn a_wheel_offset_along_its_axle_is_read_from_the_wheel_joint() {
+    // Every wheel joint 0.03 m outward of its mount: +y on the left, -y on the right.
+    let mut urdf = export(&RobotDescription::shipped());
+    for (leg, y) in [
+        ("front_left", "0.03"),
+        ("front_right", "-0.03"),
+        ("rear_left", "0.03"),
+        ("rear_right", "-0.03"),
+    ] {
+        let from = format!(
+            "<joint name=\"{leg}_wheel\" type=\"continuous\">\n    <origin xyz=\"0 0 0\"/>"
+        );
+        let to = format!(
+            "<joint name=\"{leg}_wheel\" type=\"continuous\">\n    <origin xyz=\"0 {y} 0\"/>"
+        );
+        assert!(urdf.contains(&from), "{from}");
+        urdf = urdf.replacen(&from, &to, 1);
+    }
+    let imported = import(&urdf).unwrap();
+    assert_eq!(imported.robot.geometry.wheel_offset_m, 0.03);
+    assert_eq!(export(&imported), urdf);
 }
 
 #[test]
@@ -79,8 +115,12 @@ fn urdfs_outside_the_class_are_refused_naming_the_joint() {
             "joint 'rear_right_knee' (knee) is Continuous",
         ),
         (
+            edited("<joint name=\"front_left_wheel\" type=\"continuous\">\n    <origin xyz=\"0 0 0\"/>", "<joint name=\"front_left_wheel\" type=\"continuous\">\n    <origin xyz=\"0 0 0.02\"/>"),
+            "joint 'front_left_wheel' sits at (0.0000, 0.0000, 0.0200) from the wheel mount's joint",
+        ),
+        (
             edited("<joint name=\"front_left_wheel\" type=\"continuous\">\n    <origin xyz=\"0 0 0\"/>", "<joint name=\"front_left_wheel\" type=\"continuous\">\n    <origin xyz=\"0 0.02 0\"/>"),
-            "joint 'front_left_wheel' is 0.0200 m from the wheel mount",
+            "are not mirror images: wheel offset",
         ),
         (
             edited("<child link=\"front_left_wheel\"/>\n    <axis xyz=\"0 1 0\"/>", "<child link=\"front_left_wheel\"/>\n    <axis xyz=\"1 0 0\"/>"),

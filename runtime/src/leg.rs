@@ -9,8 +9,10 @@
 //!   up and out, the sprawled posture that keeps the knees clear of anything under the body);
 //! - wheel mount: turns the wheel back so its axle stays horizontal: `-(hip + knee)`.
 //!
-//! Two joints place the wheel axle, the third orients it, so a (clearance, track) pair maps to one
-//! joint solution, or to none: such a pair is an *impossible action*.
+//! Two joints place the wheel mount, the third orients it, so a (clearance, track) pair maps to
+//! one joint solution, or to none: such a pair is an *impossible action*. The wheel's centre sits
+//! on the mount's axle, [`RobotGeometry::wheel_offset_m`] outward of the mount's joint: the axle
+//! stays level, so the offset is a fixed outward shift in the leg plane.
 
 use crate::robot::{LegId, RobotGeometry};
 use nalgebra::Point3;
@@ -53,7 +55,9 @@ pub struct LegPlanePoint {
 pub struct LegPlanePose {
     /// Knee joint.
     pub knee: LegPlanePoint,
-    /// Wheel axle centre.
+    /// Wheel mount joint, where the shank ends.
+    pub wheel_mount: LegPlanePoint,
+    /// Wheel centre, on the mount's axle.
     pub wheel: LegPlanePoint,
 }
 
@@ -64,7 +68,9 @@ pub struct LegPoints {
     pub hip: Point3<f32>,
     /// Knee joint.
     pub knee: Point3<f32>,
-    /// Wheel axle centre.
+    /// Wheel mount joint, where the shank ends.
+    pub wheel_mount: Point3<f32>,
+    /// Wheel centre, on the mount's axle.
     pub wheel: Point3<f32>,
 }
 
@@ -77,14 +83,14 @@ pub enum IkError {
     TrackOutOfRange,
     /// Clearance outside the robot's clearance limits.
     ClearanceOutOfRange,
-    /// The wheel axle would be farther from (or closer to) the hip than the leg can reach.
+    /// The wheel mount would be farther from (or closer to) the hip than the leg can reach.
     OutOfReach,
     /// A solution exists but breaks a joint's range.
     JointLimit,
 }
 
 impl RobotGeometry {
-    /// Where the wheel axle must be, in the leg plane, for a leg configuration.
+    /// Where the wheel centre must be, in the leg plane, for a leg configuration.
     pub fn wheel_target(&self, config: LegConfig) -> LegPlanePoint {
         LegPlanePoint {
             outward_m: 0.5 * config.track_m - self.hip_y_m,
@@ -103,7 +109,12 @@ impl RobotGeometry {
         if !within(config.clearance_m, self.clearance_range_m) {
             return Err(IkError::ClearanceOutOfRange);
         }
-        let target = self.wheel_target(config);
+        let wheel = self.wheel_target(config);
+        // The chain of thigh and shank reaches the mount, inboard of the wheel's centre.
+        let target = LegPlanePoint {
+            outward_m: wheel.outward_m - self.wheel_offset_m,
+            down_m: wheel.down_m,
+        };
         let (l1, l2) = (self.thigh_m, self.shank_m);
         let r2 = target.outward_m * target.outward_m + target.down_m * target.down_m;
         // Law of cosines at the knee.
@@ -132,18 +143,27 @@ impl RobotGeometry {
         self.leg_ik(config).is_ok()
     }
 
-    /// Forward kinematics in the leg plane (the wheel mount does not move the axle centre).
+    /// Forward kinematics in the leg plane (the wheel mount turns the axle about the mount's
+    /// joint; with the axle level, the wheel centre is the offset outward of it).
     pub fn leg_fk(&self, joints: JointAngles) -> LegPlanePose {
         let knee = LegPlanePoint {
             outward_m: self.thigh_m * crate::trig::cos(joints.hip_rad),
             down_m: self.thigh_m * crate::trig::sin(joints.hip_rad),
         };
         let shank_rad = joints.hip_rad + joints.knee_rad;
-        let wheel = LegPlanePoint {
+        let wheel_mount = LegPlanePoint {
             outward_m: knee.outward_m + self.shank_m * crate::trig::cos(shank_rad),
             down_m: knee.down_m + self.shank_m * crate::trig::sin(shank_rad),
         };
-        LegPlanePose { knee, wheel }
+        let wheel = LegPlanePoint {
+            outward_m: wheel_mount.outward_m + self.wheel_offset_m,
+            down_m: wheel_mount.down_m,
+        };
+        LegPlanePose {
+            knee,
+            wheel_mount,
+            wheel,
+        }
     }
 
     /// The leg configuration that measured joint angles realise (forward kinematics).
@@ -155,7 +175,7 @@ impl RobotGeometry {
         }
     }
 
-    /// Hip, knee and wheel centre of `leg` in the body frame.
+    /// Hip, knee, wheel mount and wheel centre of `leg` in the body frame.
     pub fn leg_points(&self, leg: LegId, joints: JointAngles) -> LegPoints {
         let pose = self.leg_fk(joints);
         let hip = self.hip_in_body(leg);
@@ -169,6 +189,7 @@ impl RobotGeometry {
         LegPoints {
             hip: Point3::from(hip),
             knee: to_body(pose.knee),
+            wheel_mount: to_body(pose.wheel_mount),
             wheel: to_body(pose.wheel),
         }
     }
@@ -212,6 +233,41 @@ mod tests {
             }
         }
         assert!(checked > 100, "only {checked} reachable lattice points");
+    }
+
+    #[test]
+    fn an_offset_wheel_keeps_the_track_between_wheel_centres() {
+        // Wheels 3 cm outboard of their mounts: the commanded track is still centre to centre,
+        // the chain reaches 3 cm less far out, and the wheel's centre is the mount's plus 3 cm.
+        let g = RobotGeometry {
+            wheel_offset_m: 0.03,
+            ..WHEELLEG
+        };
+        assert_eq!(g.check(), Ok(()));
+        let want = config(0.12, 0.36);
+        let joints = g.leg_ik(want).unwrap();
+        let got = g.config_from_joints(joints);
+        assert!((got.track_m - want.track_m).abs() < 1e-5, "{got:?}");
+        assert!((got.clearance_m - want.clearance_m).abs() < 1e-5, "{got:?}");
+        let pose = g.leg_fk(joints);
+        assert_eq!(pose.wheel.outward_m, pose.wheel_mount.outward_m + 0.03);
+        assert_eq!(pose.wheel.down_m, pose.wheel_mount.down_m);
+        // The chain is the shipped robot's at a track 6 cm narrower.
+        let narrower = WHEELLEG.leg_ik(config(0.12, 0.30)).unwrap();
+        assert!((joints.hip_rad - narrower.hip_rad).abs() < 1e-5);
+        assert!((joints.knee_rad - narrower.knee_rad).abs() < 1e-5);
+        let right = g.leg_points(LegId::FrontRight, joints);
+        assert!((right.wheel.y - (-0.18)).abs() < 1e-5, "{right:?}");
+        assert!((right.wheel_mount.y - (-0.15)).abs() < 1e-5, "{right:?}");
+        // Beyond half the wheel's width and the link radius, the axle would stand clear.
+        let too_far = RobotGeometry {
+            wheel_offset_m: 0.033,
+            ..WHEELLEG
+        };
+        assert_eq!(
+            too_far.check(),
+            Err(crate::robot::GeometryError::BadWheelOffset)
+        );
     }
 
     #[test]

@@ -105,6 +105,11 @@ pub struct RobotGeometry {
     pub wheel_radius_m: f32,
     /// Wheel width (along its axle, body y).
     pub wheel_width_m: f32,
+    /// Where the wheel's centre sits along its axle from the wheel mount's joint, outward (away
+    /// from the body's centre line; negative: inward). At most half the wheel's width plus the
+    /// link radius either way, so that the axle between the two lies within the shank's end and
+    /// the wheel, the collision parts ([`RobotGeometry::check`]).
+    pub wheel_offset_m: f32,
     /// Hip joint range `[min, max]`: thigh angle below the outward horizontal.
     pub hip_range_rad: [f32; 2],
     /// Knee joint range `[min, max]`: shank angle relative to the thigh, 0 = straight leg.
@@ -131,6 +136,7 @@ pub const WHEELLEG: RobotGeometry = RobotGeometry {
     link_radius_m: 0.012,
     wheel_radius_m: 0.05,
     wheel_width_m: 0.04,
+    wheel_offset_m: 0.0,
     hip_range_rad: [-1.2, 1.5],
     knee_range_rad: [0.0, 2.8],
     track_range_m: [0.16, 0.56],
@@ -139,7 +145,8 @@ pub const WHEELLEG: RobotGeometry = RobotGeometry {
     default_clearance_m: 0.12,
 };
 
-/// Number of fields of [`RobotGeometry`] ([`RobotGeometry::to_array`]).
+/// Number of fields of [`RobotGeometry`] a version 3 robot record stores
+/// ([`RobotGeometry::to_array`]): all but the wheel offset, which version 4 adds.
 pub const GEOMETRY_FIELDS: usize = 20;
 
 /// Why a geometry cannot be driven (a robot record's check; host tools name the description's
@@ -152,10 +159,13 @@ pub enum GeometryError {
     BadRange,
     /// The default pose has no leg solution.
     DefaultUnreachable,
+    /// A wheel offset that is not finite or beyond [`RobotGeometry::max_wheel_offset_m`].
+    BadWheelOffset,
 }
 
 impl RobotGeometry {
-    /// The fields in declaration order, as a weights file's robot record stores them.
+    /// The fields in declaration order but the wheel offset, as a weights file's robot record
+    /// stores them.
     pub fn to_array(&self) -> [f32; GEOMETRY_FIELDS] {
         [
             self.body_length_m,
@@ -181,8 +191,9 @@ impl RobotGeometry {
         ]
     }
 
-    /// The geometry of [`RobotGeometry::to_array`]'s order, unchecked ([`RobotGeometry::check`]).
-    pub fn from_array(a: [f32; GEOMETRY_FIELDS]) -> RobotGeometry {
+    /// The geometry of [`RobotGeometry::to_array`]'s order with the wheel offset, unchecked
+    /// ([`RobotGeometry::check`]).
+    pub fn from_array(a: [f32; GEOMETRY_FIELDS], wheel_offset_m: f32) -> RobotGeometry {
         let [body_length_m, body_width_m, body_thickness_m, hip_x_m, hip_y_m, thigh_m, shank_m, link_radius_m, wheel_radius_m, wheel_width_m, hip_min, hip_max, knee_min, knee_max, track_min, track_max, clearance_min, clearance_max, default_track_m, default_clearance_m] =
             a;
         RobotGeometry {
@@ -196,6 +207,7 @@ impl RobotGeometry {
             link_radius_m,
             wheel_radius_m,
             wheel_width_m,
+            wheel_offset_m,
             hip_range_rad: [hip_min, hip_max],
             knee_range_rad: [knee_min, knee_max],
             track_range_m: [track_min, track_max],
@@ -224,6 +236,10 @@ impl RobotGeometry {
         if !(lengths_ok && self.hip_y_m.is_finite() && self.hip_y_m >= 0.0) {
             return Err(GeometryError::BadLength);
         }
+        if !self.wheel_offset_m.is_finite() || self.wheel_offset_m.abs() > self.max_wheel_offset_m()
+        {
+            return Err(GeometryError::BadWheelOffset);
+        }
         let ranges = [
             self.hip_range_rad,
             self.knee_range_rad,
@@ -244,6 +260,13 @@ impl RobotGeometry {
             return Err(GeometryError::DefaultUnreachable);
         }
         Ok(())
+    }
+
+    /// The largest wheel offset either way along the axle: half the wheel's width plus the link
+    /// radius, where the axle between mount and wheel still lies within the shank's capsule end
+    /// and the wheel's cylinder.
+    pub fn max_wheel_offset_m(&self) -> f32 {
+        0.5 * self.wheel_width_m + self.link_radius_m
     }
 
     /// Height of the body centre above the ground at a given clearance.

@@ -81,7 +81,7 @@ fn magic_version_checksum_and_trailing_bytes_are_checked() {
             })
         );
     }
-    assert_eq!((OLDEST_FORMAT_VERSION, FORMAT_VERSION), (1, 3));
+    assert_eq!((OLDEST_FORMAT_VERSION, FORMAT_VERSION), (1, 4));
     // A validly written file of another version is refused the same way.
     let future = envelope_bytes(FORMAT_VERSION + 1, b"anything");
     assert!(matches!(
@@ -382,9 +382,11 @@ fn random_mutations_never_panic() {
 /// A change to a robot record.
 type RecordEdit = fn(&mut wheelleg_runtime::model::format::RobotRecord<'_>);
 
-/// A robot other than the shipped one: other lengths, nodes 21 to 36.
+/// A robot other than the shipped one: other lengths, wheels 2 cm outboard of their mounts,
+/// nodes 21 to 36.
 fn other_robot() -> TrainedRobot {
     let mut robot = Robot::WHEELLEG;
+    robot.geometry.wheel_offset_m = 0.02;
     robot.geometry.thigh_m = 0.10;
     robot.geometry.shank_m = 0.20;
     robot.geometry.hip_x_m = 0.24;
@@ -413,6 +415,12 @@ fn a_file_names_the_robot_it_was_trained_for() {
     assert_eq!(model.trained_for.robot, other_robot().robot);
     assert_eq!(model.trained_for.bit_rate_bps, 500_000);
     assert_eq!(WeightsFile::parse(&bytes), file);
+    // Version 3 has no wheel offset: it reads as 0.
+    file.version = 3;
+    let version_3 = file.to_bytes();
+    let model = Model::parse(&version_3).unwrap();
+    assert_eq!(model.trained_for.robot.geometry.wheel_offset_m, 0.0);
+    assert_eq!(model.trained_for.robot.geometry.thigh_m, 0.10);
     // The tensors are the same as version 2's: the same decisions.
     let a = DefaultPolicy::from_bytes(&shipped_bytes).unwrap();
     let b = DefaultPolicy::from_bytes(&bytes).unwrap();
@@ -437,6 +445,9 @@ fn a_robot_the_runtime_cannot_drive_is_refused_by_what_is_wrong() {
     let mut bad = other_robot();
     bad.robot.geometry.knee_range_rad = [2.8, 0.0];
     cases.push((bad, "geometry: a range"));
+    let mut bad = other_robot();
+    bad.robot.geometry.wheel_offset_m = 0.05;
+    cases.push((bad, "geometry: the wheel offset"));
     let mut bad = other_robot();
     bad.robot.geometry.default_clearance_m = 0.9;
     bad.robot.geometry.clearance_range_m = [0.04, 1.0];
@@ -463,7 +474,8 @@ fn a_robot_the_runtime_cannot_drive_is_refused_by_what_is_wrong() {
     let record = RobotRecord::of("wheelleg", &Robot::WHEELLEG, 1_000_000);
     let mut encoded = Vec::new();
     push(&mut encoded, &record);
-    let record_len = encoded.len();
+    let offset_len = core::mem::size_of::<f32>();
+    let record_len = encoded.len() + offset_len;
     let head = &payload[..payload.len() - record_len];
     let edits: [(&str, RecordEdit); 3] = [
         ("node ids: two axes share one", |r| {
@@ -477,6 +489,7 @@ fn a_robot_the_runtime_cannot_drive_is_refused_by_what_is_wrong() {
         edit(&mut record);
         let mut bytes = head.to_vec();
         push(&mut bytes, &record);
+        push(&mut bytes, &0.0f32);
         assert_eq!(
             Model::parse(&envelope_bytes(FORMAT_VERSION, &bytes)).err(),
             Some(LoadError::InvalidRobot { what }),

@@ -43,7 +43,30 @@ fn compare(
     scenes_per_kind: usize,
     steps: usize,
 ) -> Tally {
-    let guard = CollisionGuard::new(&Robot::WHEELLEG, margin_m);
+    compare_for(
+        &Robot::WHEELLEG,
+        margin_m,
+        grid,
+        seed,
+        scenes_per_kind,
+        steps,
+    )
+}
+
+/// [`compare`] for `robot`, on scenes fitted to it.
+fn compare_for(
+    robot: &Robot,
+    margin_m: f32,
+    grid: Option<MapGrid>,
+    seed: u64,
+    scenes_per_kind: usize,
+    steps: usize,
+) -> Tally {
+    let guard = CollisionGuard::new(robot, margin_m);
+    let config = EnvConfig {
+        geometry: robot.geometry,
+        ..EnvConfig::default()
+    };
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut tally = Tally::default();
     let mut obs = Observation::default();
@@ -51,13 +74,12 @@ fn compare(
     for kind in SceneKind::ALL {
         for n in 0..scenes_per_kind {
             let scene = generate(
-                wheelleg_sim::generate::SceneRobot::shipped(),
+                wheelleg_sim::generate::SceneRobot::of(&robot.geometry),
                 kind,
                 &mut rng,
                 format!("{kind:?}-{n}"),
             );
-            let mut env =
-                Env::new(&scene, EnvConfig::default()).expect("generated scenes are valid");
+            let mut env = Env::new(&scene, config).expect("generated scenes are valid");
             for _ in 0..steps {
                 if env.status().is_done() {
                     break;
@@ -179,6 +201,28 @@ fn assert_quality(tally: &Tally, most_missed: f64, most_refused: f64) {
         refused < most_refused,
         "refused {:.1}% of clear actions: {tally:?}",
         100.0 * refused
+    );
+}
+
+#[test]
+fn for_wheels_offset_from_their_mounts_the_guard_sees_what_the_simulator_finds() {
+    // The shipped robot with its wheels 3 cm outboard of the mounts: the shanks end inboard of
+    // the wheels, in both the guard's parts and the simulator's.
+    let mut robot = Robot::WHEELLEG;
+    robot.geometry.wheel_offset_m = 0.03;
+    let tally = compare_for(
+        &robot,
+        0.5 * wheelleg_runtime::observation::HEIGHT_MAP_CELL_M,
+        None,
+        9,
+        2,
+        30,
+    );
+    let missed = missed_share(&tally);
+    assert!(
+        missed < 0.01,
+        "missed {:.2}% of collisions: {tally:?}",
+        100.0 * missed
     );
 }
 

@@ -27,7 +27,7 @@ pub fn run(args: Args) -> CliResult {
     let trained = &model.trained_for;
     let g = &trained.robot.geometry;
     outln!(
-        "robot     '{}'{}: thigh {} m, shank {} m, hips at x {} m, y {} m, wheels {} m; CAN nodes {}",
+        "robot     '{}'{}: thigh {} m, shank {} m, hips at x {} m, y {} m, wheels {} m{}; CAN nodes {}",
         trained.name,
         if model.version < ROBOT_RECORD_VERSION {
             " (files before format version 3 were all trained for the shipped robot)"
@@ -39,6 +39,11 @@ pub fn run(args: Args) -> CliResult {
         g.hip_x_m,
         g.hip_y_m,
         g.wheel_radius_m,
+        if g.wheel_offset_m != 0.0 {
+            format!(" {} m out from their mounts", g.wheel_offset_m)
+        } else {
+            String::new()
+        },
         Axis::ALL
             .iter()
             .map(|&axis| trained.robot.can.node_id(axis).get().to_string())

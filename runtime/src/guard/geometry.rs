@@ -31,8 +31,10 @@ pub(super) struct Parts {
     clearance_m: f32,
     body_half_x_m: f32,
     body_half_y_m: f32,
-    /// Per leg: hip, knee and wheel centre.
+    /// Per leg: hip, knee, wheel mount and wheel centre.
     legs: [Leg; 4],
+    /// Per leg: the box beyond which a column is apart from it ([`Self::leg_is_apart`]).
+    leg_boxes: [LegBox; 4],
     link_radius_m: f32,
     wheel_radius_m: f32,
     wheel_half_width_m: f32,
@@ -51,16 +53,29 @@ impl Parts {
     pub(super) fn place(geometry: &RobotGeometry, legs: LegConfig) -> Option<Parts> {
         let joints = geometry.leg_ik(legs).ok()?;
         let centre_height_m = geometry.body_centre_height_m(legs.clearance_m);
-        let mut points = [[Point3::origin(); 3]; 4];
+        let mut points = [[Point3::origin(); 4]; 4];
         for (slot, leg) in points.iter_mut().zip(LegId::ALL) {
             let p = geometry.leg_points(leg, joints);
-            *slot = [p.hip, p.knee, p.wheel].map(|q| Point3::new(q.x, q.y, q.z + centre_height_m));
+            *slot = [p.hip, p.knee, p.wheel_mount, p.wheel]
+                .map(|q| Point3::new(q.x, q.y, q.z + centre_height_m));
         }
+        // Every point of a leg is in its leg plane, at the hip's x; each box is widened by the
+        // larger of a link's and the wheel's reach, and by [`CULL_SLACK_M`]. Worked out once
+        // per pose, not per column.
+        let reach_x_m = geometry.wheel_radius_m.max(geometry.link_radius_m) + CULL_SLACK_M;
+        let reach_y_m = geometry.link_radius_m.max(0.5 * geometry.wheel_width_m) + CULL_SLACK_M;
+        let leg_boxes = points.map(|[hip, knee, mount, wheel]| LegBox {
+            x_m: hip.x,
+            reach_x_m,
+            low_y_m: hip.y.min(knee.y).min(mount.y).min(wheel.y) - reach_y_m,
+            high_y_m: hip.y.max(knee.y).max(mount.y).max(wheel.y) + reach_y_m,
+        });
         Some(Parts {
             clearance_m: legs.clearance_m,
             body_half_x_m: 0.5 * geometry.body_length_m,
             body_half_y_m: 0.5 * geometry.body_width_m,
             legs: points,
+            leg_boxes,
             link_radius_m: geometry.link_radius_m,
             wheel_radius_m: geometry.wheel_radius_m,
             wheel_half_width_m: 0.5 * geometry.wheel_width_m,
@@ -80,25 +95,20 @@ impl Parts {
         // would only say they are apart.
         self.legs
             .iter()
-            .filter(|leg| !self.leg_is_apart(leg, column))
-            .map(|leg| self.leg_overlap_m(leg, column))
+            .zip(&self.leg_boxes)
+            .filter(|(_, leg_box)| !leg_box.is_apart(column))
+            .map(|(leg, _)| self.leg_overlap_m(leg, column))
             .fold(body_m, f32::max)
     }
 
-    /// Whether `column`'s square lies outside `leg`'s box (its points' y interval and the
-    /// hip's x, each widened by the larger of a link's and the wheel's reach, and by
-    /// [`CULL_SLACK_M`]), so that [`Self::leg_overlap_m`] is surely negative.
-    pub(super) fn leg_is_apart(&self, [hip, knee, wheel]: &Leg, column: &Column) -> bool {
-        let half_m = column.half_m;
-        // Every point of a leg is in its leg plane, at the hip's x.
-        let reach_x_m = self.wheel_radius_m.max(self.link_radius_m) + CULL_SLACK_M;
-        let reach_y_m = self.link_radius_m.max(self.wheel_half_width_m) + CULL_SLACK_M;
-        (column.x_m - hip.x).abs() - half_m > reach_x_m
-            || column.y_m + half_m < hip.y.min(knee.y).min(wheel.y) - reach_y_m
-            || column.y_m - half_m > hip.y.max(knee.y).max(wheel.y) + reach_y_m
+    /// Whether `column`'s square lies outside the box of leg `index` (its points' y interval
+    /// and the hip's x, widened), so that [`Self::leg_overlap_m`] is surely negative.
+    #[cfg(test)]
+    pub(super) fn leg_is_apart(&self, index: usize, column: &Column) -> bool {
+        self.leg_boxes[index].is_apart(column)
     }
 
-    /// The legs' hip, knee and wheel centre.
+    /// The legs' hip, knee, wheel mount and wheel centre.
     #[cfg(test)]
     pub(super) fn legs(&self) -> &[Leg; 4] {
         &self.legs
@@ -106,14 +116,14 @@ impl Parts {
 
     /// How deep `leg`'s thigh, shank and wheel reach into `column` (see [`Self::overlap_m`];
     /// negative and then not exact where each part is surely apart).
-    pub(super) fn leg_overlap_m(&self, [hip, knee, wheel]: &Leg, column: &Column) -> f32 {
+    pub(super) fn leg_overlap_m(&self, [hip, knee, mount, wheel]: &Leg, column: &Column) -> f32 {
         // A link's distance costs six `hypotf`s and the wheel's one, in double precision (in
         // software on the controller): the links are first tested across the leg plane and
         // the wheel in its own plane, and most columns near a leg are apart from most of it.
         let dx_m = across_m(hip, column);
         let mut deepest_m = f32::NEG_INFINITY;
         if !self.links_are_apart(dx_m) {
-            for (a, b) in [(hip, knee), (knee, wheel)] {
+            for (a, b) in [(hip, knee), (knee, mount)] {
                 deepest_m = deepest_m.max(self.link_overlap_m(a, b, dx_m, column));
             }
         }
@@ -174,8 +184,31 @@ impl Parts {
     }
 }
 
-/// A leg's hip, knee and wheel centre.
-pub(super) type Leg = [Point3<f32>; 3];
+/// Where a leg is, widened by its parts' reach: a column whose square lies outside is apart
+/// from every part of the leg.
+#[derive(Clone, Copy)]
+struct LegBox {
+    /// The hip's x: every point of a leg is in its leg plane.
+    x_m: f32,
+    /// How far a part reaches from the leg plane along x.
+    reach_x_m: f32,
+    /// The points' y interval, widened.
+    low_y_m: f32,
+    high_y_m: f32,
+}
+
+impl LegBox {
+    fn is_apart(&self, column: &Column) -> bool {
+        let half_m = column.half_m;
+        (column.x_m - self.x_m).abs() - half_m > self.reach_x_m
+            || column.y_m + half_m < self.low_y_m
+            || column.y_m - half_m > self.high_y_m
+    }
+}
+
+/// A leg's hip, knee, wheel mount and wheel centre. (The axle between mount and wheel lies
+/// within the shank's end and the wheel: [`RobotGeometry::max_wheel_offset_m`].)
+pub(super) type Leg = [Point3<f32>; 4];
 
 /// Where a column is from a wheel: its overlap along the axle, and its gaps from the centre
 /// along x and down z.

@@ -51,12 +51,14 @@ use crate::robot::{Robot, RobotGeometry};
 use nalgebra::{Isometry2, Point2};
 
 /// The robot's half-extent along its own x and y, for any leg configuration: the body, the
-/// wheels at the widest track, and the links (all in the hip's leg plane).
+/// wheels at the widest track, and the links (all in the hip's leg plane): the knee, and the
+/// shank's end at the wheel mount, the wheel offset inboard of the wheel's centre.
 fn half_extent_m(g: &RobotGeometry) -> (f32, f32) {
     let half_x_m = (0.5 * g.body_length_m).max(g.hip_x_m + g.wheel_radius_m.max(g.link_radius_m));
     let half_y_m = (0.5 * g.body_width_m)
         .max(0.5 * g.track_range_m[1] + 0.5 * g.wheel_width_m)
-        .max(g.hip_y_m + g.thigh_m + g.link_radius_m);
+        .max(g.hip_y_m + g.thigh_m + g.link_radius_m)
+        .max(0.5 * g.track_range_m[1] - g.wheel_offset_m + g.link_radius_m);
     (half_x_m, half_y_m)
 }
 
@@ -145,14 +147,11 @@ impl CollisionGuard {
         } else {
             0.0
         };
-        let half_track_m = 0.5 * geometry.track_range_m[1] + 0.5 * geometry.wheel_width_m;
-        let half_length_m =
-            (0.5 * geometry.body_length_m).max(geometry.hip_x_m + geometry.wheel_radius_m);
+        let (half_length_m, half_width_m) = half_extent_m(&geometry);
         // The farthest any part gets from the centre, plus one step of travel and the growth.
-        let reach_m =
-            crate::trig::hypot(half_length_m, half_track_m.max(0.5 * geometry.body_width_m))
-                + lattice.move_step_m * core::f32::consts::SQRT_2
-                + margin_m.max(0.0);
+        let reach_m = crate::trig::hypot(half_length_m, half_width_m)
+            + lattice.move_step_m * core::f32::consts::SQRT_2
+            + margin_m.max(0.0);
         CollisionGuard {
             geometry,
             lattice,

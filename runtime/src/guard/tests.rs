@@ -468,7 +468,7 @@ fn a_leg_or_part_skipped_as_apart_from_a_column_overlaps_it_nowhere() {
                 height_m: rng.random_range(0.0..0.4),
             };
             for (leg, points) in parts.legs().iter().enumerate() {
-                let [hip, knee, wheel] = points;
+                let [hip, knee, mount, wheel] = points;
                 let dx_m = across_m(hip, &column);
                 let links_apart = parts.links_are_apart(dx_m);
                 let gaps = parts.wheel_gaps(wheel, &column);
@@ -476,12 +476,12 @@ fn a_leg_or_part_skipped_as_apart_from_a_column_overlaps_it_nowhere() {
                     (links_apart, parts.link_overlap_m(hip, knee, dx_m, &column)),
                     (
                         links_apart,
-                        parts.link_overlap_m(knee, wheel, dx_m, &column),
+                        parts.link_overlap_m(knee, mount, dx_m, &column),
                     ),
                     (parts.wheel_is_apart(&gaps), parts.wheel_overlap_m(&gaps)),
                 ];
                 let whole_m = each.iter().map(|e| e.1).fold(f32::NEG_INFINITY, f32::max);
-                if parts.leg_is_apart(points, &column) {
+                if parts.leg_is_apart(leg, &column) {
                     legs_apart += 1;
                     assert!(whole_m < 0.0, "leg {leg} skipped at {whole_m} m");
                     continue;

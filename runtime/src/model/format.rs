@@ -10,7 +10,9 @@
 //! 4. a sequence of [`DenseRecord`] (the hidden dense stack);
 //! 5. one [`DenseRecord`] (the action head);
 //! 6. an `Option<DenseRecord>` (the value head);
-//! 7. from version 3 on, a [`RobotRecord`]: the robot the policy was trained for.
+//! 7. from version 3 on, a [`RobotRecord`]: the robot the policy was trained for;
+//! 8. from version 4 on, the robot's wheel offset along its axle (`f32`, metres), which the
+//!    version 3 record lacks (version 3 files are read with an offset of 0).
 //!
 //! A writer with an allocator serializes a struct with these six fields (sequences as `Vec`s,
 //! as the trainer does), which gives exactly those bytes; the runtime reads the six parts one after another
@@ -40,12 +42,14 @@ use serde::{Deserialize, Serialize};
 /// First four bytes of every weights file.
 pub const MAGIC: [u8; 4] = *b"WLWM";
 /// The format version the trainer writes and the newest this runtime reads (int16 action
-/// logits, the robot record; see the module docs).
-pub const FORMAT_VERSION: u16 = 3;
+/// logits, the robot record with the wheel offset; see the module docs).
+pub const FORMAT_VERSION: u16 = 4;
 /// The first version whose payload ends with a [`RobotRecord`]. Files of earlier versions were
 /// all trained for the shipped robot ([`crate::robot::Robot::WHEELLEG`]), which the loader
 /// takes for them.
 pub const ROBOT_RECORD_VERSION: u16 = 3;
+/// The first version whose payload ends with the wheel offset after the [`RobotRecord`].
+pub const WHEEL_OFFSET_VERSION: u16 = 4;
 /// Longest robot name a file may carry, in bytes.
 pub const MAX_ROBOT_NAME_BYTES: usize = 32;
 /// The oldest format version this runtime reads (int8 action logits and state).

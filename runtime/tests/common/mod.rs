@@ -17,7 +17,7 @@ use wheelleg_runtime::model::format::{
     ActQuantRecord, ConvRecord, DenseRecord, Envelope, InputQuantRecord, InputRecord,
     FORMAT_VERSION, MAGIC,
 };
-use wheelleg_runtime::model::format::{RobotRecord, ROBOT_RECORD_VERSION};
+use wheelleg_runtime::model::format::{RobotRecord, ROBOT_RECORD_VERSION, WHEEL_OFFSET_VERSION};
 use wheelleg_runtime::model::load::{open_envelope, trained_for};
 use wheelleg_runtime::robot::Robot;
 
@@ -287,7 +287,12 @@ impl WeightsFile {
         let value_head = take::<Option<DenseRecord<'_>>>(&mut payload).map(|r| dense_from(&r));
         let robot = if version >= ROBOT_RECORD_VERSION {
             let record: RobotRecord<'_> = take(&mut payload);
-            let found = trained_for(record).unwrap();
+            let wheel_offset_m = if version >= WHEEL_OFFSET_VERSION {
+                take::<f32>(&mut payload)
+            } else {
+                0.0
+            };
+            let found = trained_for(record, wheel_offset_m).unwrap();
             TrainedRobot {
                 name: found.name.into(),
                 robot: found.robot,
@@ -365,6 +370,9 @@ impl WeightsFile {
                 &mut out,
                 &RobotRecord::of(&self.robot.name, &self.robot.robot, self.robot.bit_rate_bps),
             );
+            if self.version >= WHEEL_OFFSET_VERSION {
+                push(&mut out, &self.robot.robot.geometry.wheel_offset_m);
+            }
         }
         out
     }

@@ -284,13 +284,16 @@ pub(crate) fn place_parts(
         let to_world = |outward_m: f32, down_m: f32| {
             body_pose * Point3::new(hip.x, hip.y + leg.side_sign() * outward_m, hip.z - down_m)
         };
-        let (hip, knee, wheel) = (
+        let (hip, knee, mount, wheel) = (
             body_pose * Point3::from(hip),
             to_world(plane.knee.outward_m, plane.knee.down_m),
+            to_world(plane.wheel_mount.outward_m, plane.wheel_mount.down_m),
             to_world(plane.wheel.outward_m, plane.wheel.down_m),
         );
+        // The axle between mount and wheel lies within the shank's end and the wheel
+        // (`RobotGeometry::max_wheel_offset_m`): no part of its own.
         slot[0] = Part::Link(Capsule::new(hip, knee, geometry.link_radius_m));
-        slot[1] = Part::Link(Capsule::new(knee, wheel, geometry.link_radius_m));
+        slot[1] = Part::Link(Capsule::new(knee, mount, geometry.link_radius_m));
         slot[2] = Part::Wheel {
             pose: Isometry3::from_parts(Translation3::from(wheel.coords), body_pose.rotation),
             shape: wheel_shape,

@@ -319,7 +319,7 @@ fn leg_motion_m(
     }
     // One leg stands for all four: they mirror each other.
     let leg = wheelleg_runtime::robot::LegId::FrontLeft;
-    let mut previous: Option<[nalgebra::Point3<f32>; 3]> = None;
+    let mut previous: Option<[nalgebra::Point3<f32>; 4]> = None;
     let mut longest_piece_m = 0.0f32;
     for piece in 0..=LEG_PATH_PIECES {
         let t = piece as f32 / LEG_PATH_PIECES as f32;
@@ -329,7 +329,12 @@ fn leg_motion_m(
         };
         let points = geometry.leg_points(leg, geometry.leg_ik(legs)?);
         let lift = nalgebra::Vector3::z() * geometry.body_centre_height_m(legs.clearance_m);
-        let now = [points.hip + lift, points.knee + lift, points.wheel + lift];
+        let now = [
+            points.hip + lift,
+            points.knee + lift,
+            points.wheel_mount + lift,
+            points.wheel + lift,
+        ];
         if let Some(before) = previous {
             for (a, b) in before.iter().zip(&now) {
                 longest_piece_m = longest_piece_m.max((b - a).norm());
@@ -455,8 +460,9 @@ pub(crate) fn horizontal_reach_m(geometry: &RobotGeometry) -> f32 {
 }
 
 /// A bound on how far any robot part reaches horizontally from the body centre at a track of
-/// `track_m` or narrower: the body's corner, or a wheel (the knees stay inside the wheels'
-/// reach: they are at most a thigh's length outboard of the hips), plus the largest part radius.
+/// `track_m` or narrower: the body's corner, a wheel, a knee (at most a thigh's length outboard
+/// of its hip) or a shank's end at the wheel mount (the wheel offset inboard of the wheel's
+/// centre), plus the largest part radius.
 pub(crate) fn horizontal_reach_at_track_m(geometry: &RobotGeometry, track_m: f32) -> f32 {
     let body = (0.5 * geometry.body_length_m).hypot(0.5 * geometry.body_width_m);
     let wheel = (geometry.hip_x_m + geometry.wheel_radius_m)
@@ -464,5 +470,7 @@ pub(crate) fn horizontal_reach_at_track_m(geometry: &RobotGeometry, track_m: f32
     let knee = geometry
         .hip_x_m
         .hypot(geometry.hip_y_m + geometry.thigh_m + geometry.link_radius_m);
-    body.max(wheel).max(knee) + 0.01
+    let mount = (geometry.hip_x_m + geometry.link_radius_m)
+        .hypot(0.5 * track_m - geometry.wheel_offset_m + geometry.link_radius_m);
+    body.max(wheel).max(knee).max(mount) + 0.01
 }

@@ -81,7 +81,17 @@ pub fn robot_views(
         for leg in [LegId::FrontLeft, LegId::FrontRight] {
             let p = g.leg_points(leg, joints);
             f_links.push([(p.hip.y, up(p.hip.z)), (p.knee.y, up(p.knee.z))]);
-            f_links.push([(p.knee.y, up(p.knee.z)), (p.wheel.y, up(p.wheel.z))]);
+            f_links.push([
+                (p.knee.y, up(p.knee.z)),
+                (p.wheel_mount.y, up(p.wheel_mount.z)),
+            ]);
+            if p.wheel_mount != p.wheel {
+                // The axle out to the wheel's centre.
+                f_links.push([
+                    (p.wheel_mount.y, up(p.wheel_mount.z)),
+                    (p.wheel.y, up(p.wheel.z)),
+                ]);
+            }
             let half = 0.5 * g.wheel_width_m;
             f_wheels.push([
                 (p.wheel.y - half, up(p.wheel.z) - g.wheel_radius_m),

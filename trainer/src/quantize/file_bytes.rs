@@ -5,7 +5,7 @@ use serde::Serialize;
 use wheelleg_runtime::model::crc32::crc32;
 use wheelleg_runtime::model::format::{
     ActQuantRecord, ConvRecord, DenseRecord, Envelope, InputQuantRecord, InputRecord, RobotRecord,
-    FORMAT_VERSION, MAGIC, OLDEST_FORMAT_VERSION, ROBOT_RECORD_VERSION,
+    FORMAT_VERSION, MAGIC, OLDEST_FORMAT_VERSION, ROBOT_RECORD_VERSION, WHEEL_OFFSET_VERSION,
 };
 
 use super::params::ActQuant;
@@ -88,6 +88,23 @@ fn dense_record<'a>(
     })
 }
 
+/// The end of a version 3 or later payload: the robot record of `robot` under `name`, and from
+/// version 4 on its wheel offset.
+pub fn robot_bytes(
+    version: u16,
+    name: &str,
+    robot: &wheelleg_runtime::robot::Robot,
+    bit_rate_bps: u32,
+) -> Result<Vec<u8>, QuantizeError> {
+    let encode = |e: postcard::Error| QuantizeError::Encode(e.to_string());
+    let record = RobotRecord::of(name, robot, bit_rate_bps);
+    let mut bytes = postcard::to_allocvec(&record).map_err(encode)?;
+    if version >= WHEEL_OFFSET_VERSION {
+        bytes.extend(postcard::to_allocvec(&robot.geometry.wheel_offset_m).map_err(encode)?);
+    }
+    Ok(bytes)
+}
+
 /// Wraps a payload in the envelope: magic, version, payload, CRC-32 of all that.
 pub fn envelope_bytes(version: u16, payload: &[u8]) -> Result<Vec<u8>, QuantizeError> {
     let envelope = Envelope {
@@ -167,17 +184,19 @@ impl QuantizedNetwork {
             // The seventh part: postcard lays out a struct as its fields one after another, so
             // appending the record is the payload with the record as a last field.
             let robot = &self.robot;
-            let record = RobotRecord::of(&robot.name, &robot.robot, robot.bit_rate_bps);
-            bytes.extend(
-                postcard::to_allocvec(&record).map_err(|e| QuantizeError::Encode(e.to_string()))?,
-            );
+            bytes.extend(robot_bytes(
+                self.version,
+                &robot.name,
+                &robot.robot,
+                robot.bit_rate_bps,
+            )?);
         }
         Ok(bytes)
     }
 
     /// The complete `.wlw` file, of format version [`QuantizedNetwork::version`] (the payload
     /// bytes are laid out the same in versions 1 and 2, only the head's meaning differs;
-    /// version 3 adds the robot record).
+    /// version 3 adds the robot record, version 4 the wheel offset after it).
     pub fn to_bytes(&self) -> Result<Vec<u8>, QuantizeError> {
         if !(OLDEST_FORMAT_VERSION..=FORMAT_VERSION).contains(&self.version) {
             return Err(QuantizeError::Version(self.version));

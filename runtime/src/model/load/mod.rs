@@ -12,7 +12,7 @@ use heapless::Vec;
 
 use super::format::{
     ActQuantRecord, ConvRecord, DenseRecord, InputQuantRecord, InputRecord, RobotRecord,
-    ROBOT_RECORD_VERSION,
+    ROBOT_RECORD_VERSION, WHEEL_OFFSET_VERSION,
 };
 use crate::action::{CHOICES, DIMS};
 
@@ -246,7 +246,12 @@ impl<'a> Model<'a> {
         let (trained_for, rest) = if version >= ROBOT_RECORD_VERSION {
             let (record, rest) =
                 take::<RobotRecord<'a>>(rest, corrupt("robot record"), "robot record")?;
-            (trained_for(record)?, rest)
+            let (wheel_offset_m, rest) = if version >= WHEEL_OFFSET_VERSION {
+                take::<f32>(rest, corrupt("wheel offset"), "wheel offset")?
+            } else {
+                (0.0, rest)
+            };
+            (trained_for(record, wheel_offset_m)?, rest)
         } else {
             (TrainedFor::SHIPPED, rest)
         };

@@ -1,4 +1,4 @@
-//! The robot record of a version 3 file, checked into the robot the runtime drives.
+//! The robot record of a version 3 or 4 file, checked into the robot the runtime drives.
 
 use super::LoadError;
 use crate::action::ActionLattice;
@@ -31,10 +31,13 @@ fn invalid(what: &'static str) -> LoadError {
     LoadError::InvalidRobot { what }
 }
 
-/// Checks a robot record: a name a description could have, a geometry the runtime can drive,
-/// a positive action lattice, a node map of distinct ids with ±1 directions and positive
-/// ratios.
-pub fn trained_for(record: RobotRecord<'_>) -> Result<TrainedFor<'_>, LoadError> {
+/// Checks a robot record with its wheel offset (0 for a version 3 file): a name a description
+/// could have, a geometry the runtime can drive, a positive action lattice, a node map of
+/// distinct ids with ±1 directions and positive ratios.
+pub fn trained_for(
+    record: RobotRecord<'_>,
+    wheel_offset_m: f32,
+) -> Result<TrainedFor<'_>, LoadError> {
     let name_ok = !record.name.is_empty()
         && record.name.len() <= MAX_ROBOT_NAME_BYTES
         && record
@@ -44,11 +47,12 @@ pub fn trained_for(record: RobotRecord<'_>) -> Result<TrainedFor<'_>, LoadError>
     if !name_ok {
         return Err(invalid("name"));
     }
-    let geometry = RobotGeometry::from_array(record.geometry);
+    let geometry = RobotGeometry::from_array(record.geometry, wheel_offset_m);
     geometry.check().map_err(|e| match e {
         GeometryError::BadLength => invalid("geometry: a length"),
         GeometryError::BadRange => invalid("geometry: a range"),
         GeometryError::DefaultUnreachable => invalid("geometry: the default pose"),
+        GeometryError::BadWheelOffset => invalid("geometry: the wheel offset"),
     })?;
     let [move_step_m, yaw_step_deg, clearance_step_m, track_step_m] = record.actions;
     if !record.actions.iter().all(|v| v.is_finite() && *v > 0.0) {
