@@ -7,6 +7,8 @@ use std::process::{Command, Output};
 use wheelleg_trainer::network_f32::{Architecture, NetworkF32};
 use wheelleg_trainer::quantize::{quantize, Calibration, RangeMethod};
 
+mod support;
+
 fn wheelleg(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_wheelleg"))
         .args(args)
@@ -488,26 +490,6 @@ fn robot_refuses_bad_descriptions_and_urdfs_by_name() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// The shipped policy's tensors in a file of the current version trained for `robot`.
-fn weights_for(robot: &wheelleg_robot::RobotDescription) -> Vec<u8> {
-    use wheelleg_runtime::model::format::FORMAT_VERSION;
-    use wheelleg_runtime::model::load::open_envelope;
-    let shipped =
-        std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/weights/policy.wlw")).unwrap();
-    let (_, payload) = open_envelope(&shipped).unwrap();
-    let mut payload = payload.to_vec();
-    payload.extend(
-        wheelleg_trainer::quantize::file_bytes::robot_bytes(
-            FORMAT_VERSION,
-            &robot.name,
-            &robot.robot,
-            robot.bit_rate_bps,
-        )
-        .unwrap(),
-    );
-    wheelleg_trainer::quantize::file_bytes::envelope_bytes(FORMAT_VERSION, &payload).unwrap()
-}
-
 #[test]
 fn a_policy_is_refused_for_a_robot_it_was_not_trained_for() {
     let dir = scratch("robot-weights");
@@ -540,7 +522,7 @@ fn a_policy_is_refused_for_a_robot_it_was_not_trained_for() {
     let shipped = dir.join("shipped-v3.wlw");
     std::fs::write(
         &shipped,
-        weights_for(&wheelleg_robot::RobotDescription::shipped()),
+        support::shipped_network_for(&wheelleg_robot::RobotDescription::shipped()),
     )
     .unwrap();
     let v3 = eval(&shipped);
@@ -557,7 +539,7 @@ fn a_policy_is_refused_for_a_robot_it_was_not_trained_for() {
     // Another robot's: refused by eval and by the demo, naming both robots.
     let strider = wheelleg_robot::RobotDescription::load(std::path::Path::new(STRIDER)).unwrap();
     let other = dir.join("strider.wlw");
-    std::fs::write(&other, weights_for(&strider)).unwrap();
+    std::fs::write(&other, support::shipped_network_for(&strider)).unwrap();
     let out = eval(&other);
     assert!(!out.status.success());
     let err = text(&out.stderr);

@@ -21,7 +21,6 @@
 //!   within 0.5 mm, wheels stopped), and the robot goes on; the faults as in lockstep.
 
 use std::path::{Path, PathBuf};
-
 use wheelleg::closed_loop::{ClosedLoop, Driver, LoopConfig};
 use wheelleg::hil::onboard::OnboardDriver;
 use wheelleg::hil::plant::{PlantClock, PlantFault};
@@ -34,6 +33,8 @@ use wheelleg_runtime::can::node_map::{Axis, Joint};
 use wheelleg_runtime::robot::{LegId, WHEELLEG};
 use wheelleg_sim::env::{Env, EnvConfig};
 use wheelleg_sim::scenario::Scenario;
+
+mod support;
 
 const SCENES: &str = "eval/heldout-complex-s1000000.json";
 
@@ -535,26 +536,6 @@ fn a_slow_decision_holds_the_robot_and_then_it_goes_on() {
     );
 }
 
-/// The shipped network with `robot`'s record: weights a controller takes as trained for it.
-fn weights_for(robot: &wheelleg_robot::RobotDescription) -> Vec<u8> {
-    use wheelleg_runtime::model::format::FORMAT_VERSION;
-    use wheelleg_runtime::model::load::open_envelope;
-    let shipped = std::fs::read(root().join("weights/policy.wlw")).expect("weights");
-    let (_, payload) = open_envelope(&shipped).expect("shipped envelope");
-    let mut payload = payload.to_vec();
-    payload.extend(
-        wheelleg_trainer::quantize::file_bytes::robot_bytes(
-            FORMAT_VERSION,
-            &robot.name,
-            &robot.robot,
-            robot.bit_rate_bps,
-        )
-        .expect("record"),
-    );
-    wheelleg_trainer::quantize::file_bytes::envelope_bytes(FORMAT_VERSION, &payload)
-        .expect("weights file")
-}
-
 #[test]
 #[ignore = "the firmware in QEMU, minutes: scripts/hil.sh runs it"]
 fn another_robot_s_weights_run_on_the_firmware() {
@@ -570,7 +551,7 @@ fn another_robot_s_weights_run_on_the_firmware() {
     let out = root().join("target/hil");
     std::fs::create_dir_all(&out).expect("out dir");
     let weights_path = out.join("strider.wlw");
-    let weights = weights_for(&strider);
+    let weights = support::shipped_network_for(&strider);
     std::fs::write(&weights_path, &weights).expect("weights written");
     let image = wheelleg::hil::image_with_weights(&weights_path, PlantClock::Emulated)
         .unwrap_or_else(|e| panic!("{e}"));
