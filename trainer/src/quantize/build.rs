@@ -140,7 +140,7 @@ pub struct QuantizedNetwork {
     /// Value head.
     pub value_head: Option<QuantizedDense>,
     /// The robot the network was trained for, written as the file's robot record (version 3
-    /// on). The trainer trains the shipped robot.
+    /// on; its wheel offset from version 4 on).
     pub robot: RobotDescription,
 }
 
