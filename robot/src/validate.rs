@@ -123,14 +123,16 @@ fn numbers(file: &DescriptionFile) -> Result<(), DescriptionError> {
     range("legs.knee_range_rad", l.knee_range_rad)?;
     positive("wheels.radius_m", w.radius_m)?;
     positive("wheels.width_m", w.width_m)?;
-    let most_m = 0.5 * w.width_m + l.link_radius_m;
-    if !w.offset_m.is_finite() || w.offset_m.abs() > most_m {
+    // The runtime's own bound, in its precision: what this accepts, a weights file carries.
+    let g = file.geometry();
+    if !g.wheel_offset_m.is_finite() || g.wheel_offset_m.abs() > g.max_wheel_offset_m() {
         return Err(error(
             "wheels.offset_m",
             format!(
-                "{} m is more than half the wheel's width plus the link radius ({most_m} m) either \
+                "{} m is more than half the wheel's width plus the link radius ({} m) either \
                  way: the axle from the wheel mount to the wheel would stand clear of both",
-                w.offset_m
+                w.offset_m,
+                0.5 * w.width_m + l.link_radius_m
             ),
         ));
     }

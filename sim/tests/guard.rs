@@ -34,27 +34,10 @@ struct Tally {
     reach_disagreements: usize,
 }
 
-/// Random walks through scenes of every kind; at each state every action is tried in a copy of
-/// the episode and checked by the guard, on the policy's map or, given a `grid`, on that one.
+/// Random walks through scenes of every kind fitted to `robot`; at each state every action is
+/// tried in a copy of the episode and checked by the guard, on the policy's map or, given a
+/// `grid`, on that one.
 fn compare(
-    margin_m: f32,
-    grid: Option<MapGrid>,
-    seed: u64,
-    scenes_per_kind: usize,
-    steps: usize,
-) -> Tally {
-    compare_for(
-        &Robot::WHEELLEG,
-        margin_m,
-        grid,
-        seed,
-        scenes_per_kind,
-        steps,
-    )
-}
-
-/// [`compare`] for `robot`, on scenes fitted to it.
-fn compare_for(
     robot: &Robot,
     margin_m: f32,
     grid: Option<MapGrid>,
@@ -173,6 +156,7 @@ fn grown_by_half_a_cell_the_guard_sees_the_collisions_the_simulator_finds() {
     // Half a cell covers everything the map's sampling may hide (but corners of obstacles that
     // fall between sample points).
     let tally = compare(
+        &Robot::WHEELLEG,
         0.5 * wheelleg_runtime::observation::HEIGHT_MAP_CELL_M,
         None,
         7,
@@ -215,7 +199,7 @@ fn for_wheels_offset_from_their_mounts_the_guard_sees_what_the_simulator_finds()
     // the wheels, in both the guard's parts and the simulator's.
     let mut robot = Robot::WHEELLEG;
     robot.geometry.wheel_offset_m = 0.03;
-    let tally = compare_for(
+    let tally = compare(
         &robot,
         0.5 * wheelleg_runtime::observation::HEIGHT_MAP_CELL_M,
         None,
@@ -228,7 +212,11 @@ fn for_wheels_offset_from_their_mounts_the_guard_sees_what_the_simulator_finds()
 
 #[test]
 fn at_the_default_margin_the_guard_catches_most_collisions_and_refuses_few_clear_moves() {
-    assert_quality(&compare(DEFAULT_MARGIN_M, None, 8, 4, 30), 0.10, 0.07);
+    assert_quality(
+        &compare(&Robot::WHEELLEG, DEFAULT_MARGIN_M, None, 8, 4, 30),
+        0.10,
+        0.07,
+    );
 }
 
 #[test]
@@ -239,5 +227,9 @@ fn on_a_one_centimetre_map_the_default_margin_misses_next_to_nothing() {
     // 5 cm map), 1.9% of clear actions refused (3.6%).
     let grid = MapGrid::GUARD_FINE;
     assert!(DEFAULT_MARGIN_M >= 0.5 * grid.cell_m);
-    assert_quality(&compare(DEFAULT_MARGIN_M, Some(grid), 8, 4, 30), 0.01, 0.07);
+    assert_quality(
+        &compare(&Robot::WHEELLEG, DEFAULT_MARGIN_M, Some(grid), 8, 4, 30),
+        0.01,
+        0.07,
+    );
 }
