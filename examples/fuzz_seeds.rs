@@ -175,8 +175,10 @@ fn scenario_seeds(out: &Path) {
                 )
             })
             .collect();
-        let json =
-            wheelleg_sim::scenario_file::to_json(&scenes, &wheelleg_runtime::robot::WHEELLEG);
+        let json = wheelleg_sim::scenario_file::to_json(
+            &scenes,
+            &wheelleg_sim::robot::SimulatedRobot::SHIPPED,
+        );
         write(
             out,
             "scenario_json",
@@ -200,7 +202,7 @@ fn checkpoint_seeds(out: &Path) {
                 scene_rng_word_pos: 1234 * e as u128,
                 scenario_json: wheelleg_sim::scenario_file::to_json(
                     std::slice::from_ref(&scene),
-                    &wheelleg_runtime::robot::WHEELLEG,
+                    &wheelleg_sim::robot::SimulatedRobot::SHIPPED,
                 ),
                 actions: vec![121, 40, 202][..e].to_vec(),
                 episodes_started: e as u64,

@@ -73,12 +73,14 @@ fn run() -> Result<()> {
     };
     let weights = std::fs::read(WEIGHTS).map_err(|e| format!("{WEIGHTS}: {e}"))?;
     // The scenes are read for the robot the weights were trained for.
-    let geometry = OnboardDriver::new(&weights)
+    let robot = OnboardDriver::new(&weights)
         .map_err(|e| format!("{WEIGHTS}: {}", e.0))?
-        .robot()
-        .geometry;
+        .robot();
+    let simulated = wheelleg_sim::robot::SimulatedRobot::new(robot.geometry, robot.actions)
+        .map_err(|e| format!("{WEIGHTS}: {e}"))?;
     let json = std::fs::read_to_string(SCENES).map_err(|e| format!("{SCENES}: {e}"))?;
-    let scenes = wheelleg_sim::scenario_file::parse(&json, &geometry).map_err(|e| e.to_string())?;
+    let scenes =
+        wheelleg_sim::scenario_file::parse(&json, &simulated).map_err(|e| e.to_string())?;
     match args.first().map(String::as_str) {
         Some("vectors") => {
             let out = PathBuf::from(args.get(1).ok_or("vectors needs OUT_DIR")?);

@@ -30,7 +30,7 @@ use wheelleg::hil::{
 };
 use wheelleg_firmware_sim::candump::{CandumpWriter, DEFAULT_EPOCH_US};
 use wheelleg_runtime::can::node_map::{Axis, Joint};
-use wheelleg_runtime::robot::{LegId, WHEELLEG};
+use wheelleg_runtime::robot::LegId;
 use wheelleg_sim::env::{Env, EnvConfig};
 use wheelleg_sim::scenario::Scenario;
 
@@ -66,7 +66,8 @@ fn chosen_scenes() -> (usize, usize) {
 
 fn scenes() -> Vec<Scenario> {
     let json = std::fs::read_to_string(root().join(SCENES)).expect("held-out scenes");
-    wheelleg_sim::scenario_file::parse(&json, &WHEELLEG).expect("scenes parse")
+    wheelleg_sim::scenario_file::parse(&json, &wheelleg_sim::robot::SimulatedRobot::SHIPPED)
+        .expect("scenes parse")
 }
 
 /// Both clocks the loop runs on.
@@ -557,10 +558,10 @@ fn another_robot_s_weights_run_on_the_firmware() {
         .unwrap_or_else(|e| panic!("{e}"));
     // A straight scene fitted to the strider, its target moved to within one step: the first
     // decision arrives (the arrival rule), so the episode is short and its outcome certain.
-    let geometry = strider.simulated_geometry().expect("simulated geometry");
+    let simulated = wheelleg_sim::robot::SimulatedRobot::of(&strider).expect("simulated robot");
     let mut rng = rand::rngs::StdRng::seed_from_u64(2);
     let mut scene = generate(
-        SceneRobot::of(&geometry),
+        SceneRobot::of(&simulated),
         wheelleg_sim::generate::SceneKind::Behaviour(wheelleg_sim::generate::Behaviour::Straight),
         &mut rng,
         "strider-straight".into(),
@@ -571,7 +572,7 @@ fn another_robot_s_weights_run_on_the_firmware() {
     scene.target.x += ahead_m * yaw_rad.cos();
     scene.target.y += ahead_m * yaw_rad.sin();
     let env_config = EnvConfig {
-        geometry,
+        robot: simulated,
         ..EnvConfig::default()
     };
     // The host's in-process loop with the firmware's stack on the same weights and robot.

@@ -1,6 +1,7 @@
-//! A second robot through the whole host chain at smoke size: its description checked, scenes
-//! generated and planned for it, a short training, the export, the evaluation and the demo on
-//! the bus with its own node ids, and every file of one robot refused for the other.
+//! A second robot, and one on another action lattice, through the whole host chain at smoke
+//! size: its description checked, scenes generated and planned for it, a short training, the
+//! export, the evaluation and the demo on the bus with its own node ids, and every file of one
+//! robot refused for the other.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -42,27 +43,16 @@ fn s(path: &Path) -> &str {
     path.to_str().unwrap()
 }
 
-#[test]
-fn the_second_robot_goes_through_generate_plan_train_export_eval_and_demo() {
-    let dir = scratch("strider");
-    let report = ok(&["robot", "check", STRIDER, "--json"]);
-    let report: serde_json::Value = serde_json::from_str(&report).unwrap();
-    assert!(report["behaviours"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .all(|b| b["available"] == true));
-    // Each scene fence's passing pose, fitted to it (`sim/src/generate/fit.rs`).
-    let fences = &report["fences"];
-    assert_eq!(fences["lift"]["clearance_steps"], 2, "{fences}");
-    assert_eq!(fences["squeeze"]["track_steps"], -10, "{fences}");
-
-    // Scenes built for it, each solved by the planner on its geometry.
+/// Scenes generated and planned for `robot`, a short training, the export, the evaluation and
+/// the demo on the bus; every frame of the demo must go to nodes 21 to 36. The checkpoint and
+/// the weights file, for the caller's refusals.
+fn through_the_chain(robot: &str, dir: &Path) -> (PathBuf, PathBuf) {
+    // Scenes built for it, each solved by the planner on its geometry and lattice.
     let scenes = dir.join("lift.json");
     ok(&[
         "generate",
         "--robot",
-        STRIDER,
+        robot,
         "--kind",
         "lift",
         "--count",
@@ -75,7 +65,7 @@ fn the_second_robot_goes_through_generate_plan_train_export_eval_and_demo() {
     let plans = ok(&[
         "plan",
         "--robot",
-        STRIDER,
+        robot,
         "--scenarios",
         s(&scenes),
         "--json",
@@ -84,19 +74,6 @@ fn the_second_robot_goes_through_generate_plan_train_export_eval_and_demo() {
     let plans = plans["results"].as_array().unwrap();
     assert_eq!(plans.len(), 3);
     assert!(plans.iter().all(|p| p["solvable"] == true), "{plans:?}");
-    // The shipped robot's scenes are not the strider's: its lift pose is another.
-    let shipped_scenes = dir.join("lift-shipped.json");
-    ok(&[
-        "generate",
-        "--kind",
-        "lift",
-        "--count",
-        "3",
-        "--seed",
-        "4",
-        "--out",
-        s(&shipped_scenes),
-    ]);
 
     // Two iterations of the smoke recipe on its straight scenes.
     let run = dir.join("run");
@@ -106,7 +83,7 @@ fn the_second_robot_goes_through_generate_plan_train_export_eval_and_demo() {
         "--config",
         SMOKE,
         "--robot",
-        STRIDER,
+        robot,
         "--out",
         s(&run),
         "--seed",
@@ -116,26 +93,9 @@ fn the_second_robot_goes_through_generate_plan_train_export_eval_and_demo() {
         "2000",
     ]);
     let checkpoint = run.join("checkpoint.ckpt");
-    // Resumed for the shipped robot: refused, naming both.
-    let err = refused(&[
-        "train",
-        "baseline",
-        "--config",
-        SMOKE,
-        "--out",
-        s(&run),
-        "--seed",
-        "1",
-        "--quiet",
-        "--resume",
-    ]);
-    assert!(
-        err.contains("'strider'") && err.contains("'wheelleg'"),
-        "{err}"
-    );
 
     // Exported: the weights name the robot.
-    let weights = dir.join("strider.wlw");
+    let weights = dir.join("robot.wlw");
     ok(&[
         "export",
         "--policy",
@@ -151,14 +111,12 @@ fn the_second_robot_goes_through_generate_plan_train_export_eval_and_demo() {
         "--qat-steps",
         "0",
     ]);
-    let inspect = ok(&["inspect", s(&weights)]);
-    assert!(inspect.contains("strider"), "{inspect}");
 
-    // Evaluated on its robot; refused on the shipped one, checkpoint and weights alike.
+    // Evaluated on its robot.
     let eval = ok(&[
         "eval",
         "--robot",
-        STRIDER,
+        robot,
         "--policy",
         s(&weights),
         "--generated",
@@ -171,30 +129,13 @@ fn the_second_robot_goes_through_generate_plan_train_export_eval_and_demo() {
     ]);
     let eval: serde_json::Value = serde_json::from_str(&eval).unwrap();
     assert_eq!(eval["scenarios"].as_array().unwrap().len(), 2);
-    for policy in [&weights, &checkpoint] {
-        let err = refused(&[
-            "eval",
-            "--policy",
-            s(policy),
-            "--generated",
-            "1",
-            "--kind",
-            "straight",
-            "--max-expansions",
-            "0",
-        ]);
-        assert!(
-            err.contains("'strider'") && err.contains("'wheelleg'"),
-            "{err}"
-        );
-    }
 
-    // The demo on the in-process bus: every frame goes to the strider's nodes (21 to 36).
+    // The demo on the in-process bus: every frame goes to the robot's nodes (21 to 36).
     let straight = dir.join("straight.json");
     ok(&[
         "generate",
         "--robot",
-        STRIDER,
+        robot,
         "--kind",
         "straight",
         "--count",
@@ -208,7 +149,7 @@ fn the_second_robot_goes_through_generate_plan_train_export_eval_and_demo() {
     let out = wheelleg(&[
         "demo",
         "--robot",
-        STRIDER,
+        robot,
         "--policy",
         s(&weights),
         "--scenarios",
@@ -234,5 +175,130 @@ fn the_second_robot_goes_through_generate_plan_train_export_eval_and_demo() {
         frames += 1;
     }
     assert!(frames > 100, "{frames} frames");
+    (checkpoint, weights)
+}
+
+#[test]
+fn the_second_robot_goes_through_generate_plan_train_export_eval_and_demo() {
+    let dir = scratch("strider");
+    let report = ok(&["robot", "check", STRIDER, "--json"]);
+    let report: serde_json::Value = serde_json::from_str(&report).unwrap();
+    assert!(report["behaviours"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|b| b["available"] == true));
+    // Each scene fence's passing pose, fitted to it (`sim/src/generate/fit.rs`).
+    let fences = &report["fences"];
+    assert_eq!(fences["lift"]["clearance_steps"], 2, "{fences}");
+    assert_eq!(fences["squeeze"]["track_steps"], -10, "{fences}");
+
+    let (checkpoint, weights) = through_the_chain(STRIDER, &dir);
+    let inspect = ok(&["inspect", s(&weights)]);
+    assert!(inspect.contains("strider"), "{inspect}");
+
+    // Resumed for the shipped robot: refused, naming both.
+    let err = refused(&[
+        "train",
+        "baseline",
+        "--config",
+        SMOKE,
+        "--out",
+        s(&dir.join("run")),
+        "--seed",
+        "1",
+        "--quiet",
+        "--resume",
+    ]);
+    assert!(
+        err.contains("'strider'") && err.contains("'wheelleg'"),
+        "{err}"
+    );
+    // Evaluated on the shipped robot: refused, checkpoint and weights alike.
+    for policy in [&weights, &checkpoint] {
+        let err = refused(&[
+            "eval",
+            "--policy",
+            s(policy),
+            "--generated",
+            "1",
+            "--kind",
+            "straight",
+            "--max-expansions",
+            "0",
+        ]);
+        assert!(
+            err.contains("'strider'") && err.contains("'wheelleg'"),
+            "{err}"
+        );
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_robot_on_another_action_lattice_goes_through_the_chain() {
+    // The strider stepping 6.25 cm, 7.5 degrees and 3 cm of track (its clearance step kept):
+    // four moves to a scene cell, twelve turns to a quarter turn.
+    let dir = scratch("coarse");
+    let text = std::fs::read_to_string(STRIDER).unwrap();
+    let coarse = text
+        .replace("move_step_m = 0.05", "move_step_m = 0.0625")
+        .replace("yaw_step_deg = 5.0", "yaw_step_deg = 7.5")
+        .replace("track_step_m = 0.02", "track_step_m = 0.03");
+    assert_ne!(coarse, text);
+    let robot = dir.join("strider-coarse.toml");
+    std::fs::write(&robot, coarse).unwrap();
+    let robot = s(&robot);
+    let report = ok(&["robot", "check", robot, "--json"]);
+    let report: serde_json::Value = serde_json::from_str(&report).unwrap();
+    for fence in ["lift", "spread", "squeeze"] {
+        assert!(
+            report["fences"][fence]["track_steps"].is_i64(),
+            "{fence}: {}",
+            report["fences"]
+        );
+    }
+
+    let (_, weights) = through_the_chain(robot, &dir);
+    let inspect = ok(&["inspect", s(&weights)]);
+    assert!(
+        inspect.contains("move 0.0625 m, yaw 7.5 deg, clearance 0.02 m, track 0.03 m"),
+        "{inspect}"
+    );
+    // The same robot on the paper's lattice is another robot to a policy: refused, naming the
+    // lattice.
+    let err = refused(&[
+        "eval",
+        "--robot",
+        STRIDER,
+        "--policy",
+        s(&weights),
+        "--generated",
+        "1",
+        "--kind",
+        "straight",
+        "--max-expansions",
+        "0",
+    ]);
+    assert!(err.contains("action lattice differs"), "{err}");
+    // A lattice the scenes cannot line up with is refused, naming the key.
+    let crooked = dir.join("crooked.toml");
+    std::fs::write(
+        &crooked,
+        text.replace("yaw_step_deg = 5.0", "yaw_step_deg = 7.0"),
+    )
+    .unwrap();
+    let err = refused(&[
+        "generate",
+        "--robot",
+        s(&crooked),
+        "--kind",
+        "straight",
+        "--count",
+        "1",
+        "--out",
+        s(&dir.join("crooked.json")),
+    ]);
+    assert!(err.contains("actions.yaw_step_deg = 7"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }

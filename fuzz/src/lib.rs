@@ -282,14 +282,14 @@ pub fn check_scenario_json(bytes: &[u8]) {
     let Ok(text) = std::str::from_utf8(bytes) else {
         return;
     };
-    let Ok(scenarios) = wheelleg_sim::scenario_file::parse(text, &WHEELLEG) else {
+    let Ok(scenarios) = wheelleg_sim::scenario_file::parse(text, &wheelleg_sim::robot::SimulatedRobot::SHIPPED) else {
         return;
     };
-    let written = wheelleg_sim::scenario_file::to_json(&scenarios, &WHEELLEG);
-    let reread = wheelleg_sim::scenario_file::parse(&written, &WHEELLEG)
+    let written = wheelleg_sim::scenario_file::to_json(&scenarios, &wheelleg_sim::robot::SimulatedRobot::SHIPPED);
+    let reread = wheelleg_sim::scenario_file::parse(&written, &wheelleg_sim::robot::SimulatedRobot::SHIPPED)
         .unwrap_or_else(|e| panic!("a written scenario file does not read back: {e}\n{written}"));
     assert_eq!(
-        wheelleg_sim::scenario_file::to_json(&reread, &WHEELLEG),
+        wheelleg_sim::scenario_file::to_json(&reread, &wheelleg_sim::robot::SimulatedRobot::SHIPPED),
         written,
         "writing is not stable after one round trip"
     );

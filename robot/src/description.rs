@@ -7,7 +7,6 @@
 use crate::validate::{validate, DescriptionError};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
-use wheelleg_runtime::action::ActionLattice;
 use wheelleg_runtime::can::node_map::{Axis, Joint, AXIS_COUNT};
 use wheelleg_runtime::model::format::RobotRecord;
 use wheelleg_runtime::model::load::{trained_for, TrainedFor};
@@ -109,36 +108,6 @@ impl RobotDescription {
             Some("CAN wiring")
         } else {
             None
-        }
-    }
-
-    /// The geometry the simulator, the scene generators and the trainer use for this robot.
-    /// They step on the paper's action lattice (scenes, start poses and the planner's moves are
-    /// built on it), so a description with another lattice is refused here, naming the key; the
-    /// runtime and the controller drive any lattice.
-    pub fn simulated_geometry(&self) -> Result<RobotGeometry, String> {
-        let a = &self.robot.actions;
-        let paper = ActionLattice::PAPER;
-        let differs = [
-            ("actions.move_step_m", a.move_step_m, paper.move_step_m),
-            ("actions.yaw_step_deg", a.yaw_step_deg, paper.yaw_step_deg),
-            (
-                "actions.clearance_step_m",
-                a.clearance_step_m,
-                paper.clearance_step_m,
-            ),
-            ("actions.track_step_m", a.track_step_m, paper.track_step_m),
-        ]
-        .into_iter()
-        .find(|(_, value, wanted)| value != wanted);
-        match differs {
-            Some((key, value, wanted)) => Err(format!(
-                "robot '{}': {key} = {value}, and the simulator and trainer step on the paper's \
-                 lattice ({key} = {wanted}); the runtime drives other lattices, training for \
-                 one is not supported",
-                self.name
-            )),
-            None => Ok(self.robot.geometry),
         }
     }
 

@@ -5,7 +5,6 @@
 //! (exact search, then the weighted fallback, `BUDGET` expansions each, default 5,000) and prints
 //! one JSON line per scenario with the fields of `wheelleg plan --json`, in file order.
 //! `tools/planner_speed.sh` builds it against two versions of the planner and compares them.
-use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::env::{Env, EnvConfig};
 use wheelleg_sim::planner::{plan_with_fallback, PlanOutcome, PlannerConfig};
 
@@ -15,8 +14,11 @@ fn main() {
     let budget: usize = arg(2).and_then(|s| s.parse().ok()).unwrap_or(5_000);
     let stride: usize = arg(3).and_then(|s| s.parse().ok()).unwrap_or(1).max(1);
     let offset: usize = arg(4).and_then(|s| s.parse().ok()).unwrap_or(0);
-    let scenarios = wheelleg_sim::scenario_file::load(std::path::Path::new(&path), &WHEELLEG)
-        .expect("a scenario file");
+    let scenarios = wheelleg_sim::scenario_file::load(
+        std::path::Path::new(&path),
+        &wheelleg_sim::robot::SimulatedRobot::SHIPPED,
+    )
+    .expect("a scenario file");
     let config = PlannerConfig {
         max_expansions: budget,
         ..PlannerConfig::default()

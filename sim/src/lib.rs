@@ -2,6 +2,7 @@
 //! Environment" and "Reward" sections).
 //!
 //! - [`obstacle`]: the three obstacle kinds and their boxes.
+//! - [`robot`]: the robot as simulated, its geometry and action lattice.
 //! - [`state`]: the robot's pose and leg configuration on the action lattice.
 //! - [`collision`]: the robot's parts and exact collision with parry3d.
 //! - [`height_map`]: the robot-centred height map the policy sees.
@@ -28,50 +29,52 @@ pub mod obstacle;
 pub mod planner;
 pub mod render;
 pub mod reward;
+pub mod robot;
 pub mod scenario;
 pub mod scenario_file;
 pub mod seeds;
 pub mod state;
 
+use robot::SimulatedRobot;
 use std::io::Write;
 use std::path::Path;
 use std::sync::{Mutex, OnceLock};
-use wheelleg_runtime::robot::{RobotGeometry, WHEELLEG};
 
-/// Values worked out once per robot geometry: the shipped robot's, and every other's met so far.
-pub(crate) struct PerGeometry<T: 'static> {
+/// Values worked out once per simulated robot: the shipped robot's, and every other's met so
+/// far.
+pub(crate) struct PerRobot<T: 'static> {
     shipped: OnceLock<T>,
-    others: Mutex<Vec<(RobotGeometry, &'static T)>>,
+    others: Mutex<Vec<(SimulatedRobot, &'static T)>>,
 }
 
-impl<T: Send + Sync + 'static> PerGeometry<T> {
+impl<T: Send + Sync + 'static> PerRobot<T> {
     /// An empty cache, for a `static`.
     pub(crate) const fn new() -> Self {
-        PerGeometry {
+        PerRobot {
             shipped: OnceLock::new(),
             others: Mutex::new(Vec::new()),
         }
     }
 
-    /// The value for `geometry`, built by `build` on first use. Values live as long as the
+    /// The value for `robot`, built by `build` on first use. Values live as long as the
     /// program: a run simulates one robot or a few, and a step must not wait on a value's
     /// lifetime. The shipped robot's is reached without a lock.
     pub(crate) fn get(
         &'static self,
-        geometry: &RobotGeometry,
-        build: impl FnOnce(&RobotGeometry) -> T,
+        robot: &SimulatedRobot,
+        build: impl FnOnce(&SimulatedRobot) -> T,
     ) -> &'static T {
-        if *geometry == WHEELLEG {
-            return self.shipped.get_or_init(|| build(&WHEELLEG));
+        if *robot == SimulatedRobot::SHIPPED {
+            return self.shipped.get_or_init(|| build(&SimulatedRobot::SHIPPED));
         }
         // A poisoned lock only means another thread panicked mid-insert: the list still holds
         // finished values.
         let mut others = self.others.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some((_, value)) = others.iter().find(|(g, _)| g == geometry) {
+        if let Some((_, value)) = others.iter().find(|(r, _)| r == robot) {
             return value;
         }
-        let value: &'static T = Box::leak(Box::new(build(geometry)));
-        others.push((*geometry, value));
+        let value: &'static T = Box::leak(Box::new(build(robot)));
+        others.push((*robot, value));
         value
     }
 }

@@ -2,10 +2,10 @@
 
 use crate::collision::{ObstacleSet, RobotParts};
 use crate::obstacle::Obstacle;
+use crate::robot::SimulatedRobot;
 use crate::state::RobotState;
 use core::fmt;
 use nalgebra::Point2;
-use wheelleg_runtime::robot::RobotGeometry;
 
 /// One navigation problem.
 #[derive(Clone, Debug, PartialEq)]
@@ -45,14 +45,22 @@ impl fmt::Display for ScenarioError {
 impl std::error::Error for ScenarioError {}
 
 impl Scenario {
-    /// Checks what the type system cannot: finite numbers and a start that is not inside an
-    /// obstacle.
-    pub fn validate(&self, geometry: &RobotGeometry) -> Result<(), ScenarioError> {
+    /// Checks what the type system cannot: finite numbers, a start on `robot`'s lattice and
+    /// not inside an obstacle.
+    pub fn validate(&self, robot: &SimulatedRobot) -> Result<(), ScenarioError> {
         let fail = |field: &str, problem: &str| ScenarioError {
             scenario: format!("\"{}\"", self.name),
             field: field.to_string(),
             problem: problem.to_string(),
         };
+        if self.start.lattice != *robot.lattice() {
+            return Err(fail(
+                "robot",
+                "its start counts yaw and leg steps on another action lattice than the \
+                 simulated robot's: the scene was made for another robot",
+            ));
+        }
+        let geometry = robot.geometry();
         let finite = |v: f32| v.is_finite() && v.abs() < 1.0e4;
         if !finite(self.start.position.x) {
             return Err(fail("robot.x", "must be a finite number of metres"));

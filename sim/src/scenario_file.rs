@@ -5,21 +5,21 @@
 //!   "target":{"x":0.8,"y":0.0},
 //!   "obstacles":[{"kind":"bar","x":0.375,"y":0.125,"yaw_deg":0}]}]}
 //! ```
-//! Lengths in metres, angles in degrees. The robot's yaw must lie on the 5 degree action
-//! lattice; obstacle yaw is 0 or 90 (180 and 270 are the same boxes and are accepted).
+//! Lengths in metres, angles in degrees. A file is read and written for one robot: the robot's
+//! yaw must lie on its action lattice (5 degree steps for the shipped robot); obstacle yaw is 0
+//! or 90 (180 and 270 are the same boxes and are accepted).
 //!
-//! The robot may also give its start leg pose, `"clearance_m"` and `"track_m"`, each on the
-//! 0.02 m action lattice from the default pose (0.12 m, 0.36 m). Absent means the default, and
-//! they are written only when not default, so files of default starts read and write exactly as
-//! before the fields existed.
+//! The robot may also give its start leg pose, `"clearance_m"` and `"track_m"`, each on its
+//! action lattice from its default pose (0.02 m steps from 0.12 m and 0.36 m for the shipped
+//! robot). Absent means the default, and they are written only when not default.
 
 use crate::obstacle::{Obstacle, ObstacleKind, ObstacleYaw};
+use crate::robot::SimulatedRobot;
 use crate::scenario::{Scenario, ScenarioError};
 use crate::state::RobotState;
 use nalgebra::Point2;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
-use wheelleg_runtime::action::{CLEARANCE_STEP_M, TRACK_STEP_M, YAW_STEP_DEG};
 use wheelleg_runtime::robot::RobotGeometry;
 
 #[derive(Serialize, Deserialize)]
@@ -100,7 +100,7 @@ impl std::fmt::Display for ScenarioFileError {
 impl std::error::Error for ScenarioFileError {}
 
 /// Parses and validates scenario JSON.
-pub fn parse(json: &str, geometry: &RobotGeometry) -> Result<Vec<Scenario>, ScenarioFileError> {
+pub fn parse(json: &str, robot: &SimulatedRobot) -> Result<Vec<Scenario>, ScenarioFileError> {
     let mut deserializer = serde_json::Deserializer::from_str(json);
     let file: FileRecord = serde_path_to_error::deserialize(&mut deserializer).map_err(|e| {
         ScenarioFileError::Syntax {
@@ -111,8 +111,8 @@ pub fn parse(json: &str, geometry: &RobotGeometry) -> Result<Vec<Scenario>, Scen
         .into_iter()
         .enumerate()
         .map(|(i, record)| {
-            let scenario = from_record(i, record, geometry)?;
-            scenario.validate(geometry)?;
+            let scenario = from_record(i, record, robot)?;
+            scenario.validate(robot)?;
             Ok(scenario)
         })
         .collect::<Result<_, ScenarioError>>()
@@ -120,18 +120,21 @@ pub fn parse(json: &str, geometry: &RobotGeometry) -> Result<Vec<Scenario>, Scen
 }
 
 /// Reads and validates a scenario file.
-pub fn load(path: &Path, geometry: &RobotGeometry) -> Result<Vec<Scenario>, ScenarioFileError> {
+pub fn load(path: &Path, robot: &SimulatedRobot) -> Result<Vec<Scenario>, ScenarioFileError> {
     let json = std::fs::read_to_string(path).map_err(|source| ScenarioFileError::Io {
         path: path.display().to_string(),
         source,
     })?;
-    parse(&json, geometry)
+    parse(&json, robot)
 }
 
 /// Serializes scenarios as a scenario file.
-pub fn to_json(scenarios: &[Scenario], geometry: &RobotGeometry) -> String {
+pub fn to_json(scenarios: &[Scenario], robot: &SimulatedRobot) -> String {
     let file = FileRecord {
-        scenarios: scenarios.iter().map(|s| to_record(s, geometry)).collect(),
+        scenarios: scenarios
+            .iter()
+            .map(|s| to_record(s, robot.geometry()))
+            .collect(),
     };
     // Serializing plain records of strings and numbers cannot fail.
     serde_json::to_string_pretty(&file).unwrap_or_default()
@@ -142,9 +145,9 @@ pub fn to_json(scenarios: &[Scenario], geometry: &RobotGeometry) -> String {
 pub fn save(
     path: &Path,
     scenarios: &[Scenario],
-    geometry: &RobotGeometry,
+    robot: &SimulatedRobot,
 ) -> Result<(), ScenarioFileError> {
-    crate::atomic_write(path, to_json(scenarios, geometry).as_bytes()).map_err(|source| {
+    crate::atomic_write(path, to_json(scenarios, robot).as_bytes()).map_err(|source| {
         ScenarioFileError::Io {
             path: path.display().to_string(),
             source,
@@ -155,8 +158,9 @@ pub fn save(
 fn from_record(
     index: usize,
     r: ScenarioRecord,
-    geometry: &RobotGeometry,
+    robot: &SimulatedRobot,
 ) -> Result<Scenario, ScenarioError> {
+    let (geometry, lattice) = (robot.geometry(), robot.lattice());
     let label = if r.name.is_empty() {
         format!("#{index}")
     } else {
@@ -178,16 +182,18 @@ fn from_record(
         }
     };
     let yaw_deg = number(r.robot.yaw_deg, "robot.yaw_deg")?;
-    let yaw_steps = (yaw_deg / YAW_STEP_DEG).round();
-    if (yaw_steps * YAW_STEP_DEG - yaw_deg).abs() > 1e-3 {
+    let yaw_step_deg = lattice.yaw_step_deg;
+    let yaw_steps = (yaw_deg / yaw_step_deg).round();
+    if (yaw_steps * yaw_step_deg - yaw_deg).abs() > 1e-3 || yaw_steps.abs() > 1.0e6 {
         return Err(fail(
             "robot.yaw_deg".into(),
-            "must be a multiple of 5 degrees (the action's yaw lattice)",
+            &format!("must be a multiple of {yaw_step_deg} degrees (the robot's yaw lattice)"),
         ));
     }
     let mut start = RobotState::new(
         Point2::new(number(r.robot.x, "robot.x")?, number(r.robot.y, "robot.y")?),
         yaw_steps as i32,
+        lattice,
     );
     // A leg pose off the action lattice could never be reached again by any action, and the
     // state stores whole steps: refuse rather than round.
@@ -202,7 +208,7 @@ fn from_record(
                 field.to_string(),
                 &format!(
                     "must be {default_m} m plus a whole number of {step_m} m steps (the \
-                     action's leg lattice)"
+                     robot's leg lattice)"
                 ),
             ));
         }
@@ -212,13 +218,13 @@ fn from_record(
         r.robot.clearance_m,
         "robot.clearance_m",
         geometry.default_clearance_m,
-        CLEARANCE_STEP_M,
+        lattice.clearance_step_m,
     )?;
     start.track_steps = lattice_steps(
         r.robot.track_m,
         "robot.track_m",
         geometry.default_track_m,
-        TRACK_STEP_M,
+        lattice.track_step_m,
     )?;
     let target = Point2::new(
         number(r.target.x, "target.x")?,

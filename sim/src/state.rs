@@ -1,76 +1,118 @@
-//! The robot's state in the world, kept on the action lattice.
+//! The robot's state in the world, kept on its action lattice.
 //!
 //! Yaw, clearance and track change only by whole steps, so they are stored as integer step
 //! counts: the state after any action sequence is exact, and two states compare equal exactly
 //! when they are the same pose. Position moves along the robot's own axes and so leaves any
-//! lattice; it is `f32`.
+//! lattice; it is `f32`. The state carries the lattice its steps count on, so that it reads
+//! the same wherever it goes.
 
+use crate::robot::yaw_steps_per_turn;
 use nalgebra::{Isometry3, Point2, Translation3, UnitQuaternion, Vector2, Vector3};
-use wheelleg_runtime::action::{Action, CLEARANCE_STEP_M, TRACK_STEP_M, YAW_STEP_DEG};
+use wheelleg_runtime::action::{Action, ActionLattice};
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::motion::BaseDisplacement;
-use wheelleg_runtime::robot::{Robot, RobotGeometry};
-
-/// Number of yaw steps in a full turn.
-pub const YAW_STEPS_PER_TURN: i32 = (360.0 / YAW_STEP_DEG) as i32;
+use wheelleg_runtime::robot::RobotGeometry;
 
 /// Pose and leg configuration of the robot.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RobotState {
     /// Body centre projected on the ground, world frame.
     pub position: Point2<f32>,
-    /// Heading in yaw steps, in `0..YAW_STEPS_PER_TURN`.
+    /// Heading in yaw steps, in `0..`[`RobotState::yaw_steps_per_turn`].
     pub yaw_steps: i32,
     /// Clearance in steps from the default clearance.
     pub clearance_steps: i32,
     /// Track in steps from the default track.
     pub track_steps: i32,
+    /// The lattice the steps count on (a [`crate::robot::SimulatedRobot`]'s).
+    pub lattice: ActionLattice,
 }
 
 impl RobotState {
-    /// The robot at `position` with heading `yaw_steps`, legs in the default pose.
-    pub fn new(position: Point2<f32>, yaw_steps: i32) -> Self {
+    /// The robot at `position` with heading `yaw_steps` on `lattice`, legs in the default pose.
+    pub fn new(position: Point2<f32>, yaw_steps: i32, lattice: &ActionLattice) -> Self {
         RobotState {
             position,
-            yaw_steps: yaw_steps.rem_euclid(YAW_STEPS_PER_TURN),
+            yaw_steps: yaw_steps.rem_euclid(yaw_steps_per_turn(lattice)),
             clearance_steps: 0,
             track_steps: 0,
+            lattice: *lattice,
         }
+    }
+
+    /// Whole yaw steps in a full turn on the state's lattice.
+    pub fn yaw_steps_per_turn(&self) -> i32 {
+        yaw_steps_per_turn(&self.lattice)
     }
 
     /// Heading in radians.
     pub fn yaw_rad(&self) -> f32 {
-        (self.yaw_steps as f32 * YAW_STEP_DEG).to_radians()
+        (self.yaw_steps as f32 * self.lattice.yaw_step_deg).to_radians()
     }
 
     /// Heading in degrees.
     pub fn yaw_deg(&self) -> f32 {
-        self.yaw_steps as f32 * YAW_STEP_DEG
+        self.yaw_steps as f32 * self.lattice.yaw_step_deg
+    }
+
+    /// The signed turn from `self` to `to`, in yaw steps, for neighbours on the lattice (at most
+    /// one step apart): -1, 0 or +1 across the wrap at a full turn.
+    pub fn yaw_steps_to(&self, to: &RobotState) -> i32 {
+        let steps = to.yaw_steps - self.yaw_steps;
+        // Only a turn across the wrap needs the turn's length (a division).
+        if (-1..=1).contains(&steps) {
+            steps
+        } else {
+            (steps + 1).rem_euclid(self.yaw_steps_per_turn()) - 1
+        }
+    }
+
+    /// The signed turn from `self` to a neighbour `to`, radians ([`RobotState::yaw_steps_to`]).
+    pub fn yaw_turn_rad_to(&self, to: &RobotState) -> f32 {
+        (self.yaw_steps_to(to) as f32 * self.lattice.yaw_step_deg).to_radians()
     }
 
     /// The legs' (clearance, track).
     pub fn leg_config(&self, geometry: &RobotGeometry) -> LegConfig {
         LegConfig {
             clearance_m: geometry.default_clearance_m
-                + self.clearance_steps as f32 * CLEARANCE_STEP_M,
-            track_m: geometry.default_track_m + self.track_steps as f32 * TRACK_STEP_M,
+                + self.clearance_steps as f32 * self.lattice.clearance_step_m,
+            track_m: geometry.default_track_m + self.track_steps as f32 * self.lattice.track_step_m,
         }
+    }
+
+    /// `yaw_steps` brought into `0..`[`RobotState::yaw_steps_per_turn`]; kept out of a step's
+    /// way, since a step crosses the wrap once in tens.
+    #[cold]
+    fn wrapped(&self, yaw_steps: i32) -> i32 {
+        yaw_steps.rem_euclid(self.yaw_steps_per_turn())
     }
 
     /// The state an action leads to, before any check of whether it is allowed.
     ///
     /// The translation is along the robot's axes as they were when the decision was taken.
+    #[inline]
     pub fn after(&self, action: Action) -> RobotState {
         let (sin, cos) = self.yaw_rad().sin_cos();
         // The controller's definition of a step (runtime::motion), so both sides agree.
         let BaseDisplacement {
             dx_m: dx, dy_m: dy, ..
-        } = BaseDisplacement::of_action(action, &Robot::WHEELLEG.actions);
+        } = BaseDisplacement::of_action(action, &self.lattice);
+        // Wrapped only past either end of the turn, so that a step multiplies where the wrap
+        // would divide (every yaw step is at least 1.5 degrees: the last one is below 359).
+        let yaw_steps = self.yaw_steps + action.yaw.sign() as i32;
+        let yaw_steps = if yaw_steps >= 0 && (yaw_steps as f32) * self.lattice.yaw_step_deg < 359.0
+        {
+            yaw_steps
+        } else {
+            self.wrapped(yaw_steps)
+        };
         RobotState {
             position: self.position + Vector2::new(cos * dx - sin * dy, sin * dx + cos * dy),
-            yaw_steps: (self.yaw_steps + action.yaw.sign() as i32).rem_euclid(YAW_STEPS_PER_TURN),
+            yaw_steps,
             clearance_steps: self.clearance_steps + action.clearance.sign() as i32,
             track_steps: self.track_steps + action.track.sign() as i32,
+            lattice: self.lattice,
         }
     }
 

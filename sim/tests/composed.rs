@@ -15,6 +15,7 @@ use wheelleg_sim::generate::{
 };
 use wheelleg_sim::obstacle::GRID_CELL_M;
 use wheelleg_sim::planner::{plan, PlanOutcome};
+use wheelleg_sim::robot::SimulatedRobot;
 use wheelleg_sim::scenario::Scenario;
 
 mod common;
@@ -156,12 +157,20 @@ fn each_fence_of_every_variant_needs_its_behaviour() {
             }
             let (frozen, with_behaviour) = leg_filters(*behaviour);
             assert!(
-                fence_blocks(&fence, &WHEELLEG, &lattice_legs(&WHEELLEG, frozen)),
+                fence_blocks(
+                    &fence,
+                    &WHEELLEG,
+                    &lattice_legs(&SimulatedRobot::SHIPPED, frozen)
+                ),
                 "{name}: the {} fence must block frozen legs",
                 behaviour.name()
             );
             assert!(
-                !fence_blocks(&fence, &WHEELLEG, &lattice_legs(&WHEELLEG, with_behaviour)),
+                !fence_blocks(
+                    &fence,
+                    &WHEELLEG,
+                    &lattice_legs(&SimulatedRobot::SHIPPED, with_behaviour)
+                ),
                 "{name}: the {} fence must let the behaviour through",
                 behaviour.name()
             );
@@ -332,7 +341,7 @@ fn a_scene_of_every_variant_is_solvable() {
     };
     let firsts = first_of_each_variant(&sample());
     let scenes: Vec<Scenario> = firsts.values().map(|(_, s)| s.clone()).collect();
-    let paths = prove_solvable(&scenes, &WHEELLEG, all_but_last, &[frozen]);
+    let paths = prove_solvable(&scenes, &SimulatedRobot::SHIPPED, all_but_last, &[frozen]);
     for ((variant, scene), path) in firsts.values().zip(paths) {
         for behaviour in &variant.fences {
             let passing = wheelleg_sim::generate::SceneRobot::shipped().passing_legs(*behaviour);

@@ -16,6 +16,7 @@ use wheelleg_runtime::robot::Robot;
 use wheelleg_sim::env::{Env, EnvConfig, InvalidAction, Observation};
 use wheelleg_sim::generate::{generate, SceneKind};
 use wheelleg_sim::height_map::MapGrid;
+use wheelleg_sim::robot::SimulatedRobot;
 
 #[derive(Default, Debug)]
 struct Tally {
@@ -46,8 +47,9 @@ fn compare(
     steps: usize,
 ) -> Tally {
     let guard = CollisionGuard::new(robot, margin_m);
+    let simulated = SimulatedRobot::new(robot.geometry, robot.actions).expect("simulated");
     let config = EnvConfig {
-        geometry: robot.geometry,
+        robot: simulated,
         ..EnvConfig::default()
     };
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
@@ -57,7 +59,7 @@ fn compare(
     for kind in SceneKind::ALL {
         for n in 0..scenes_per_kind {
             let scene = generate(
-                wheelleg_sim::generate::SceneRobot::of(&robot.geometry),
+                wheelleg_sim::generate::SceneRobot::of(&simulated),
                 kind,
                 &mut rng,
                 format!("{kind:?}-{n}"),

@@ -13,7 +13,11 @@ use wheelleg_sim::state::RobotState;
 fn episode(start: (f32, f32), target: (f32, f32), obstacles: Vec<Obstacle>) -> Env {
     let scenario = Scenario {
         name: "last metres".to_string(),
-        start: RobotState::new(Point2::new(start.0, start.1), 0),
+        start: RobotState::new(
+            Point2::new(start.0, start.1),
+            0,
+            &wheelleg_runtime::action::ActionLattice::PAPER,
+        ),
         target: Point2::new(target.0, target.1),
         obstacles,
     };

@@ -4,9 +4,11 @@
 //!
 //! Run in release mode (`cargo test --release -p wheelleg-sim`): a few seconds.
 
+mod common;
+
+use common::{brute_force, brute_force_within, shortest};
 use nalgebra::Point2;
-use std::collections::{HashMap, VecDeque};
-use wheelleg_runtime::action::{Action, Step, COUNT};
+use wheelleg_runtime::action::{Action, Step};
 use wheelleg_sim::env::{Env, EnvConfig};
 use wheelleg_sim::generate::{generate_many, Behaviour, SceneKind};
 use wheelleg_sim::obstacle::{Obstacle, ObstacleKind, ObstacleYaw};
@@ -22,7 +24,11 @@ fn scene(
 ) -> Scenario {
     Scenario {
         name: "hand-made".to_string(),
-        start: RobotState::new(Point2::new(start.0, start.1), yaw_steps),
+        start: RobotState::new(
+            Point2::new(start.0, start.1),
+            yaw_steps,
+            &wheelleg_runtime::action::ActionLattice::PAPER,
+        ),
         target: Point2::new(target.0, target.1),
         obstacles,
     }
@@ -30,79 +36,6 @@ fn scene(
 
 fn block(x: f32, y: f32) -> Obstacle {
     Obstacle::new(ObstacleKind::Block, x, y, ObstacleYaw::Deg0)
-}
-
-/// Length of a shortest plan (the planner's own replay check has run on it).
-fn shortest(env: &Env, config: &PlannerConfig) -> usize {
-    match plan(env, config).outcome {
-        PlanOutcome::Solved {
-            actions,
-            shortest: true,
-        } => actions.len(),
-        other => panic!("expected a shortest plan, got {other:?}"),
-    }
-}
-
-/// Breadth-first search over full states (exact position, yaw, clearance, track) with the
-/// simulator's transition check, the step limit and the give-up rule (the episode's, which
-/// counts from where it started): the reference the planner must match. Exponential; only for tiny, restricted instances. States from which
-/// even straight-line travel at the longest step cannot reach the target within `depth` steps
-/// are cut, which never cuts a plan of at most `depth` steps.
-fn brute_force(env: &Env, config: &PlannerConfig, depth: usize) -> Option<usize> {
-    brute_force_within(env, config, depth, env.give_up_distance_m())
-}
-
-/// [`brute_force`] with the give-up distance `give_up_m` in place of the episode's.
-fn brute_force_within(
-    env: &Env,
-    config: &PlannerConfig,
-    depth: usize,
-    give_up_m: f32,
-) -> Option<usize> {
-    let actions: Vec<Action> = (0..COUNT)
-        .filter(|&i| config.allowed[i])
-        .filter_map(Action::from_index)
-        .filter(|a| *a != Action::IDLE)
-        .collect();
-    // The exact position, not rounded: the same lattice point reached in another order may
-    // differ in the last bits, and where a step or the success radius is decided within them,
-    // a rounded key would keep only the first variant met.
-    let key = |s: &RobotState| {
-        (
-            s.position.x.to_bits(),
-            s.position.y.to_bits(),
-            s.yaw_steps,
-            s.clearance_steps,
-            s.track_steps,
-        )
-    };
-    let start = *env.state();
-    let radius_m = env.config().success_radius_m;
-    let longest_m = 0.05 * std::f32::consts::SQRT_2;
-    let mut seen = HashMap::from([(key(&start), 0usize)]);
-    let mut queue = VecDeque::from([(start, 0usize)]);
-    while let Some((state, steps)) = queue.pop_front() {
-        for &action in &actions {
-            let next = state.after(action);
-            let distance_m = (env.target() - next.position).norm();
-            if distance_m > give_up_m || env.check_transition(&state, &next).is_err() {
-                continue;
-            }
-            if distance_m <= radius_m {
-                return Some(steps + 1);
-            }
-            let left = depth.saturating_sub(steps + 1) as f32;
-            if steps + 1 >= env.config().max_steps as usize
-                || distance_m - radius_m > left * longest_m + 1e-4
-            {
-                continue;
-            }
-            if seen.insert(key(&next), steps + 1).is_none() {
-                queue.push_back((next, steps + 1));
-            }
-        }
-    }
-    None
 }
 
 #[test]

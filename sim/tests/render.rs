@@ -24,7 +24,11 @@ fn rgb(c: RGBColor) -> [u8; 3] {
 fn scene() -> Scenario {
     Scenario {
         name: "every kind".into(),
-        start: RobotState::new(Point2::new(0.025, 0.125), 0),
+        start: RobotState::new(
+            Point2::new(0.025, 0.125),
+            0,
+            &wheelleg_runtime::action::ActionLattice::PAPER,
+        ),
         target: Point2::new(1.525, 0.125),
         obstacles: vec![
             Obstacle::new(ObstacleKind::Block, 0.625, 0.625, ObstacleYaw::Deg0),
@@ -38,7 +42,13 @@ fn scene() -> Scenario {
 fn the_top_view_shows_every_kind_the_way_its_collisions_and_a_legend() {
     let scene = scene();
     let path: Vec<RobotState> = (0..6)
-        .map(|i| RobotState::new(Point2::new(0.025 + 0.1 * i as f32, 0.125), 0))
+        .map(|i| {
+            RobotState::new(
+                Point2::new(0.025 + 0.1 * i as f32, 0.125),
+                0,
+                &wheelleg_runtime::action::ActionLattice::PAPER,
+            )
+        })
         .collect();
     let plain = top_view(&scene, &WHEELLEG, &path, &[]).unwrap();
     let with_collision = top_view(&scene, &WHEELLEG, &path, &path[3..4]).unwrap();

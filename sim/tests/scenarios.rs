@@ -5,7 +5,6 @@
 use nalgebra::Point2;
 use rand::SeedableRng;
 use wheelleg_runtime::action::{Action, Step};
-use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::collision::{ObstacleSet, RobotParts};
 use wheelleg_sim::env::Env;
 use wheelleg_sim::generate::{generate_many, Behaviour, SceneKind, SceneRobot};
@@ -59,8 +58,14 @@ fn scenario_files_round_trip_exactly() {
             &mut rng(3),
             25,
         );
-        scenario_file::save(&path, &scenes, &WHEELLEG).unwrap();
-        let loaded = scenario_file::load(&path, &WHEELLEG).unwrap();
+        scenario_file::save(
+            &path,
+            &scenes,
+            &wheelleg_sim::robot::SimulatedRobot::SHIPPED,
+        )
+        .unwrap();
+        let loaded =
+            scenario_file::load(&path, &wheelleg_sim::robot::SimulatedRobot::SHIPPED).unwrap();
         assert_eq!(loaded, scenes, "{}", kind.name());
     }
     std::fs::remove_dir_all(&dir).unwrap();
@@ -71,7 +76,7 @@ fn the_documented_example_file_loads() {
     let json = r#"{"scenarios":[{"name":"example","robot":{"x":0.0,"y":0.0,"yaw_deg":30.0},
         "target":{"x":0.8,"y":0.0},
         "obstacles":[{"kind":"bar","x":0.375,"y":0.125,"yaw_deg":0}]}]}"#;
-    let scenes = scenario_file::parse(json, &WHEELLEG).unwrap();
+    let scenes = scenario_file::parse(json, &wheelleg_sim::robot::SimulatedRobot::SHIPPED).unwrap();
     assert_eq!(scenes.len(), 1);
     assert_eq!(scenes[0].obstacles[0].kind, ObstacleKind::Bar);
     assert_eq!(scenes[0].start.yaw_steps, 6);
@@ -79,7 +84,8 @@ fn the_documented_example_file_loads() {
 
 /// Parses `json`, expecting a refusal whose message names every string in `names`.
 fn refused(json: &str, names: &[&str]) {
-    let error = scenario_file::parse(json, &WHEELLEG).expect_err("must be refused");
+    let error = scenario_file::parse(json, &wheelleg_sim::robot::SimulatedRobot::SHIPPED)
+        .expect_err("must be refused");
     let message = error.to_string();
     for name in names {
         assert!(message.contains(name), "{message:?} should name {name:?}");
@@ -125,7 +131,10 @@ fn bad_files_are_refused_naming_the_scenario_and_field() {
         &["scenarios[1].robot", "yaw_deg"],
     );
     refused("{\"scenarios\": [", &["malformed"]);
-    let missing = scenario_file::load(std::path::Path::new("/nonexistent/scenes.json"), &WHEELLEG);
+    let missing = scenario_file::load(
+        std::path::Path::new("/nonexistent/scenes.json"),
+        &wheelleg_sim::robot::SimulatedRobot::SHIPPED,
+    );
     assert!(matches!(missing, Err(ScenarioFileError::Io { .. })));
 }
 
@@ -133,8 +142,9 @@ fn bad_files_are_refused_naming_the_scenario_and_field() {
 fn each_fence_needs_its_behaviour() {
     // For each robot, its fences (fitted to it, `generate::SceneRobot`) block the legs with the
     // behaviour's dimension frozen, and let the robot through in its passing pose.
-    for (name, geometry) in robots() {
-        let robot = SceneRobot::of(&geometry);
+    for (name, simulated) in robots() {
+        let geometry = *simulated.geometry();
+        let robot = SceneRobot::of(&simulated);
         let cases: [(Behaviour, LegFilter); 3] = [
             // Lift over: blocked with the body height frozen.
             (Behaviour::LiftOver, |c, _| c == 0),
@@ -146,11 +156,11 @@ fn each_fence_needs_its_behaviour() {
             let passing = robot.passing_legs(behaviour);
             for scene in generate_many(robot, SceneKind::Behaviour(behaviour), &mut rng(5), 2) {
                 assert!(
-                    fence_blocks(&scene, &geometry, &lattice_legs(&geometry, frozen)),
+                    fence_blocks(&scene, &geometry, &lattice_legs(&simulated, frozen)),
                     "{name} {} must block frozen legs",
                     scene.name
                 );
-                let in_passing_pose = lattice_legs(&geometry, |c, t| (c, t) == passing);
+                let in_passing_pose = lattice_legs(&simulated, |c, t| (c, t) == passing);
                 assert_eq!(in_passing_pose.len(), 1, "{name}: {passing:?} reachable");
                 assert!(
                     !fence_blocks(&scene, &geometry, &in_passing_pose),
@@ -164,15 +174,16 @@ fn each_fence_needs_its_behaviour() {
 
 #[test]
 fn around_scenes_block_the_straight_line() {
-    for (name, geometry) in robots() {
+    for (name, simulated) in robots() {
+        let geometry = *simulated.geometry();
         for scene in generate_many(
-            SceneRobot::of(&geometry),
+            SceneRobot::of(&simulated),
             SceneKind::Behaviour(Behaviour::Around),
             &mut rng(6),
             10,
         ) {
             let obstacles = ObstacleSet::new(&scene.obstacles);
-            let legs = lattice_legs(&geometry, |_, _| true);
+            let legs = lattice_legs(&simulated, |_, _| true);
             // Wherever the straight line crosses a block, no pose of the robot centred there
             // is free.
             let on_line = scene
@@ -196,8 +207,9 @@ fn around_scenes_block_the_straight_line() {
 fn every_robot_starts_clear_of_its_fence_at_any_yaw() {
     // The fence lead (`SceneRobot`) is sized from the robot's reach: it can turn on the spot
     // before it does anything else.
-    for (name, geometry) in robots() {
-        let robot = SceneRobot::of(&geometry);
+    for (name, simulated) in robots() {
+        let geometry = *simulated.geometry();
+        let robot = SceneRobot::of(&simulated);
         for behaviour in [
             Behaviour::Around,
             Behaviour::LiftOver,
@@ -206,7 +218,7 @@ fn every_robot_starts_clear_of_its_fence_at_any_yaw() {
         ] {
             for scene in generate_many(robot, SceneKind::Behaviour(behaviour), &mut rng(8), 10) {
                 let obstacles = ObstacleSet::new(&scene.obstacles);
-                let legs = lattice_legs(&geometry, |c, t| (c, t) == (0, 0));
+                let legs = lattice_legs(&simulated, |c, t| (c, t) == (0, 0));
                 for yaw in 0..72 {
                     let yaw_rad = (yaw as f32 * 5.0).to_radians();
                     let parts = RobotParts::new(&geometry, scene.start.position, yaw_rad, legs[0])
@@ -260,7 +272,10 @@ fn lined_up_starts_stay_within_their_band_and_the_draws_are_pinned() {
     );
     for (scene, golden) in [(complex, GOLDEN_COMPLEX), (lift, GOLDEN_LIFT)] {
         assert_eq!(
-            compact(&scenario_file::to_json(&[scene], &WHEELLEG)),
+            compact(&scenario_file::to_json(
+                &[scene],
+                &wheelleg_sim::robot::SimulatedRobot::SHIPPED
+            )),
             golden
         );
     }
@@ -273,7 +288,10 @@ fn lined_up_starts_stay_within_their_band_and_the_draws_are_pinned() {
         "c0".to_string(),
     );
     assert_eq!(
-        compact(&scenario_file::to_json(&[wide], &WHEELLEG)),
+        compact(&scenario_file::to_json(
+            &[wide],
+            &wheelleg_sim::robot::SimulatedRobot::SHIPPED
+        )),
         GOLDEN_COMPLEX
     );
 }
@@ -315,8 +333,8 @@ fn generated_spread_scenes_are_solvable() {
         heuristic_weight: FALLBACK_WEIGHT,
         ..PlannerConfig::default()
     };
-    for (name, geometry) in robots() {
-        let robot = SceneRobot::of(&geometry);
+    for (name, simulated) in robots() {
+        let robot = SceneRobot::of(&simulated);
         let (_, spread) = robot.passing_legs(Behaviour::SpreadOver);
         for scene in generate_many(
             robot,
@@ -324,7 +342,7 @@ fn generated_spread_scenes_are_solvable() {
             &mut rng(21),
             20,
         ) {
-            let env = Env::new(&scene, env_config(&geometry)).unwrap();
+            let env = Env::new(&scene, env_config(&simulated)).unwrap();
             let found = plan(&env, &config);
             match found.outcome {
                 PlanOutcome::Solved { actions, shortest } => {
@@ -358,14 +376,14 @@ fn generated_around_scenes_are_solvable() {
     // wanders in front of the block on some scenes; 5 finds all 20 in a few thousand
     // expansions at most.
     let config = weighted(5.0).restricted(|a| a.clearance == Step::Zero && a.track == Step::Zero);
-    for (name, geometry) in robots() {
+    for (name, simulated) in robots() {
         let scenes = generate_many(
-            SceneRobot::of(&geometry),
+            SceneRobot::of(&simulated),
             SceneKind::Behaviour(Behaviour::Around),
             &mut rng(21),
             20,
         );
-        let paths = prove_solvable(&scenes, &geometry, |_| Vec::new(), &[config]);
+        let paths = prove_solvable(&scenes, &simulated, |_| Vec::new(), &[config]);
         for (scene, path) in scenes.iter().zip(paths) {
             // The block stands on the straight line (`around_scenes_block_the_straight_line`):
             // the plan leaves it by more than the block's half width.
@@ -384,14 +402,14 @@ fn generated_lift_scenes_are_solvable() {
     // The search the fallback runs, every action allowed: it finds each in a few hundred
     // expansions at most.
     let config = weighted(FALLBACK_WEIGHT);
-    for (name, geometry) in robots() {
+    for (name, simulated) in robots() {
         let scenes = generate_many(
-            SceneRobot::of(&geometry),
+            SceneRobot::of(&simulated),
             SceneKind::Behaviour(Behaviour::LiftOver),
             &mut rng(21),
             20,
         );
-        let paths = prove_solvable(&scenes, &geometry, |_| Vec::new(), &[config]);
+        let paths = prove_solvable(&scenes, &simulated, |_| Vec::new(), &[config]);
         for (scene, path) in scenes.iter().zip(paths) {
             // The fence blocks the default height (`each_fence_needs_its_behaviour`): the plan
             // lifts the body.
@@ -419,8 +437,8 @@ fn generated_squeeze_scenes_are_solvable() {
     // rear wheels are still in the corridor. The whole sequence is replayed in a fresh episode.
     let configs = [FALLBACK_WEIGHT, 2.0, 5.0, 1.5, 8.0]
         .map(|w| weighted(w).restricted(|a| a.clearance == Step::Zero && a.track == Step::Zero));
-    for (name, geometry) in robots() {
-        let robot = SceneRobot::of(&geometry);
+    for (name, simulated) in robots() {
+        let robot = SceneRobot::of(&simulated);
         let (clearance_steps, track_steps) = robot.passing_legs(Behaviour::Squeeze);
         let prefix = |scene: &Scenario| {
             let yaw = scene.start.yaw_steps.rem_euclid(72);
@@ -461,7 +479,7 @@ fn generated_squeeze_scenes_are_solvable() {
             &mut rng(21),
             20,
         );
-        let paths = prove_solvable(&scenes, &geometry, prefix, &configs);
+        let paths = prove_solvable(&scenes, &simulated, prefix, &configs);
         for (scene, path) in scenes.iter().zip(paths) {
             // The fence blocks the default track (`each_fence_needs_its_behaviour`): the plan
             // crosses it narrowed.

@@ -3,7 +3,6 @@
 
 use rand::SeedableRng;
 use wheelleg_runtime::action::{Action, Step};
-use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::env::{Env, EnvConfig, Status};
 use wheelleg_sim::generate::{
     generate_staged, generate_with_start, Behaviour, SceneKind, StartYaw,
@@ -121,7 +120,9 @@ fn stage_zero_starts_lined_up_in_the_passing_pose_and_drives_through() {
                 scene.name
             );
             assert_eq!(scene.start.yaw_steps % 36, 0, "lined up: {}", scene.name);
-            scene.validate(&WHEELLEG).unwrap();
+            scene
+                .validate(&wheelleg_sim::robot::SimulatedRobot::SHIPPED)
+                .unwrap();
             // The drive is a real test: in the default pose the same start does not get through.
             if behaviour != Behaviour::Around {
                 let mut plain = scene.clone();
@@ -133,7 +134,10 @@ fn stage_zero_starts_lined_up_in_the_passing_pose_and_drives_through() {
                     "{} {}: {e}\n{}",
                     behaviour.name(),
                     scene.name,
-                    scenario_file::to_json(std::slice::from_ref(&scene), &WHEELLEG)
+                    scenario_file::to_json(
+                        std::slice::from_ref(&scene),
+                        &wheelleg_sim::robot::SimulatedRobot::SHIPPED
+                    )
                 );
             }
         }
@@ -228,10 +232,13 @@ fn start_leg_poses_round_trip_and_default_ones_are_not_written() {
         })
         .collect();
     assert!(scenes.iter().any(|s| s.start.track_steps == 10));
-    let json = scenario_file::to_json(&scenes, &WHEELLEG);
+    let json = scenario_file::to_json(&scenes, &wheelleg_sim::robot::SimulatedRobot::SHIPPED);
     assert!(json.contains("\"track_m\": 0.56"), "{json}");
     assert!(json.contains("\"clearance_m\": 0.08"), "{json}");
-    assert_eq!(scenario_file::parse(&json, &WHEELLEG).unwrap(), scenes);
+    assert_eq!(
+        scenario_file::parse(&json, &wheelleg_sim::robot::SimulatedRobot::SHIPPED).unwrap(),
+        scenes
+    );
     // Default poses: the file is as before the fields existed.
     let plain = wheelleg_sim::generate::generate_many(
         wheelleg_sim::generate::SceneRobot::shipped(),
@@ -239,9 +246,12 @@ fn start_leg_poses_round_trip_and_default_ones_are_not_written() {
         &mut rng(5),
         5,
     );
-    let json = scenario_file::to_json(&plain, &WHEELLEG);
+    let json = scenario_file::to_json(&plain, &wheelleg_sim::robot::SimulatedRobot::SHIPPED);
     assert!(!json.contains("clearance_m") && !json.contains("track_m"));
-    assert_eq!(scenario_file::parse(&json, &WHEELLEG).unwrap(), plain);
+    assert_eq!(
+        scenario_file::parse(&json, &wheelleg_sim::robot::SimulatedRobot::SHIPPED).unwrap(),
+        plain
+    );
 }
 
 fn one(robot: &str, obstacles: &str) -> String {
@@ -252,7 +262,7 @@ fn one(robot: &str, obstacles: &str) -> String {
 }
 
 fn refused(json: &str, names: &[&str]) {
-    let message = scenario_file::parse(json, &WHEELLEG)
+    let message = scenario_file::parse(json, &wheelleg_sim::robot::SimulatedRobot::SHIPPED)
         .expect_err("must be refused")
         .to_string();
     for name in names {
@@ -266,7 +276,8 @@ fn bad_start_leg_poses_are_refused_naming_the_field() {
         r#""x":0,"y":0,"yaw_deg":0,"clearance_m":0.08,"track_m":0.56"#,
         "",
     );
-    let scene = &scenario_file::parse(&ok, &WHEELLEG).unwrap()[0];
+    let scene =
+        &scenario_file::parse(&ok, &wheelleg_sim::robot::SimulatedRobot::SHIPPED).unwrap()[0];
     assert_eq!(
         (scene.start.clearance_steps, scene.start.track_steps),
         (-2, 10)
@@ -295,7 +306,11 @@ fn bad_start_leg_poses_are_refused_naming_the_field() {
     );
     // A block beside the robot: clear of the default pose, hit by the spread one.
     let block = r#"{"kind":"block","x":0.2,"y":0.35,"yaw_deg":0}"#;
-    scenario_file::parse(&one(r#""x":0,"y":0,"yaw_deg":0"#, block), &WHEELLEG).unwrap();
+    scenario_file::parse(
+        &one(r#""x":0,"y":0,"yaw_deg":0"#, block),
+        &wheelleg_sim::robot::SimulatedRobot::SHIPPED,
+    )
+    .unwrap();
     refused(
         &one(
             r#""x":0,"y":0,"yaw_deg":0,"clearance_m":0.08,"track_m":0.56"#,

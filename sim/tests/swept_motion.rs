@@ -15,7 +15,11 @@ use wheelleg_sim::state::RobotState;
 fn env_with(obstacles: Vec<Obstacle>) -> Env {
     let scenario = Scenario {
         name: "swept".into(),
-        start: RobotState::new(Point2::new(-0.975, 0.025), 0),
+        start: RobotState::new(
+            Point2::new(-0.975, 0.025),
+            0,
+            &wheelleg_runtime::action::ActionLattice::PAPER,
+        ),
         target: Point2::new(0.975, 0.025),
         obstacles,
     };
@@ -63,7 +67,11 @@ fn the_motion_bound_covers_every_step_from_every_lattice_leg_pose() {
     let mut largest_bound_m = 0.0f32;
     for clearance_steps in -5..=7 {
         for track_steps in -11..=11 {
-            let mut from = RobotState::new(Point2::new(0.025, 0.025), 3);
+            let mut from = RobotState::new(
+                Point2::new(0.025, 0.025),
+                3,
+                &wheelleg_runtime::action::ActionLattice::PAPER,
+            );
             from.clearance_steps = clearance_steps;
             from.track_steps = track_steps;
             if WHEELLEG.leg_ik(from.leg_config(&WHEELLEG)).is_err() {
@@ -134,6 +142,7 @@ fn states_around_a_bar(rng: &mut impl Rng, count: usize, env: &Env) -> Vec<Robot
                 0.025 + 0.05 * rng.random_range(0..4) as f32,
             ),
             rng.random_range(-3..=3),
+            &wheelleg_runtime::action::ActionLattice::PAPER,
         );
         state.clearance_steps = rng.random_range(1..=4);
         state.track_steps = rng.random_range(-4..=3);

@@ -117,10 +117,9 @@ fn reference_motion_bound_m(
 ) -> Result<f32, wheelleg_runtime::leg::IkError> {
     let geometry = env.geometry();
     let travel_m = (to.position - from.position).norm();
-    let yaw_delta =
-        (to.yaw_steps - from.yaw_steps + 1).rem_euclid(wheelleg_sim::state::YAW_STEPS_PER_TURN) - 1;
+    let yaw_delta = (to.yaw_steps - from.yaw_steps + 1).rem_euclid(from.yaw_steps_per_turn()) - 1;
     let turn_m = reach_m(env)
-        * (yaw_delta as f32 * wheelleg_runtime::action::YAW_STEP_DEG)
+        * (yaw_delta as f32 * from.lattice.yaw_step_deg)
             .to_radians()
             .abs();
     let (legs0, legs1) = (from.leg_config(geometry), to.leg_config(geometry));

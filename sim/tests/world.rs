@@ -182,7 +182,11 @@ fn a_colliding_action_is_undone_and_penalised() {
         0.0,
         ObstacleYaw::Deg0,
     )];
-    let start = RobotState::new(Point2::new(0.0, 0.0), 0);
+    let start = RobotState::new(
+        Point2::new(0.0, 0.0),
+        0,
+        &wheelleg_runtime::action::ActionLattice::PAPER,
+    );
     let mut env = Env::new(&scenario(start, (0.9, 0.0), block), EnvConfig::default()).unwrap();
     // Drive at the block until the front wheels would touch it.
     let mut outcome = env.step(forward()).unwrap();
@@ -220,7 +224,11 @@ fn a_colliding_action_is_undone_and_penalised() {
 
 #[test]
 fn an_impossible_leg_pose_is_undone_and_penalised() {
-    let start = RobotState::new(Point2::new(0.0, 0.0), 0);
+    let start = RobotState::new(
+        Point2::new(0.0, 0.0),
+        0,
+        &wheelleg_runtime::action::ActionLattice::PAPER,
+    );
     let mut env = Env::new(&scenario(start, (0.9, 0.0), vec![]), EnvConfig::default()).unwrap();
     let raise = Action {
         clearance: Step::Plus,
@@ -242,7 +250,11 @@ fn an_impossible_leg_pose_is_undone_and_penalised() {
 
 #[test]
 fn leaving_the_arena_is_invalid() {
-    let start = RobotState::new(Point2::new(0.0, 0.0), 0);
+    let start = RobotState::new(
+        Point2::new(0.0, 0.0),
+        0,
+        &wheelleg_runtime::action::ActionLattice::PAPER,
+    );
     let config = EnvConfig {
         give_up_margin_m: 10.0,
         ..EnvConfig::default()
@@ -265,7 +277,11 @@ fn leaving_the_arena_is_invalid() {
 
 #[test]
 fn progress_reward_is_the_distance_gained() {
-    let start = RobotState::new(Point2::new(0.0, 0.0), 0);
+    let start = RobotState::new(
+        Point2::new(0.0, 0.0),
+        0,
+        &wheelleg_runtime::action::ActionLattice::PAPER,
+    );
     let mut env = Env::new(&scenario(start, (0.8, 0.3), vec![]), EnvConfig::default()).unwrap();
     for action in [
         forward(),
@@ -289,7 +305,11 @@ fn progress_reward_is_the_distance_gained() {
 
 #[test]
 fn episodes_end_on_success_distance_and_step_limit() {
-    let start = RobotState::new(Point2::new(0.0, 0.0), 0);
+    let start = RobotState::new(
+        Point2::new(0.0, 0.0),
+        0,
+        &wheelleg_runtime::action::ActionLattice::PAPER,
+    );
     // Success: 0.5 m ahead, 0.05 m per step, within 0.05 m after 9 steps.
     let mut env = Env::new(&scenario(start, (0.5, 0.0), vec![]), EnvConfig::default()).unwrap();
     for i in 1..=9 {
@@ -344,7 +364,11 @@ fn mass(
 fn the_height_map_shows_ahead_at_the_top_and_left_at_the_left() {
     let half = HEIGHT_MAP_SIDE / 2;
     for yaw_steps in [0, 9, 18, 30, 45, 63] {
-        let robot = RobotState::new(Point2::new(0.3, -0.2), yaw_steps);
+        let robot = RobotState::new(
+            Point2::new(0.3, -0.2),
+            yaw_steps,
+            &wheelleg_runtime::action::ActionLattice::PAPER,
+        );
         let ahead = robot.robot_to_world(nalgebra::Vector2::new(0.5, 0.0));
         let left = robot.robot_to_world(nalgebra::Vector2::new(0.0, 0.5));
         let mut observation = Observation::default();
@@ -419,7 +443,11 @@ fn the_fast_height_map_equals_the_exact_point_sampling() {
 fn a_simulated_step_is_the_controllers_ideal_step() {
     use nalgebra::{Isometry2, Vector2};
     for yaw_steps in [0, 7, 18, 41, 66] {
-        let start = RobotState::new(Point2::new(0.3, -0.2), yaw_steps);
+        let start = RobotState::new(
+            Point2::new(0.3, -0.2),
+            yaw_steps,
+            &wheelleg_runtime::action::ActionLattice::PAPER,
+        );
         let start_pose = Isometry2::new(Vector2::new(0.3, -0.2), start.yaw_rad());
         let legs = start.leg_config(&WHEELLEG);
         for index in 0..wheelleg_runtime::action::COUNT {

@@ -31,12 +31,13 @@ use wheelleg::closed_loop::{
 use wheelleg_firmware_sim::candump::{CandumpWriter, DEFAULT_EPOCH_US};
 use wheelleg_firmware_sim::rig::RigError;
 use wheelleg_robot::RobotDescription;
-use wheelleg_runtime::action::{MOVE_STEP_M, YAW_STEP_DEG};
+use wheelleg_runtime::action::ActionLattice;
 use wheelleg_runtime::can::node_map::{Axis, NodeMap};
 use wheelleg_sim::env::{Env, EnvConfig, Status};
 use wheelleg_sim::generate::{generate, SceneKind, SceneRobot};
 use wheelleg_sim::planner::PlannerConfig;
 use wheelleg_sim::render::top_view;
+use wheelleg_sim::robot::SimulatedRobot;
 use wheelleg_sim::scenario::Scenario;
 use wheelleg_stack::policy::Int8Policy;
 
@@ -163,9 +164,9 @@ fn scene(
     env_config: EnvConfig,
     planner: &PlannerConfig,
 ) -> Result<(Scenario, String), String> {
-    let geometry = env_config.geometry;
+    let simulated = env_config.robot;
     if let Some(path) = &args.scenarios {
-        let scenarios = wheelleg_sim::scenario_file::load(path, &geometry)
+        let scenarios = wheelleg_sim::scenario_file::load(path, &simulated)
             .map_err(|e| format!("{}: {e}", path.display()))?;
         let chosen = match &args.name {
             Some(name) => scenarios
@@ -187,7 +188,7 @@ fn scene(
     };
     for draw in 0..MAX_SCENE_DRAWS {
         let scenario = generate(
-            SceneRobot::of(&geometry),
+            SceneRobot::of(&simulated),
             SceneKind::Composed,
             &mut rng,
             format!("composed-seed{}-{draw}", args.seed),
@@ -231,11 +232,19 @@ fn weights(args: &Args) -> Result<Option<Weights>, String> {
 }
 
 /// The loop's tolerance with `--tolerance-mm` and `--tolerance-deg` in place of its own.
-fn tolerance(args: &Args) -> Result<Tolerance, String> {
+fn tolerance(args: &Args, lattice: &ActionLattice) -> Result<Tolerance, String> {
     // Half a lattice step: beyond it the world could snap a step to the wrong lattice state.
     for (flag, value, most) in [
-        ("--tolerance-mm", args.tolerance_mm, 0.5e3 * MOVE_STEP_M),
-        ("--tolerance-deg", args.tolerance_deg, 0.5 * YAW_STEP_DEG),
+        (
+            "--tolerance-mm",
+            args.tolerance_mm,
+            0.5e3 * lattice.move_step_m,
+        ),
+        (
+            "--tolerance-deg",
+            args.tolerance_deg,
+            0.5 * lattice.yaw_step_deg,
+        ),
     ] {
         if let Some(value) = value.filter(|v| !(*v > 0.0 && *v < most)) {
             return Err(format!(
@@ -261,7 +270,7 @@ fn closed_loop(
     let config = LoopConfig {
         tolerance,
         env: EnvConfig {
-            geometry: robot.robot.geometry,
+            robot: SimulatedRobot::of(robot)?,
             ..LoopConfig::default().env
         },
         node_map: robot.robot.can,
@@ -303,14 +312,14 @@ pub fn run(args: Args) -> CliResult {
         max_expansions: args.max_expansions,
         ..PlannerConfig::default()
     };
-    let (robot, geometry) = args.robot.simulated()?;
+    let (robot, simulated) = args.robot.simulated()?;
     let weights = weights(&args)?;
     if let Some((bytes, label)) = &weights {
         let policy = Int8Policy::from_bytes(bytes)
             .map_err(|e| format!("{label}: not a usable policy weights file: {e}"))?;
         robot.accepts(&policy.model().trained_for, label)?;
     }
-    let tolerance = tolerance(&args)?;
+    let tolerance = tolerance(&args, simulated.lattice())?;
     if let Some(node) = args.silent_node {
         if !Axis::ALL
             .iter()
@@ -324,7 +333,7 @@ pub fn run(args: Args) -> CliResult {
         }
     }
     let env_config = EnvConfig {
-        geometry,
+        robot: simulated,
         ..LoopConfig::default().env
     };
     let (scenario, origin) = scene(&args, env_config, &planner)?;
@@ -408,9 +417,14 @@ pub fn run(args: Args) -> CliResult {
     closed_loop.take_log()?;
     log_file.commit()?;
     let png = args.out.join("path.png");
-    top_view(&scenario, &geometry, &report.path, &report.collided_at)?
-        .save_png(&png)
-        .map_err(|e| format!("cannot write {}: {e}", png.display()))?;
+    top_view(
+        &scenario,
+        simulated.geometry(),
+        &report.path,
+        &report.collided_at,
+    )?
+    .save_png(&png)
+    .map_err(|e| format!("cannot write {}: {e}", png.display()))?;
 
     print_report(&report, wall_clock.elapsed().as_secs_f64(), &tolerance);
     outln!(

@@ -105,12 +105,12 @@ pub enum RuleArg {
 
 /// Runs `eval`.
 pub fn run(args: Args) -> CliResult {
-    let (robot, geometry) = args.robot.simulated()?;
+    let (robot, simulated) = args.robot.simulated()?;
     let scenarios = match (&args.scenarios, args.generated, &args.kind) {
-        (Some(file), _, _) => wheelleg_sim::scenario_file::load(file, &geometry)?,
+        (Some(file), _, _) => wheelleg_sim::scenario_file::load(file, &simulated)?,
         (None, Some(n), Some(kind)) => {
             let kind = kind.scene_kind();
-            let scene_robot = SceneRobot::of(&geometry);
+            let scene_robot = SceneRobot::of(&simulated);
             scene_robot.has_kind(kind).map_err(|why| {
                 format!(
                     "no {} scenes for robot '{}': {why}",
@@ -162,7 +162,7 @@ pub fn run(args: Args) -> CliResult {
         planner_expansions: args.max_expansions,
         known_shortest,
         env_config: EnvConfig {
-            geometry,
+            robot: simulated,
             ..EvalOptions::default().env_config
         },
     };

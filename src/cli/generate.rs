@@ -29,8 +29,8 @@ pub struct Args {
 /// Runs `generate`.
 pub fn run(args: Args) -> CliResult {
     let kind = args.kind.scene_kind();
-    let (description, geometry) = args.robot.simulated()?;
-    let robot = SceneRobot::new(&geometry);
+    let (description, simulated) = args.robot.simulated()?;
+    let robot = SceneRobot::new(&simulated);
     robot.has_kind(kind).map_err(|why| {
         format!(
             "no {} scenes for robot '{}': {why}",
@@ -40,7 +40,7 @@ pub fn run(args: Args) -> CliResult {
     })?;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(args.seed);
     let scenarios = generate_many(&robot, kind, &mut rng, args.count);
-    wheelleg_sim::scenario_file::save(&args.out, &scenarios, &geometry)?;
+    wheelleg_sim::scenario_file::save(&args.out, &scenarios, &simulated)?;
     outln!(
         "wrote {} {} scenes to {}",
         scenarios.len(),

@@ -50,6 +50,14 @@ pub fn run(args: Args) -> CliResult {
             .collect::<Vec<_>>()
             .join(" ")
     );
+    let a = &trained.robot.actions;
+    outln!(
+        "lattice   move {} m, yaw {} deg, clearance {} m, track {} m per step",
+        a.move_step_m,
+        a.yaw_step_deg,
+        a.clearance_step_m,
+        a.track_step_m
+    );
     let input = &model.input;
     outln!(
         "input     height map {} x {}, {:.3} mm per step, zero point {}",

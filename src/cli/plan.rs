@@ -90,10 +90,10 @@ fn plan_all(
 
 /// Runs `plan`.
 pub fn run(args: Args) -> CliResult {
-    let (_, geometry) = args.robot.simulated()?;
-    let scenarios = wheelleg_sim::scenario_file::load(&args.scenarios, &geometry)?;
+    let (_, simulated) = args.robot.simulated()?;
+    let scenarios = wheelleg_sim::scenario_file::load(&args.scenarios, &simulated)?;
     let env_config = EnvConfig {
-        geometry,
+        robot: simulated,
         ..EnvConfig::default()
     };
     let config = PlannerConfig {

@@ -37,8 +37,8 @@ pub struct Args {
 
 /// Runs `relevance`.
 pub fn run(args: Args) -> CliResult {
-    let (description, geometry) = args.robot.simulated()?;
-    let scenarios = wheelleg_sim::scenario_file::load(&args.scenarios, &geometry)?;
+    let (description, simulated) = args.robot.simulated()?;
+    let scenarios = wheelleg_sim::scenario_file::load(&args.scenarios, &simulated)?;
     let scenario = match &args.name {
         Some(name) => scenarios.iter().find(|s| &s.name == name).ok_or_else(|| {
             format!(
@@ -55,12 +55,12 @@ pub fn run(args: Args) -> CliResult {
         .map_err(|e| format!("{}: {e}", args.policy.display()))?;
     wheelleg_trainer::checkpoint::check_robot(&args.policy, &description)?;
     let config = EnvConfig {
-        geometry,
+        robot: simulated,
         ..EnvConfig::default()
     };
     let mut policy = DecidingPolicy::new(&network);
     let report = relevance(scenario, config, &mut |obs| policy.act(obs))?;
-    render(scenario, &report, &geometry, &config)?
+    render(scenario, &report, simulated.geometry(), &config)?
         .save_png(&args.out)
         .map_err(|e| format!("cannot write {}: {e}", args.out.display()))?;
     let status = |s: wheelleg_sim::env::Status| format!("{s:?}");

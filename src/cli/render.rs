@@ -26,10 +26,10 @@ pub struct Args {
 
 /// Runs `render`: `<name>.png` (top view) and `<name>-heightmap.png` per scenario.
 pub fn run(args: Args) -> CliResult {
-    let (_, geometry) = args.robot.simulated()?;
-    let scenarios = wheelleg_sim::scenario_file::load(&args.scenarios, &geometry)?;
+    let (_, simulated) = args.robot.simulated()?;
+    let scenarios = wheelleg_sim::scenario_file::load(&args.scenarios, &simulated)?;
     let env_config = EnvConfig {
-        geometry,
+        robot: simulated,
         ..EnvConfig::default()
     };
     std::fs::create_dir_all(&args.out)
@@ -56,7 +56,7 @@ pub fn run(args: Args) -> CliResult {
         }
         let file_stem = sanitize(&scenario.name);
         let top = args.out.join(format!("{file_stem}.png"));
-        top_view(scenario, &geometry, &path, &[])?.save_png(&top)?;
+        top_view(scenario, simulated.geometry(), &path, &[])?.save_png(&top)?;
         let mut observation = Observation::default();
         env.observe(&mut observation);
         let map = args.out.join(format!("{file_stem}-heightmap.png"));

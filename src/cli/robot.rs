@@ -5,8 +5,8 @@ use std::path::{Path, PathBuf};
 use wheelleg_robot::reach::reach;
 use wheelleg_robot::urdf;
 use wheelleg_robot::RobotDescription;
-use wheelleg_runtime::robot::RobotGeometry;
 use wheelleg_sim::generate::{Behaviour, SceneRobot, FENCE_MARGIN_M};
+use wheelleg_sim::robot::SimulatedRobot;
 
 /// `--robot FILE`, the robot a command simulates, plans for or drives: the shipped robot
 /// (`robots/wheelleg.toml`, compiled in) when not given.
@@ -26,12 +26,12 @@ impl RobotArg {
         }
     }
 
-    /// The description and the geometry the simulator runs it with (refused when the
-    /// simulator cannot: [`RobotDescription::simulated_geometry`]).
-    pub fn simulated(&self) -> Result<(RobotDescription, RobotGeometry), String> {
+    /// The description and the robot as the simulator steps it (refused, naming the key, when
+    /// the simulator cannot: [`SimulatedRobot::of`]).
+    pub fn simulated(&self) -> Result<(RobotDescription, SimulatedRobot), String> {
         let description = self.description()?;
-        let geometry = description.simulated_geometry()?;
-        Ok((description, geometry))
+        let robot = SimulatedRobot::of(&description)?;
+        Ok((description, robot))
     }
 }
 
@@ -115,9 +115,9 @@ pub fn run(args: Args) -> CliResult {
                 eprintln!("wrote {}", path.display());
             }
             // How the scene generators' fences fit it (for a robot the simulator can run).
-            let fences: Vec<(&str, FenceFit)> = match description.simulated_geometry() {
-                Ok(geometry) => {
-                    let fit = SceneRobot::new(&geometry);
+            let fences: Vec<(&str, FenceFit)> = match SimulatedRobot::of(&description) {
+                Ok(simulated) => {
+                    let fit = SceneRobot::new(&simulated);
                     [
                         Behaviour::LiftOver,
                         Behaviour::SpreadOver,

@@ -276,7 +276,7 @@ fn label(config: &TrainConfig, args: &Args) -> CliResult {
         Some(0) => return Err("--scenes must be at least 1".into()),
         Some(n) => n,
     };
-    let env = config.episode_rules();
+    let env = config.episode_rules().map_err(|e| e.to_string())?;
     let label_config = LabelConfig {
         stack: l.stack.config()?,
         env,
@@ -293,7 +293,7 @@ fn label(config: &TrainConfig, args: &Args) -> CliResult {
         .check()
         .map_err(|e| format!("train label: {e}"))?;
     let kind = l.kind.scene_kind();
-    let scene_robot = SceneRobot::of(&env.geometry);
+    let scene_robot = SceneRobot::of(&env.robot);
     scene_robot.has_kind(kind).map_err(|why| {
         format!(
             "no {} scenes for robot '{}': {why}",

@@ -51,7 +51,7 @@ use std::io::Write;
 use wheelleg_firmware_sim::bus::Transport;
 use wheelleg_firmware_sim::candump::CandumpWriter;
 use wheelleg_firmware_sim::rig::{Rig, RigConfig, RigError, StepReport};
-use wheelleg_runtime::action::{Action, ActionLattice};
+use wheelleg_runtime::action::Action;
 use wheelleg_runtime::can::NodeMap;
 use wheelleg_runtime::motion::{BaseDisplacement, MotionError, StepMotion};
 use wheelleg_runtime::robot::{Robot, RobotGeometry};
@@ -124,12 +124,11 @@ pub(crate) fn lattice_pose(state: &RobotState) -> Isometry2<f32> {
     )
 }
 
-/// The robot the loop drives: the world's geometry, the configured wiring, on the paper's
-/// action lattice (the one the simulator steps on).
+/// The robot the loop drives: the world's geometry and action lattice, the configured wiring.
 fn sim_robot(env: &Env, config: &LoopConfig) -> Robot {
     Robot {
         geometry: *env.geometry(),
-        actions: ActionLattice::PAPER,
+        actions: *env.lattice(),
         can: config.node_map,
     }
 }

@@ -145,7 +145,11 @@ mod tests {
         RobotState {
             clearance_steps,
             track_steps,
-            ..RobotState::new(Point2::new(x, 0.0), 0)
+            ..RobotState::new(
+                Point2::new(x, 0.0),
+                0,
+                &wheelleg_runtime::action::ActionLattice::PAPER,
+            )
         }
     }
 

@@ -13,7 +13,6 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use std::path::Path;
 use std::time::Duration;
-use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::env::EnvConfig;
 use wheelleg_stack::episodes::run_episodes;
 use wheelleg_stack::lookahead::LookaheadConfig;
@@ -28,7 +27,7 @@ fn episodes(c: &mut Criterion) {
     let policy = Int8Policy::from_bytes(&bytes).expect("a weights file");
     let scenarios = wheelleg_sim::scenario_file::load(
         &root.join("eval/heldout-complex-s1000000.json"),
-        &WHEELLEG,
+        &wheelleg_sim::robot::SimulatedRobot::SHIPPED,
     )
     .expect("the held-out scenes");
     let scenarios = &scenarios[..EPISODES];

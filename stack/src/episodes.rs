@@ -80,10 +80,11 @@ pub fn run_episodes(
     let mut obs = Observation::default();
     let mut deciders: Vec<Decider> = vec![Decider::new(); envs.len()];
     let mut keys = vec![ObservationKey(0); envs.len()];
-    // The guard checks the robot simulated (its geometry from the episode rules) on the
-    // simulator's action lattice, the paper's (`wheelleg_sim::state`).
+    // The guard checks the robot simulated: its geometry and lattice from the episode rules
+    // (the CAN wiring plays no part in it).
     let robot = Robot {
-        geometry: env_config.geometry,
+        geometry: *env_config.robot.geometry(),
+        actions: *env_config.robot.lattice(),
         ..Robot::WHEELLEG
     };
     let guard = stack
@@ -157,7 +158,7 @@ pub fn run_episodes(
                             state,
                         )?,
                         arrival: stack.arrival.then(|| {
-                            Arrival::from_state_m(state, success_radius_m, &Robot::WHEELLEG.actions)
+                            Arrival::from_state_m(state, success_radius_m, &robot.actions)
                         }),
                     };
                     let key = keys[i];

@@ -37,7 +37,11 @@ fn policy_with(rule: DecisionRule) -> StackConfig {
 }
 
 fn start() -> RobotState {
-    RobotState::new(Point2::new(0.0, 0.125), 0)
+    RobotState::new(
+        Point2::new(0.0, 0.125),
+        0,
+        &wheelleg_runtime::action::ActionLattice::PAPER,
+    )
 }
 
 #[test]
@@ -194,7 +198,11 @@ fn the_guard_checks_the_robot_the_episodes_simulate() {
         ..WHEELLEG
     };
     let rules = EnvConfig {
-        geometry: long,
+        robot: wheelleg_sim::robot::SimulatedRobot::new(
+            long,
+            wheelleg_runtime::action::ActionLattice::PAPER,
+        )
+        .unwrap(),
         ..EnvConfig::default()
     };
     let scenario = block_ahead();

@@ -54,7 +54,11 @@ fn first_decision(scenario: &Scenario, allowed: bool) -> (Weighed, Action, Vec<(
 fn far_ahead() -> Scenario {
     Scenario {
         name: "far-ahead".into(),
-        start: RobotState::new(Point2::new(0.0, 0.125), 0),
+        start: RobotState::new(
+            Point2::new(0.0, 0.125),
+            0,
+            &wheelleg_runtime::action::ActionLattice::PAPER,
+        ),
         target: Point2::new(0.9, 0.125),
         obstacles: vec![],
     }

@@ -181,7 +181,10 @@ fn a_step_the_world_refuses_is_backed_out_of() {
         "target":{"x":1.025,"y":0.025},
         "obstacles":[{"kind":"block","x":0.625,"y":0.125,"yaw_deg":0},
                      {"kind":"block","x":0.625,"y":-0.125,"yaw_deg":0}]}]}"#;
-    let scene = wheelleg_sim::scenario_file::parse(json, &WHEELLEG).unwrap()[0].clone();
+    let scene =
+        wheelleg_sim::scenario_file::parse(json, &wheelleg_sim::robot::SimulatedRobot::SHIPPED)
+            .unwrap()[0]
+            .clone();
     let mut closed_loop = ClosedLoop::in_process(&scene, LoopConfig::default()).unwrap();
     closed_loop.start().unwrap();
     let forward_turning = Action {

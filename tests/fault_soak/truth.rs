@@ -3,12 +3,11 @@
 
 use nalgebra::{Isometry2, Point2, Vector2};
 use wheelleg_firmware_sim::rig::{Rig, TrueSample};
-use wheelleg_runtime::action::YAW_STEP_DEG;
 use wheelleg_runtime::can::node_map::{Axis, AxisKind};
 use wheelleg_runtime::leg::LegConfig;
 use wheelleg_runtime::robot::WHEELLEG;
 use wheelleg_sim::collision::{ObstacleSet, RobotParts};
-use wheelleg_sim::state::{RobotState, YAW_STEPS_PER_TURN};
+use wheelleg_sim::state::RobotState;
 
 /// Where the robot really is: the scene's start pose moved by the rig's ground-truth odometry,
 /// with the legs the joints really hold.
@@ -35,8 +34,7 @@ pub(crate) fn true_pose_collides(
 /// One pose of the straight path from `from` to `to` at fraction `t`, as `Env::check_swept`
 /// and the controller's step motion see it.
 pub(crate) fn path_pose(from: &RobotState, to: &RobotState, t: f32) -> (Isometry2<f32>, LegConfig) {
-    let yaw_delta = (to.yaw_steps - from.yaw_steps + 1).rem_euclid(YAW_STEPS_PER_TURN) - 1;
-    let yaw = from.yaw_rad() + t * (yaw_delta as f32 * YAW_STEP_DEG).to_radians();
+    let yaw = from.yaw_rad() + t * from.yaw_turn_rad_to(to);
     let p = from.position + t * (to.position - from.position);
     let (l0, l1) = (from.leg_config(&WHEELLEG), to.leg_config(&WHEELLEG));
     let legs = LegConfig {

@@ -16,7 +16,6 @@ use wheelleg_sim::generate::{generate, Behaviour, SceneKind};
 use wheelleg_sim::obstacle::ObstacleKind;
 use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig, FALLBACK_WEIGHT};
 use wheelleg_sim::scenario::Scenario;
-use wheelleg_sim::state::YAW_STEPS_PER_TURN;
 use wheelleg_trainer::trajectory::batch_file::TrajectoryBatch;
 use wheelleg_trainer::trajectory::randomize::{prepare, randomize_batch_with, RandomizeConfig};
 use wheelleg_trainer::trajectory::Trajectory;
@@ -38,7 +37,7 @@ fn spread_prefix(env: &mut Env, scenario: &Scenario) -> Vec<Action> {
         }
     };
     while env.state().yaw_steps != 0 && !env.status().is_done() {
-        let yaw = if env.state().yaw_steps <= YAW_STEPS_PER_TURN / 2 {
+        let yaw = if env.state().yaw_steps <= env.state().yaw_steps_per_turn() / 2 {
             Step::Minus
         } else {
             Step::Plus

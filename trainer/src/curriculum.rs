@@ -62,7 +62,7 @@ pub fn secondary_dir(out: &Path, behaviour: Behaviour) -> PathBuf {
 /// The curriculum's behaviours the robot has, in order; those it lacks are left out
 /// ([`left_out_behaviours`] says why).
 fn behaviours(config: &TrainConfig) -> Result<Vec<Behaviour>, TrainError> {
-    let fit = SceneRobot::of(&config.robot.robot.geometry);
+    let fit = SceneRobot::of(&config.simulated_robot()?);
     Ok(named_behaviours(config)?
         .into_iter()
         .filter(|&b| fit.has(b).is_ok())
@@ -72,7 +72,7 @@ fn behaviours(config: &TrainConfig) -> Result<Vec<Behaviour>, TrainError> {
 /// The curriculum's behaviours the robot lacks, each with why: their secondaries are not
 /// trained and the batch holds none of their trajectories.
 pub fn left_out_behaviours(config: &TrainConfig) -> Result<Vec<(Behaviour, String)>, TrainError> {
-    let fit = SceneRobot::of(&config.robot.robot.geometry);
+    let fit = SceneRobot::of(&config.simulated_robot()?);
     Ok(named_behaviours(config)?
         .into_iter()
         .filter_map(|b| fit.has(b).err().map(|why| (b, why)))
@@ -307,7 +307,7 @@ pub fn run_randomize(config: &TrainConfig, opts: &CurriculumOptions) -> Result<S
     let randomize = RandomizeConfig {
         per_trajectory: config.curriculum.randomizations,
         seed: opts.seed,
-        env: config.episode_rules(),
+        env: config.episode_rules()?,
         robot: config.robot.clone(),
         ..RandomizeConfig::default()
     };

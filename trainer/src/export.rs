@@ -121,6 +121,8 @@ pub fn rollout_observations(
     seed: u64,
     count: usize,
 ) -> Result<Vec<RecordedObservation>, TrainError> {
+    let simulated = wheelleg_sim::robot::SimulatedRobot::of(robot)
+        .map_err(|e| TrainError::Config(crate::config::ConfigError::Robot(e)))?;
     let mut scenes_rng = ChaCha8Rng::seed_from_u64(seed);
     let mut actions_rng = ChaCha8Rng::seed_from_u64(seed);
     actions_rng.set_stream(1);
@@ -131,12 +133,12 @@ pub fn rollout_observations(
         },
         planner_expansions: 0,
         env_config: wheelleg_sim::env::EnvConfig {
-            geometry: robot.robot.geometry,
+            robot: simulated,
             ..EvalOptions::default().env_config
         },
         ..EvalOptions::default()
     };
-    let scene_robot = SceneRobot::of(&robot.robot.geometry);
+    let scene_robot = SceneRobot::of(&simulated);
     let mut observations = Vec::with_capacity(count);
     while observations.len() < count {
         let scenes = generate_many(scene_robot, kind, &mut scenes_rng, 64);

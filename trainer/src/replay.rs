@@ -64,7 +64,7 @@ pub fn replay_samples(
     if batch.is_empty() || steps == 0 {
         return Ok(out);
     }
-    let env_config = batch.env_config();
+    let env_config = batch.env_config()?;
     let groups = scene_ranges_by_behaviour(batch);
     while out.len() < steps {
         let index = match options.balance {

@@ -121,7 +121,7 @@ pub fn train_stage(
             format!("{:?} is no kind of scene", run.scene_kind),
         )
     })?;
-    wheelleg_sim::generate::SceneRobot::of(&config.robot.robot.geometry)
+    wheelleg_sim::generate::SceneRobot::of(&config.simulated_robot()?)
         .has_kind(kind)
         .map_err(|why| {
             TrainError::setting(
@@ -136,7 +136,7 @@ pub fn train_stage(
     std::fs::create_dir_all(&opts.out).map_err(|e| TrainError::io(&opts.out, "create", e))?;
     let ckpt_path = opts.out.join(CHECKPOINT_FILE);
     let metrics_path = opts.out.join(METRICS_FILE);
-    let env_config = config.episode_rules();
+    let env_config = config.episode_rules()?;
     let steps_per_env = config.steps_per_env();
     let n = run.num_envs;
 

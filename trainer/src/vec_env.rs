@@ -151,7 +151,7 @@ impl VecEnv {
             .map(|i| {
                 let mut rng = ChaCha8Rng::seed_from_u64(seed);
                 rng.set_stream(i as u64);
-                let scenario = new_scene(&config.geometry, scenes, &mut rng, i, 0);
+                let scenario = new_scene(&config.robot, scenes, &mut rng, i, 0);
                 EnvSlot::start(scenario, config, rng, 0, scenes.stage)
             })
             .collect::<Result<Vec<_>, _>>()?;
@@ -180,7 +180,7 @@ impl VecEnv {
             .iter()
             .map(|s| {
                 let scenes: Vec<Scenario> = s.failures.scenes().cloned().collect();
-                wheelleg_sim::scenario_file::to_json(&scenes, &self.config.geometry)
+                wheelleg_sim::scenario_file::to_json(&scenes, &self.config.robot)
             })
             .collect()
     }
@@ -196,7 +196,7 @@ impl VecEnv {
         }
         for (i, (slot, json)) in self.slots.iter_mut().zip(snapshot).enumerate() {
             let scenes =
-                wheelleg_sim::scenario_file::parse(json, &self.config.geometry).map_err(|e| {
+                wheelleg_sim::scenario_file::parse(json, &self.config.robot).map_err(|e| {
                     VecEnvError::Snapshot {
                         env: i,
                         problem: format!("failure memory: {e}"),
@@ -326,7 +326,7 @@ impl VecEnv {
                 scene_rng_word_pos: s.scene_rng.get_word_pos(),
                 scenario_json: wheelleg_sim::scenario_file::to_json(
                     std::slice::from_ref(&s.scenario),
-                    &self.config.geometry,
+                    &self.config.robot,
                 ),
                 actions: s.actions.clone(),
                 episodes_started: s.episodes_started,
@@ -349,7 +349,7 @@ impl VecEnv {
             rng.set_stream(i as u64);
             rng.set_word_pos(snap.scene_rng_word_pos);
             let scenarios =
-                wheelleg_sim::scenario_file::parse(&snap.scenario_json, &self.config.geometry)
+                wheelleg_sim::scenario_file::parse(&snap.scenario_json, &self.config.robot)
                     .map_err(|e| VecEnvError::Snapshot {
                         env: i,
                         problem: e.to_string(),

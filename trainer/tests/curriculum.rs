@@ -76,7 +76,7 @@ fn the_whole_pipeline_runs_and_resumes() {
         let replay = batch
             .trajectory(i)
             .unwrap()
-            .replay(batch.env_config())
+            .replay(batch.env_config().unwrap())
             .unwrap();
         assert!(
             replay.success() && replay.collision_free(),
@@ -187,7 +187,7 @@ fn labels(config: &TrainConfig, seed: u64, out: &std::path::Path) -> TrajectoryB
         1,
     );
     let label = LabelConfig {
-        env: config.episode_rules(),
+        env: config.episode_rules().unwrap(),
         seed,
         planner_expansions: 2_000,
         ..LabelConfig::default()

@@ -180,7 +180,11 @@ fn the_trajectory_batch_keeps_a_start_leg_pose() {
         start: RobotState {
             clearance_steps: -2,
             track_steps: 10,
-            ..RobotState::new(Point2::new(0.025, 0.025), 0)
+            ..RobotState::new(
+                Point2::new(0.025, 0.025),
+                0,
+                &wheelleg_runtime::action::ActionLattice::PAPER,
+            )
         },
         target: Point2::new(0.175, 0.025),
         obstacles: Vec::new(),
@@ -204,7 +208,7 @@ fn the_trajectory_batch_keeps_a_start_leg_pose() {
     assert_eq!(batch.len(), 1, "{:?}", batch.sources());
     let stored = batch.trajectory(0).unwrap();
     assert_eq!(stored.scenario, trajectory.scenario);
-    let replay = stored.replay(batch.env_config()).unwrap();
+    let replay = stored.replay(batch.env_config().unwrap()).unwrap();
     assert!(replay.success() && replay.collision_free());
     let _ = std::fs::remove_dir_all(&dir);
 }

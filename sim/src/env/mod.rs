@@ -9,13 +9,15 @@
 use crate::collision::{ObstacleSet, RobotParts};
 use crate::height_map::{self, HeightMap};
 use crate::reward::RewardTerms;
+use crate::robot::SimulatedRobot;
 use crate::scenario::{Scenario, ScenarioError};
 use crate::state::RobotState;
 use nalgebra::{Point2, Vector2};
 use wheelleg_runtime::action::Action;
+use wheelleg_runtime::action::ActionLattice;
 use wheelleg_runtime::leg::IkError;
 use wheelleg_runtime::observation::STATE_LEN;
-use wheelleg_runtime::robot::{RobotGeometry, WHEELLEG};
+use wheelleg_runtime::robot::RobotGeometry;
 
 mod guard_map;
 mod way_proof;
@@ -46,9 +48,9 @@ pub struct EnvConfig {
     /// Reward term of an undone action (collision, impossible pose, out of bounds); the paper's
     /// is [`crate::reward::INVALID_PENALTY`], -0.1.
     pub invalid_reward: f32,
-    /// The robot simulated (a description's geometry, `wheelleg_robot`); the shipped robot by
-    /// default.
-    pub geometry: RobotGeometry,
+    /// The robot simulated (a description's geometry and lattice, [`SimulatedRobot::of`]); the
+    /// shipped robot by default.
+    pub robot: SimulatedRobot,
 }
 
 impl Default for EnvConfig {
@@ -59,7 +61,7 @@ impl Default for EnvConfig {
             give_up_margin_m: 0.5,
             arena_margin_m: 0.6,
             invalid_reward: crate::reward::INVALID_PENALTY,
-            geometry: WHEELLEG,
+            robot: SimulatedRobot::SHIPPED,
         }
     }
 }
@@ -158,7 +160,7 @@ pub struct EpisodeOver;
 impl Env {
     /// Starts an episode of `scenario` with the robot of `config`.
     pub fn new(scenario: &Scenario, config: EnvConfig) -> Result<Self, ScenarioError> {
-        scenario.validate(&config.geometry)?;
+        scenario.validate(&config.robot)?;
         let start = scenario.start.position;
         let margin = Vector2::repeat(config.arena_margin_m);
         let arena_min = Point2::new(
@@ -185,7 +187,7 @@ impl Env {
                 Status::Running
             },
             collisions: 0,
-            reach_m: horizontal_reach_m(&config.geometry),
+            reach_m: horizontal_reach_m(config.robot.geometry()),
             parts_here: None,
         })
     }
@@ -226,9 +228,19 @@ impl Env {
         &self.config
     }
 
-    /// The robot geometry.
+    /// The robot simulated.
+    pub fn robot(&self) -> &SimulatedRobot {
+        &self.config.robot
+    }
+
+    /// The robot's geometry.
     pub fn geometry(&self) -> &RobotGeometry {
-        &self.config.geometry
+        self.config.robot.geometry()
+    }
+
+    /// The robot's action lattice.
+    pub fn lattice(&self) -> &ActionLattice {
+        self.config.robot.lattice()
     }
 
     /// How far any part of the robot reaches horizontally from its centre, in any pose.
@@ -300,7 +312,7 @@ impl Env {
             self.state.yaw_rad(),
             &mut out.height_map,
         );
-        let legs = self.state.leg_config(&self.config.geometry);
+        let legs = self.state.leg_config(self.config.robot.geometry());
         let target = self.state.world_to_robot(self.target);
         out.state = [legs.clearance_m, legs.track_m, target.x, target.y];
     }

@@ -5,9 +5,9 @@
 use super::way_proof::{prove_way, ProofPose, WayClearance};
 use super::{Env, InvalidAction, SweptCollision};
 use crate::collision::{place_parts, Part, RobotParts, PART_COUNT};
+use crate::robot::SimulatedRobot;
 use crate::state::RobotState;
 use nalgebra::Point2;
-use wheelleg_runtime::action::YAW_STEP_DEG;
 use wheelleg_runtime::leg::{IkError, LegConfig};
 use wheelleg_runtime::robot::RobotGeometry;
 
@@ -58,9 +58,10 @@ impl Env {
         {
             return Err(InvalidAction::OutOfBounds);
         }
-        let legs = to.leg_config(&self.config.geometry);
+        let legs = to.leg_config(self.config.robot.geometry());
         self.config
-            .geometry
+            .robot
+            .geometry()
             .leg_ik(legs)
             .map_err(InvalidAction::Impossible)?;
         // Most steps are far from every obstacle: one box test then settles them, without
@@ -72,7 +73,7 @@ impl Env {
         {
             return Ok(());
         }
-        let end = RobotParts::new(&self.config.geometry, p, to.yaw_rad(), legs)
+        let end = RobotParts::new(self.config.robot.geometry(), p, to.yaw_rad(), legs)
             .map_err(InvalidAction::Impossible)?;
         if self.obstacles.may_touch(&end.aabb()) && self.obstacles.collides(&end) {
             return Err(InvalidAction::Collision);
@@ -148,7 +149,7 @@ impl Env {
         t: f32,
     ) -> Result<RobotParts, IkError> {
         let (position, yaw_rad, legs) = self.between(from, to, t);
-        RobotParts::new(&self.config.geometry, position, yaw_rad, legs)
+        RobotParts::new(self.config.robot.geometry(), position, yaw_rad, legs)
     }
 
     /// [`Env::pose_between`] without the parts' bounding boxes (the same parts), for the
@@ -160,15 +161,15 @@ impl Env {
         t: f32,
     ) -> Result<[Part; PART_COUNT], IkError> {
         let (position, yaw_rad, legs) = self.between(from, to, t);
-        place_parts(&self.config.geometry, position, yaw_rad, legs)
+        place_parts(self.config.robot.geometry(), position, yaw_rad, legs)
     }
 
     /// The body position, heading and legs at fraction `t` of the step (see
     /// [`Env::pose_between`]).
     fn between(&self, from: &RobotState, to: &RobotState, t: f32) -> (Point2<f32>, f32, LegConfig) {
         let (legs0, legs1) = (
-            from.leg_config(&self.config.geometry),
-            to.leg_config(&self.config.geometry),
+            from.leg_config(self.config.robot.geometry()),
+            to.leg_config(self.config.robot.geometry()),
         );
         let legs = LegConfig {
             clearance_m: legs0.clearance_m + t * (legs1.clearance_m - legs0.clearance_m),
@@ -197,12 +198,12 @@ impl Env {
     pub fn motion_bound_m(&self, from: &RobotState, to: &RobotState) -> Result<f32, IkError> {
         let travel_m = (to.position - from.position).norm();
         let turn_m = self.reach_m * yaw_change_rad(from, to).abs();
-        let leg_m = match LegMotionTable::for_geometry(&self.config.geometry).get(from, to) {
+        let leg_m = match LegMotionTable::for_robot(&self.config.robot).get(from, to) {
             Some(leg_m) => leg_m,
             None => leg_motion_m(
-                &self.config.geometry,
-                from.leg_config(&self.config.geometry),
-                to.leg_config(&self.config.geometry),
+                self.config.robot.geometry(),
+                from.leg_config(self.config.robot.geometry()),
+                to.leg_config(self.config.robot.geometry()),
             )?,
         };
         Ok(travel_m + turn_m + leg_m)
@@ -345,7 +346,7 @@ fn leg_motion_m(
     Ok(LEG_PATH_SAFETY * LEG_PATH_PIECES as f32 * longest_piece_m)
 }
 
-/// [`leg_motion_m`] for every lattice leg pose of the project's robot and every leg step from
+/// [`leg_motion_m`] for every lattice leg pose of a robot and every leg step from
 /// it (clearance and track each by -1, 0 or +1 steps), worked out once: the bound needs the
 /// legs' IK at 17 poses, which cost as much as the rest of a step's check near obstacles. The
 /// entries are the very values [`leg_motion_m`] returns (same inputs, same arithmetic), so a
@@ -363,13 +364,14 @@ struct LegMotionTable {
 }
 
 impl LegMotionTable {
-    /// The table for `geometry`, built on first use.
-    fn for_geometry(geometry: &RobotGeometry) -> &'static LegMotionTable {
-        static TABLES: crate::PerGeometry<LegMotionTable> = crate::PerGeometry::new();
-        TABLES.get(geometry, LegMotionTable::new)
+    /// The table for `robot`, built on first use.
+    fn for_robot(robot: &SimulatedRobot) -> &'static LegMotionTable {
+        static TABLES: crate::PerRobot<LegMotionTable> = crate::PerRobot::new();
+        TABLES.get(robot, LegMotionTable::new)
     }
 
-    fn new(geometry: &RobotGeometry) -> Self {
+    fn new(robot: &SimulatedRobot) -> Self {
+        let (geometry, lattice) = (robot.geometry(), robot.lattice());
         // Every step count whose (clearance, track) lies within the legs' ranges, one more
         // each side for rounding.
         let steps = |range: [f32; 2], default_m: f32, step_m: f32| {
@@ -380,12 +382,12 @@ impl LegMotionTable {
         let (clearance_min, clearance_count) = steps(
             geometry.clearance_range_m,
             geometry.default_clearance_m,
-            wheelleg_runtime::action::CLEARANCE_STEP_M,
+            lattice.clearance_step_m,
         );
         let (track_min, track_count) = steps(
             geometry.track_range_m,
             geometry.default_track_m,
-            wheelleg_runtime::action::TRACK_STEP_M,
+            lattice.track_step_m,
         );
         let mut leg_m = Vec::with_capacity((clearance_count * track_count * 9) as usize);
         for clearance_steps in clearance_min..clearance_min + clearance_count {
@@ -395,6 +397,7 @@ impl LegMotionTable {
                     yaw_steps: 0,
                     clearance_steps,
                     track_steps,
+                    lattice: *lattice,
                 };
                 for d_clearance in -1..=1 {
                     for d_track in -1..=1 {
@@ -448,9 +451,7 @@ impl LegMotionTable {
 
 /// The turn of a step, the short way (a step turns by at most one yaw step).
 fn yaw_change_rad(from: &RobotState, to: &RobotState) -> f32 {
-    let yaw_delta =
-        (to.yaw_steps - from.yaw_steps + 1).rem_euclid(crate::state::YAW_STEPS_PER_TURN) - 1;
-    (yaw_delta as f32 * YAW_STEP_DEG).to_radians()
+    from.yaw_turn_rad_to(to)
 }
 
 /// A bound on how far any robot part reaches horizontally from the body centre, in any pose:

@@ -11,7 +11,7 @@ pub(super) fn complex_scene(
     name: String,
     start_yaw: StartYaw,
 ) -> Scenario {
-    let lay = layout(rng, 0.5, start_yaw);
+    let lay = layout(robot, rng, 0.5, start_yaw);
     let count = rng.random_range(1..=8);
     let (x0, x1) = (
         cell_index(lay.start.position.x - 0.5),
@@ -26,7 +26,7 @@ pub(super) fn complex_scene(
             target: lay.target,
             obstacles: obstacles.to_vec(),
         }
-        .validate(robot.geometry())
+        .validate(robot.robot())
         .is_ok()
     };
     let mut attempts = 0;

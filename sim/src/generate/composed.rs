@@ -12,8 +12,7 @@
 //! (`composed-7-spread+lift-beyond`), so that an evaluation can split its results by variant
 //! ([`ComposedVariant::of_name`]).
 
-use super::{cell_index, fence_cells, fence_rows, layout, on_robot_lattice, random_obstacle};
-use super::{robot_lattice_index, StartYaw};
+use super::{cell_index, fence_cells, fence_rows, layout, random_obstacle, StartYaw};
 use super::{Behaviour, Layout, SceneRobot};
 use crate::env::horizontal_reach_m;
 use crate::obstacle::{cell_centre_m, Obstacle, ObstacleYaw, GRID_CELL_M};
@@ -163,11 +162,11 @@ impl PlacedFence {
 
     /// Where the robot stands when it is inside the passage: on the bar, on the middle slab
     /// row, between the corridor's two rows; on the robot's lattice.
-    fn inside_m(&self) -> Point2<f32> {
+    fn inside_m(&self, robot: &SceneRobot) -> Point2<f32> {
         let first_x = cell_centre_m(self.first_row);
         let depth_m = (fence_rows(self.behaviour) - 1) as f32 * GRID_CELL_M;
         Point2::new(
-            on_robot_lattice(robot_lattice_index(first_x + 0.5 * depth_m)),
+            robot.on_start_lattice(robot.start_lattice_index(first_x + 0.5 * depth_m)),
             self.line_y_m(),
         )
     }
@@ -191,7 +190,7 @@ pub(super) fn composed_scene(
             break variant;
         }
     };
-    let Layout { start, target } = layout(rng, 0.5, start_yaw);
+    let Layout { start, target } = layout(robot, rng, 0.5, start_yaw);
     let path_cell = cell_index(start.position.y);
     // The first fence as in the behaviour scenes: its first row in the first cell whose centre
     // is at least the robot's fence lead ahead of the start, so the robot starts clear of it
@@ -214,7 +213,7 @@ pub(super) fn composed_scene(
     }
     let last = *fences.last().expect("one or two fences");
     let target = match variant.ending {
-        ComposedEnding::InPassage => last.inside_m(),
+        ComposedEnding::InPassage => last.inside_m(robot),
         ComposedEnding::Beyond => {
             // Far enough past the last row's centre that the robot standing there at any yaw
             // is clear of the fence (half the row, the robot's reach and 2 cm; never under
@@ -223,9 +222,9 @@ pub(super) fn composed_scene(
             // As far as the layout's target when that lies further.
             let clear_m = 0.5 * GRID_CELL_M + horizontal_reach_m(robot.geometry()) + 0.02;
             let past_m = cell_centre_m(last.last_row()) + clear_m.max(0.55);
-            let x = target
-                .x
-                .max(on_robot_lattice(robot_lattice_index(past_m + 0.025)));
+            let x = target.x.max(robot.on_start_lattice(
+                robot.start_lattice_index(past_m + 0.5 * robot.robot().lattice().move_step_m),
+            ));
             Point2::new(x, target.y)
         }
     };

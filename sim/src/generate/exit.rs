@@ -9,13 +9,12 @@
 //! either side of the opening's centre line, where the robot can stand
 //! ([`super::target_is_free`]).
 
-use super::{behaviour_scene, fence_rows, on_robot_lattice, robot_lattice_index, target_is_free};
+use super::{behaviour_scene, fence_rows, target_is_free};
 use super::{Behaviour, SceneRobot, StartYaw};
 use crate::obstacle::GRID_CELL_M;
 use crate::scenario::Scenario;
 use nalgebra::Point2;
 use rand::Rng;
-use wheelleg_runtime::action::MOVE_STEP_M;
 
 /// Distance of the target past the centre of the fence's last row, in robot-lattice steps.
 const PAST_LAST_ROW_STEPS: std::ops::RangeInclusive<i32> = 4..=6;
@@ -37,15 +36,16 @@ pub fn exit_scene(
             behaviour_scene(robot, behaviour, rng, name.clone(), start_yaw);
         if behaviour.has_fence() {
             let last_row_x_m = passage.entry_x_m + (fence_rows(behaviour) - 1) as f32 * GRID_CELL_M;
-            let past = rng.random_range(PAST_LAST_ROW_STEPS) as f32 * MOVE_STEP_M;
+            let step_m = robot.robot().lattice().move_step_m;
+            let past = rng.random_range(PAST_LAST_ROW_STEPS) as f32 * step_m;
             let side = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
-            let beside = side * rng.random_range(BESIDE_OPENING_STEPS) as f32 * MOVE_STEP_M;
+            let beside = side * rng.random_range(BESIDE_OPENING_STEPS) as f32 * step_m;
             scenario.target = Point2::new(
-                on_robot_lattice(robot_lattice_index(last_row_x_m + past)),
-                on_robot_lattice(robot_lattice_index(passage.line_y_m + beside)),
+                robot.on_start_lattice(robot.start_lattice_index(last_row_x_m + past)),
+                robot.on_start_lattice(robot.start_lattice_index(passage.line_y_m + beside)),
             );
         }
-        if scenario.validate(robot.geometry()).is_ok() && target_is_free(robot, &scenario) {
+        if scenario.validate(robot.robot()).is_ok() && target_is_free(robot, &scenario) {
             return scenario;
         }
     }

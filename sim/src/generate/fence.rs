@@ -2,14 +2,13 @@
 //! the arena, the leg pose that passes it, and the start-stage scenes that begin in front of
 //! the passage, lined up.
 
-use super::{cell_index, layout, on_robot_lattice, robot_lattice_index};
+use super::{cell_index, layout};
 use super::{Behaviour, SceneRobot, StartYaw};
 use crate::obstacle::{cell_centre_m, Obstacle, ObstacleKind, ObstacleYaw, GRID_CELL_M};
 use crate::scenario::Scenario;
-use crate::state::{RobotState, YAW_STEPS_PER_TURN};
+use crate::state::RobotState;
 use nalgebra::Point2;
 use rand::Rng;
-use wheelleg_runtime::action::MOVE_STEP_M;
 
 /// `scenario` (as drawn, valid) with its start moved to `stage`; `None` when no valid start
 /// was found near the staged one.
@@ -30,40 +29,41 @@ pub(super) fn staged_scene(
     let relax = (2.0 * stage - 1.0).max(0.0);
     let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
     // Signed yaw of the drawn start from the nearer of the two headings along x, in steps.
-    let half = YAW_STEPS_PER_TURN / 2;
-    let wrapped = (drawn.yaw_steps + half).rem_euclid(YAW_STEPS_PER_TURN) - half;
+    let per_turn = drawn.yaw_steps_per_turn();
+    let half = per_turn / 2;
+    let wrapped = (drawn.yaw_steps + half).rem_euclid(per_turn) - half;
     let base = if wrapped.abs() <= half / 2 { 0 } else { half };
-    let deviation = (drawn.yaw_steps - base + half).rem_euclid(YAW_STEPS_PER_TURN) - half;
+    let deviation = (drawn.yaw_steps - base + half).rem_euclid(per_turn) - half;
     let (clearance_steps, track_steps) = robot.passing_legs(behaviour);
     let mut start = RobotState {
         position: Point2::new(
-            on_robot_lattice(robot_lattice_index(lerp(
+            robot.on_start_lattice(robot.start_lattice_index(lerp(
                 passage.entry_x_m,
                 drawn.position.x,
                 back,
             ))),
-            on_robot_lattice(robot_lattice_index(lerp(
+            robot.on_start_lattice(robot.start_lattice_index(lerp(
                 passage.line_y_m,
                 drawn.position.y,
                 relax,
             ))),
         ),
-        yaw_steps: (base + (deviation as f32 * relax).round() as i32)
-            .rem_euclid(YAW_STEPS_PER_TURN),
+        yaw_steps: (base + (deviation as f32 * relax).round() as i32).rem_euclid(per_turn),
         clearance_steps: (clearance_steps as f32 * (1.0 - relax)).round() as i32,
         track_steps: (track_steps as f32 * (1.0 - relax)).round() as i32,
+        lattice: drawn.lattice,
     };
     for _ in 0..20 {
         let candidate = Scenario {
             start,
             ..scenario.clone()
         };
-        if candidate.validate(robot.geometry()).is_ok()
+        if candidate.validate(robot.robot()).is_ok()
             && (candidate.target - start.position).norm() > 0.2
         {
             return Some(candidate);
         }
-        start.position.x = on_robot_lattice(robot_lattice_index(start.position.x) - 1);
+        start.position.x = robot.on_start_lattice(robot.start_lattice_index(start.position.x) - 1);
     }
     None
 }
@@ -122,7 +122,7 @@ pub(super) fn behaviour_scene(
         _ => 0.25,
     };
     let lead_m = robot.fence_lead_m();
-    let lay = layout(rng, lead_m + beyond_m, start_yaw);
+    let lay = layout(robot, rng, lead_m + beyond_m, start_yaw);
     let fence_x = cell_centre_m(cell_index(lay.start.position.x + lead_m) + 1);
     let fence_x = if fence_x - GRID_CELL_M >= lay.start.position.x + lead_m {
         fence_x - GRID_CELL_M
@@ -131,7 +131,10 @@ pub(super) fn behaviour_scene(
     };
     let mut target = lay.target;
     if target.x < fence_x + beyond_m {
-        target.x = on_robot_lattice(robot_lattice_index(fence_x + beyond_m + 0.5 * MOVE_STEP_M));
+        target.x =
+            robot.on_start_lattice(robot.start_lattice_index(
+                fence_x + beyond_m + 0.5 * robot.robot().lattice().move_step_m,
+            ));
     }
     let path_cell = cell_index(lay.start.position.y);
     let mut line_y_m = lay.start.position.y;
@@ -163,9 +166,9 @@ pub(super) fn behaviour_scene(
                     ObstacleYaw::Deg0,
                 ));
             }
-            line_y_m = on_robot_lattice(robot_lattice_index(
-                centre_m + free_side * robot.around_offset_m(),
-            ));
+            line_y_m = robot.on_start_lattice(
+                robot.start_lattice_index(centre_m + free_side * robot.around_offset_m()),
+            );
             blocks
         }
         Behaviour::LiftOver | Behaviour::SpreadOver | Behaviour::Squeeze => {

@@ -14,9 +14,10 @@ use super::fence::{fence_cells, fence_rows};
 use super::Behaviour;
 use crate::collision::{ObstacleSet, RobotParts};
 use crate::obstacle::{cell_centre_m, Obstacle, ObstacleYaw, GRID_CELL_M};
+use crate::robot::SimulatedRobot;
 use crate::state::RobotState;
 use nalgebra::Point2;
-use wheelleg_runtime::robot::{RobotGeometry, WHEELLEG};
+use wheelleg_runtime::robot::RobotGeometry;
 
 /// Free space a passing pose keeps from every obstacle of its fence, all the way through: what
 /// a policy that steers a step off the centre line, or a real robot that sways, still has.
@@ -32,13 +33,14 @@ const SHIPPED_PASSING: [(i32, i32); 3] = [(3, 0), (-2, 10), (0, -8)];
 /// Spacing of the poses checked along the way through a fence.
 const DRIVE_SAMPLE_M: f32 = 0.01;
 
-/// Clearance and track steps searched away from the default pose, each way.
-const SEARCH_STEPS: i32 = 15;
+/// How far from the default pose the passing poses are searched, each way in clearance and in
+/// track (15 steps of 0.02 m).
+const SEARCH_M: f32 = 0.30;
 
 /// What the scene generators build for one robot.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SceneRobot {
-    geometry: RobotGeometry,
+    robot: SimulatedRobot,
     /// Lift, spread, squeeze: the passing pose in (clearance, track) steps, or why the fence is
     /// left out.
     fences: [Result<(i32, i32), String>; 3],
@@ -49,9 +51,9 @@ pub struct SceneRobot {
 }
 
 impl SceneRobot {
-    /// The fit of the fences to `geometry`.
-    pub fn new(geometry: &RobotGeometry) -> SceneRobot {
-        let fences = if *geometry == WHEELLEG {
+    /// The fit of the fences to `robot`.
+    pub fn new(robot: &SimulatedRobot) -> SceneRobot {
+        let fences = if *robot == SimulatedRobot::SHIPPED {
             SHIPPED_PASSING.map(Ok)
         } else {
             [
@@ -59,31 +61,64 @@ impl SceneRobot {
                 Behaviour::SpreadOver,
                 Behaviour::Squeeze,
             ]
-            .map(|b| passing_pose(geometry, b))
+            .map(|b| passing_pose(robot, b))
         };
         SceneRobot {
-            geometry: *geometry,
+            robot: *robot,
             fences,
-            around_offset_m: around_offset_m(geometry),
-            fence_lead_m: fence_lead_m(geometry),
+            around_offset_m: around_offset_m(robot),
+            fence_lead_m: fence_lead_m(robot.geometry()),
         }
     }
 
     /// The shipped robot's fit, worked out once.
     pub fn shipped() -> &'static SceneRobot {
-        SceneRobot::of(&WHEELLEG)
+        SceneRobot::of(&SimulatedRobot::SHIPPED)
     }
 
-    /// The fit for `geometry`, worked out on first use and kept for the program's life (the
+    /// The fit for `robot`, worked out on first use and kept for the program's life (the
     /// planner asks for it on every search, the trainer on every episode).
-    pub fn of(geometry: &RobotGeometry) -> &'static SceneRobot {
-        static FITS: crate::PerGeometry<SceneRobot> = crate::PerGeometry::new();
-        FITS.get(geometry, SceneRobot::new)
+    pub fn of(robot: &SimulatedRobot) -> &'static SceneRobot {
+        static FITS: crate::PerRobot<SceneRobot> = crate::PerRobot::new();
+        FITS.get(robot, SceneRobot::new)
+    }
+
+    /// The robot the scenes are built for.
+    pub fn robot(&self) -> &SimulatedRobot {
+        &self.robot
     }
 
     /// The robot's geometry.
     pub fn geometry(&self) -> &RobotGeometry {
-        &self.geometry
+        self.robot.geometry()
+    }
+
+    /// The `index`-th point of the start lattice, on either axis: whole move steps placed so
+    /// that every obstacle cell's centre (0.125 + 0.25 k) lies on it, 0.025 + 0.05 k for the
+    /// shipped robot. A passage centred on a cell can then be entered exactly on its centre.
+    pub fn on_start_lattice(&self, index: i32) -> f32 {
+        let step_m = self.robot.lattice().move_step_m as f64;
+        // Built as a whole number of 0.1 mm so that the value prints and parses back to the
+        // same f32.
+        let tenths_of_mm = ((index as f64 + self.start_lattice_offset()) * step_m * 1.0e4).round();
+        (tenths_of_mm / 1.0e4) as f32
+    }
+
+    /// Index of the start lattice point nearest `value_m`.
+    pub(super) fn start_lattice_index(&self, value_m: f32) -> i32 {
+        let step_m = self.robot.lattice().move_step_m as f64;
+        (value_m as f64 / step_m - self.start_lattice_offset()).round() as i32
+    }
+
+    /// Where the start lattice stands, in move steps: half a step when a cell's half width is
+    /// an odd number of half steps (0.125 m of 0.05 m steps), none when even.
+    fn start_lattice_offset(&self) -> f64 {
+        let steps_per_cell = (GRID_CELL_M / self.robot.lattice().move_step_m).round() as i32;
+        if steps_per_cell % 2 == 1 {
+            0.5
+        } else {
+            0.0
+        }
     }
 
     /// Whether the generators can build `behaviour`'s scenes for this robot; the error says
@@ -157,16 +192,17 @@ fn canonical_fence(behaviour: Behaviour) -> Vec<Obstacle> {
 /// line, drives from well before the fence to well past it keeping `margin_m` from every
 /// obstacle (touching counts as a collision at margin 0).
 fn drives_through(
-    geometry: &RobotGeometry,
+    robot: &SimulatedRobot,
     obstacles: &ObstacleSet,
     rows: i32,
     legs: (i32, i32),
     margin_m: f32,
 ) -> bool {
+    let geometry = robot.geometry();
     let state = RobotState {
         clearance_steps: legs.0,
         track_steps: legs.1,
-        ..RobotState::new(Point2::origin(), 0)
+        ..RobotState::new(Point2::origin(), 0, robot.lattice())
     };
     let config = state.leg_config(geometry);
     let reach_m = geometry.body_length_m.max(geometry.track_range_m[1]);
@@ -183,12 +219,12 @@ fn drives_through(
     })
 }
 
-/// The passing pose of `behaviour`'s fence for `geometry`, or why there is none.
-fn passing_pose(geometry: &RobotGeometry, behaviour: Behaviour) -> Result<(i32, i32), String> {
+/// The passing pose of `behaviour`'s fence for `robot`, or why there is none.
+fn passing_pose(robot: &SimulatedRobot, behaviour: Behaviour) -> Result<(i32, i32), String> {
     let obstacles = ObstacleSet::new(&canonical_fence(behaviour));
     let rows = fence_rows(behaviour);
     let name = behaviour.name();
-    if drives_through(geometry, &obstacles, rows, (0, 0), 0.0) {
+    if drives_through(robot, &obstacles, rows, (0, 0), 0.0) {
         return Err(format!(
             "the default pose drives through the {name} fence: its obstacles do not ask this \
              robot for the behaviour"
@@ -196,17 +232,20 @@ fn passing_pose(geometry: &RobotGeometry, behaviour: Behaviour) -> Result<(i32, 
     }
     // Nearest the default first; among equals, the one that changes one dimension only, then
     // clearance before track, each way down before up.
-    let mut candidates: Vec<(i32, i32)> = (-SEARCH_STEPS..=SEARCH_STEPS)
-        .flat_map(|c| (-SEARCH_STEPS..=SEARCH_STEPS).map(move |t| (c, t)))
+    let lattice = robot.lattice();
+    let clearance_steps = (SEARCH_M / lattice.clearance_step_m).round() as i32;
+    let track_steps = (SEARCH_M / lattice.track_step_m).round() as i32;
+    let mut candidates: Vec<(i32, i32)> = (-clearance_steps..=clearance_steps)
+        .flat_map(|c| (-track_steps..=track_steps).map(move |t| (c, t)))
         .filter(|&p| p != (0, 0))
         .collect();
     candidates.sort_by_key(|&(c, t)| (c.abs() + t.abs(), c.abs().min(t.abs()), c.abs(), c, t));
     candidates
         .into_iter()
-        .find(|&legs| drives_through(geometry, &obstacles, rows, legs, FENCE_MARGIN_M))
+        .find(|&legs| drives_through(robot, &obstacles, rows, legs, FENCE_MARGIN_M))
         .ok_or_else(|| {
             format!(
-                "no pose within {SEARCH_STEPS} clearance and track steps of the default drives \
+                "no pose within {SEARCH_M} m of clearance and of track from the default drives \
                  through the {name} fence keeping {:.0} mm from it",
                 FENCE_MARGIN_M * 1000.0
             )
@@ -223,17 +262,18 @@ fn fence_lead_m(geometry: &RobotGeometry) -> f32 {
     (reach_m + block_half_m + FENCE_MARGIN_M).max(0.45)
 }
 
-fn around_offset_m(geometry: &RobotGeometry) -> f32 {
+fn around_offset_m(robot: &SimulatedRobot) -> f32 {
+    let geometry = robot.geometry();
     let half_width_m = RobotParts::new(
         geometry,
         Point2::origin(),
         0.0,
-        RobotState::new(Point2::origin(), 0).leg_config(geometry),
+        RobotState::new(Point2::origin(), 0, robot.lattice()).leg_config(geometry),
     )
     .map(|parts| parts.aabb().maxs.y.max(-parts.aabb().mins.y))
     .unwrap_or(0.5 * geometry.default_track_m);
     let block_half_m = 0.5 * crate::obstacle::ObstacleKind::Block.size_m().1;
-    let step = wheelleg_runtime::action::MOVE_STEP_M as f64;
+    let step = robot.lattice().move_step_m as f64;
     let wanted = (block_half_m + half_width_m + 0.10) as f64;
     ((wanted / step - 1e-3).ceil() * step) as f32
 }
@@ -258,17 +298,23 @@ mod tests {
             let rows = fence_rows(b);
             assert_eq!(fit.passing_legs(b), SHIPPED_PASSING[i]);
             assert!(
-                drives_through(&WHEELLEG, &obstacles, rows, SHIPPED_PASSING[i], 0.0),
+                drives_through(
+                    &SimulatedRobot::SHIPPED,
+                    &obstacles,
+                    rows,
+                    SHIPPED_PASSING[i],
+                    0.0
+                ),
                 "{b:?}"
             );
             assert!(
-                !drives_through(&WHEELLEG, &obstacles, rows, (0, 0), 0.0),
+                !drives_through(&SimulatedRobot::SHIPPED, &obstacles, rows, (0, 0), 0.0),
                 "{b:?}"
             );
             // The search finds a pose of its own for the same robot, with the margin.
-            let found = passing_pose(&WHEELLEG, b).unwrap();
+            let found = passing_pose(&SimulatedRobot::SHIPPED, b).unwrap();
             assert!(drives_through(
-                &WHEELLEG,
+                &SimulatedRobot::SHIPPED,
                 &obstacles,
                 rows,
                 found,
@@ -283,9 +329,10 @@ mod tests {
         // Lifted high enough by default to clear the 0.15 m bar: the fence asks nothing of it.
         let tall = RobotGeometry {
             default_clearance_m: 0.20,
-            ..WHEELLEG
+            ..wheelleg_runtime::robot::WHEELLEG
         };
-        let fit = SceneRobot::new(&tall);
+        let tall = SimulatedRobot::new(tall, wheelleg_runtime::action::ActionLattice::PAPER);
+        let fit = SceneRobot::new(&tall.unwrap());
         let why = fit.has(Behaviour::LiftOver).unwrap_err();
         assert!(
             why.contains("default pose drives through the lift fence"),

@@ -1,8 +1,9 @@
 //! Scene generators: one simple scene family per behaviour, each built so that the behaviour is
 //! necessary, and complex scenes that mix every obstacle kind.
 //!
-//! Every scene starts the robot on the 0.05 m lattice with a random yaw on the 5 degree lattice
-//! and puts the target 0.5 to 1.0 m ahead along world x. Behaviour scenes put a *fence* across
+//! Every scene starts the robot on its start lattice (whole move steps, 0.05 m for the shipped
+//! robot) with a random yaw on its yaw lattice (5 degrees) and puts the target 0.5 to 1.0 m
+//! ahead along world x. Behaviour scenes put a *fence* across
 //! the whole arena between start and target, with exactly one kind of passage in it, so the only
 //! way through is the behaviour (docs/simulator.md has the cross-section arithmetic):
 //!
@@ -36,10 +37,9 @@ use fence::{behaviour_scene, fence_cells, fence_rows, staged_scene};
 
 use crate::obstacle::GRID_CELL_M;
 use crate::scenario::Scenario;
-use crate::state::{RobotState, YAW_STEPS_PER_TURN};
+use crate::state::RobotState;
 use nalgebra::Point2;
 use rand::Rng;
-use wheelleg_runtime::action::MOVE_STEP_M;
 
 /// The five behaviours of the paper's secondary policies.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -130,18 +130,6 @@ impl SceneKind {
     }
 }
 
-/// The `index`-th point of the robot's start lattice: 0.025 + 0.05 k.
-pub fn on_robot_lattice(index: i32) -> f32 {
-    // Built as a whole number of 0.1 mm so that the value prints and parses back to the same f32.
-    let tenths_of_mm = ((index as f64 + 0.5) * MOVE_STEP_M as f64 * 1.0e4).round();
-    (tenths_of_mm / 1.0e4) as f32
-}
-
-/// Index of the robot lattice point nearest `value_m`.
-fn robot_lattice_index(value_m: f32) -> i32 {
-    (value_m as f64 / MOVE_STEP_M as f64 - 0.5).round() as i32
-}
-
 /// Index of the grid cell containing `value_m`.
 fn cell_index(value_m: f32) -> i32 {
     (value_m / GRID_CELL_M).floor() as i32
@@ -156,11 +144,11 @@ struct Layout {
 /// How a scene's start yaw is drawn.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub enum StartYaw {
-    /// Any yaw on the 5 degree lattice: the task as specified.
+    /// Any yaw on the robot's yaw lattice: the task as specified.
     #[default]
     Any,
     /// The body's long axis along world x (facing the target or away from it), give or take
-    /// `within_deg`, on the 5 degree lattice. Lift, spread and squeeze passages are only
+    /// `within_deg`, on the robot's yaw lattice. Lift, spread and squeeze passages are only
     /// passable lined up with the fence, and a policy that starts from the straight-line one
     /// has never turned: from any yaw it must find a turn of up to 90 degrees (18 steps) and
     /// the behaviour together before the first success. A training curriculum can first
@@ -182,15 +170,16 @@ impl StartYaw {
         }
     }
 
-    fn draw(self, rng: &mut impl Rng) -> i32 {
+    fn draw(self, robot: &SceneRobot, rng: &mut impl Rng) -> i32 {
+        let per_turn = robot.robot().yaw_steps_per_turn();
         match self {
-            StartYaw::Any => rng.random_range(0..YAW_STEPS_PER_TURN),
+            StartYaw::Any => rng.random_range(0..per_turn),
             StartYaw::AlongX { within_deg } => {
-                let steps = (within_deg.max(0.0) / wheelleg_runtime::action::YAW_STEP_DEG) as i32;
+                let steps = (within_deg.max(0.0) / robot.robot().lattice().yaw_step_deg) as i32;
                 let base = if rng.random_bool(0.5) {
                     0
                 } else {
-                    YAW_STEPS_PER_TURN / 2
+                    per_turn / 2
                 };
                 base + rng.random_range(-steps..=steps)
             }
@@ -198,20 +187,20 @@ impl StartYaw {
     }
 }
 
-/// Random start on the lattice, yaw as `start_yaw`; the target `min_ahead_m..=1.0` ahead
-/// along x.
-fn layout(rng: &mut impl Rng, min_ahead_m: f32, start_yaw: StartYaw) -> Layout {
-    let lattice = MOVE_STEP_M as f64;
-    // Offset by half a step so that every obstacle cell centre (0.125 + 0.25 k) lies on the
-    // robot's lattice: a passage centred on a cell can then be entered exactly on centre.
-    let x = on_robot_lattice(rng.random_range(-2..=2));
-    let y = on_robot_lattice(rng.random_range(-2..=2));
-    let yaw_steps = start_yaw.draw(rng);
-    let min_k = ((min_ahead_m.max(0.5) as f64) / lattice).ceil() as i32;
-    let k = rng.random_range(min_k.min(20)..=20);
-    let start = RobotState::new(Point2::new(x, y), yaw_steps);
+/// Random start on the start lattice within 0.10 m of the origin, yaw as `start_yaw`; the
+/// target `min_ahead_m..=1.0` ahead along x.
+fn layout(robot: &SceneRobot, rng: &mut impl Rng, min_ahead_m: f32, start_yaw: StartYaw) -> Layout {
+    let step_m = robot.robot().lattice().move_step_m as f64;
+    let near = (0.10 / step_m).round() as i32;
+    let x = robot.on_start_lattice(rng.random_range(-near..=near));
+    let y = robot.on_start_lattice(rng.random_range(-near..=near));
+    let yaw_steps = start_yaw.draw(robot, rng);
+    let min_k = ((min_ahead_m.max(0.5) as f64) / step_m).ceil() as i32;
+    let max_k = (1.0 / step_m).round() as i32;
+    let k = rng.random_range(min_k.min(max_k)..=max_k);
+    let start = RobotState::new(Point2::new(x, y), yaw_steps, robot.robot().lattice());
     Layout {
-        target: Point2::new(on_robot_lattice(robot_lattice_index(x) + k), y),
+        target: Point2::new(robot.on_start_lattice(robot.start_lattice_index(x) + k), y),
         start,
     }
 }
@@ -238,7 +227,7 @@ pub fn generate_with_start(
             SceneKind::Complex => complex_scene(robot, rng, name.clone(), start_yaw),
             SceneKind::Composed => composed::composed_scene(robot, rng, name.clone(), start_yaw),
         };
-        if scenario.validate(robot.geometry()).is_ok() && target_is_free(robot, &scenario) {
+        if scenario.validate(robot.robot()).is_ok() && target_is_free(robot, &scenario) {
             return scenario;
         }
     }
@@ -277,7 +266,7 @@ pub fn generate_staged(
     // The same draws, in the same order, as `generate_with_start`.
     loop {
         let (scenario, passage) = behaviour_scene(robot, behaviour, rng, name.clone(), start_yaw);
-        if scenario.validate(robot.geometry()).is_ok() && target_is_free(robot, &scenario) {
+        if scenario.validate(robot.robot()).is_ok() && target_is_free(robot, &scenario) {
             return staged_scene(robot, &scenario, behaviour, passage, stage).unwrap_or(scenario);
         }
     }
@@ -301,22 +290,37 @@ pub fn generate_many(
 fn target_is_free(robot: &SceneRobot, scenario: &Scenario) -> bool {
     let obstacles = crate::collision::ObstacleSet::new(&scenario.obstacles);
     let geometry = robot.geometry();
-    // Steps from the default pose: (0.12, 0.36), (0.18, 0.24), (0.08, 0.56) and (0.10, 0.16)
-    // m of clearance and track for the shipped robot.
-    let poses = [(0, 0), (3, -6), (-2, 10), (-1, -10)].map(|(c, t)| {
-        RobotState {
-            clearance_steps: c,
-            track_steps: t,
-            ..RobotState::new(scenario.target, 0)
+    let lattice = robot.robot().lattice();
+    // Metres from the default pose, to the nearest leg step: (0.12, 0.36), (0.18, 0.24),
+    // (0.08, 0.56) and (0.10, 0.16) m of clearance and track for the shipped robot. A pose
+    // the legs cannot take on another lattice comes a step nearer the default until they can.
+    let poses = [(0.0, 0.0), (0.06, -0.12), (-0.04, 0.20), (-0.02, -0.20)].map(|(c, t)| {
+        let mut steps = (
+            (c / lattice.clearance_step_m).round() as i32,
+            (t / lattice.track_step_m).round() as i32,
+        );
+        loop {
+            let legs = RobotState {
+                clearance_steps: steps.0,
+                track_steps: steps.1,
+                ..RobotState::new(scenario.target, 0, lattice)
+            }
+            .leg_config(geometry);
+            if steps == (0, 0) || geometry.is_reachable(legs) {
+                return legs;
+            }
+            steps = (steps.0 - steps.0.signum(), steps.1 - steps.1.signum());
         }
-        .leg_config(geometry)
     });
-    (0..YAW_STEPS_PER_TURN / 2).step_by(3).any(|yaw| {
+    // Every 15 degrees over half a turn (the robot is symmetric front to back).
+    let every = (15.0 / lattice.yaw_step_deg).round().max(1.0) as usize;
+    let per_turn = robot.robot().yaw_steps_per_turn();
+    (0..per_turn / 2).step_by(every).any(|yaw| {
         poses.iter().any(|&legs| {
             crate::collision::RobotParts::new(
                 geometry,
                 scenario.target,
-                (yaw as f32 * 5.0).to_radians(),
+                (yaw as f32 * lattice.yaw_step_deg).to_radians(),
                 legs,
             )
             .is_ok_and(|parts| !obstacles.collides(&parts))

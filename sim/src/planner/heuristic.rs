@@ -10,30 +10,32 @@ use crate::generate::Behaviour;
 use crate::generate::SceneRobot;
 use crate::obstacle::ObstacleKind;
 use crate::state::RobotState;
-use crate::state::YAW_STEPS_PER_TURN;
 use nalgebra::Point2;
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
-use wheelleg_runtime::action::MOVE_STEP_M;
+use wheelleg_runtime::action::ActionLattice;
 
-/// Length of the longest step (a diagonal move).
-pub(super) const DIAGONAL_STEP_M: f32 = MOVE_STEP_M * core::f32::consts::SQRT_2;
+/// Length of the longest step on `lattice` (a diagonal move).
+pub(super) fn diagonal_step_m(lattice: &ActionLattice) -> f32 {
+    lattice.move_step_m * core::f32::consts::SQRT_2
+}
 
 /// Lower bound on the steps from a pose to success: the larger of two bounds, both pose-only.
 ///
 /// - Detour: the remaining travel through the places the body centre can be at all (a distance
 ///   field around the blocks, [`DistanceField`]) at the longest possible step.
 /// - Heading: the straight-line progress towards the target. A step's progress along the unit
-///   vector `u` towards the target is at most `0.05 sqrt(2) cos(delta)`, where `delta` is the
-///   angle between `u` and the nearest of the robot's four diagonal move directions (an axis move
-///   gives `0.05 cos(45 deg - delta)`, never more for `delta <= 45 deg`). Yaw turns 5 degrees per
-///   step at most, and the step's move uses the yaw before the turn, so step `i` has
-///   `delta_i >= delta_0 - 5 i` degrees. Reaching the success circle needs a total progress along
+///   vector `u` towards the target is at most `s sqrt(2) cos(delta)` for a move step `s`, where
+///   `delta` is the angle between `u` and the nearest of the robot's four diagonal move
+///   directions (an axis move gives `s cos(45 deg - delta)`, never more for `delta <= 45 deg`).
+///   Yaw turns one yaw step `y` per step at most, and the step's move uses the yaw before the
+///   turn, so step `i` has `delta_i >= delta_0 - y i`. Reaching the success circle needs a total progress along
 ///   `u` of at least the distance minus the success radius.
 pub(super) struct Heuristic {
     pub(super) field: DistanceField,
     pub(super) target: Point2<f32>,
     pub(super) success_radius_m: f32,
+    pub(super) lattice: ActionLattice,
 }
 
 impl Heuristic {
@@ -45,8 +47,9 @@ impl Heuristic {
             return 0;
         }
         let field_m = self.field.lower_bound_m(pose.position) - 1.0e-4;
-        let detour = (field_m / DIAGONAL_STEP_M).ceil().max(0.0);
-        let heading = heading_steps(straight_m, d.y.atan2(d.x) - pose_yaw_rad(pose));
+        let detour = (field_m / diagonal_step_m(&self.lattice)).ceil().max(0.0);
+        let alpha_rad = d.y.atan2(d.x) - pose_yaw_rad(pose, &self.lattice);
+        let heading = heading_steps(straight_m, alpha_rad, &self.lattice);
         if detour.is_infinite() {
             return u32::MAX / 4;
         }
@@ -54,19 +57,19 @@ impl Heuristic {
     }
 }
 
-pub(super) fn pose_yaw_rad(pose: &Pose) -> f32 {
-    RobotState::new(pose.position, pose.yaw_steps).yaw_rad()
+pub(super) fn pose_yaw_rad(pose: &Pose, lattice: &ActionLattice) -> f32 {
+    RobotState::new(pose.position, pose.yaw_steps, lattice).yaw_rad()
 }
 
 /// Fewest steps whose progress along a direction `alpha_rad` (relative to the robot's heading)
 /// can add up to `need_m` (see [`Heuristic`]).
-pub(super) fn heading_steps(need_m: f32, alpha_rad: f32) -> u32 {
+pub(super) fn heading_steps(need_m: f32, alpha_rad: f32, lattice: &ActionLattice) -> u32 {
     use core::f32::consts::{FRAC_PI_2, FRAC_PI_4};
     let from_diagonal = (alpha_rad - FRAC_PI_4).rem_euclid(FRAC_PI_2);
     let mut delta = from_diagonal.min(FRAC_PI_2 - from_diagonal);
-    let turn = wheelleg_runtime::action::YAW_STEP_DEG.to_radians();
+    let turn = lattice.yaw_step_deg.to_radians();
     // Tiny relative slack: cos and the sum round; overestimating progress keeps this a bound.
-    let best_step_m = DIAGONAL_STEP_M * (1.0 + 1.0e-5);
+    let best_step_m = diagonal_step_m(lattice) * (1.0 + 1.0e-5);
     let mut progress_m = 0.0;
     let mut steps = 0;
     while delta > 0.0 {
@@ -101,6 +104,9 @@ pub(super) fn heading_steps(need_m: f32, alpha_rad: f32) -> u32 {
 /// the space still proves a scene unsolvable.
 pub(super) struct LegHint {
     pub(super) zones: Vec<StraddleZone>,
+    lattice: ActionLattice,
+    /// Yaw steps in half a turn.
+    half_turn: i32,
 }
 
 /// A low obstacle's footprint, grown by the robot's reach ahead of its centre, with the leg
@@ -124,7 +130,8 @@ impl LegHint {
         // The wheels reach this far ahead of the body centre: they meet the obstacle when the
         // centre is this close to it, so the legs must be ready by then.
         let reach_m = geometry.hip_x_m + geometry.wheel_radius_m;
-        let fit = SceneRobot::of(geometry);
+        let fit = SceneRobot::of(env.robot());
+        let quarter_turn = env.robot().yaw_steps_per_turn() / 4;
         let zones = env
             .obstacles()
             .boxes()
@@ -143,7 +150,7 @@ impl LegHint {
                 let length_m = kind.size_m().0;
                 let along_x = (b.max_x_m - b.min_x_m - length_m).abs()
                     <= (b.max_y_m - b.min_y_m - length_m).abs();
-                let along_yaw_steps = if along_x { 0 } else { YAW_STEPS_PER_TURN / 4 };
+                let along_yaw_steps = if along_x { 0 } else { quarter_turn };
                 let (row, col) = (clearance - lattice.clearance0, track - lattice.track0);
                 let leg_steps = (0..LEG_ROWS * LEG_COLS)
                     .map(|cell| {
@@ -159,7 +166,11 @@ impl LegHint {
                 })
             })
             .collect();
-        LegHint { zones }
+        LegHint {
+            zones,
+            lattice: *env.lattice(),
+            half_turn: env.robot().yaw_steps_per_turn() / 2,
+        }
     }
 
     /// The hint's steps for a robot at `position` in any of the leg configurations `legs`: for
@@ -220,15 +231,16 @@ impl LegHint {
     ) -> impl Iterator<Item = (&'z StraddleZone, u32, u32)> + 'z {
         let position = pose.position;
         let whole_m = (target - position).norm();
-        let half_turn = YAW_STEPS_PER_TURN / 2;
-        let step_deg = wheelleg_runtime::action::YAW_STEP_DEG;
+        let half_turn = self.half_turn;
+        let step_deg = self.lattice.yaw_step_deg;
+        let diagonal_m = diagonal_step_m(&self.lattice);
         self.zones.iter().filter_map(move |z| {
             let entry = segment_entry(position, target, z.min, z.max)?;
             let off = (pose.yaw_steps - z.along_yaw_steps).rem_euclid(half_turn);
             let off_deg = off.min(half_turn - off) as f32 * step_deg;
             let turn_steps = ((off_deg - LINED_UP_DEG).max(0.0) / step_deg).ceil() as u32;
-            let to_entry = (entry * whole_m / DIAGONAL_STEP_M).ceil() as u32;
-            let from_entry = ((1.0 - entry) * whole_m / DIAGONAL_STEP_M).ceil() as u32;
+            let to_entry = (entry * whole_m / diagonal_m).ceil() as u32;
+            let from_entry = ((1.0 - entry) * whole_m / diagonal_m).ceil() as u32;
             Some((z, turn_steps.max(to_entry), from_entry))
         })
     }

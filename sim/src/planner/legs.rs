@@ -1,14 +1,15 @@
 //! Leg configuration sets: the IK-reachable (clearance, track) lattice and bitsets over it.
 
 use super::moves::Pose;
+use crate::robot::SimulatedRobot;
 use crate::state::RobotState;
 use nalgebra::Point2;
-use wheelleg_runtime::robot::RobotGeometry;
+use wheelleg_runtime::action::ActionLattice;
 
 /// Capacity of a [`LegSet`] in clearance steps (rows).
-pub(super) const LEG_ROWS: usize = 16;
+pub(crate) const LEG_ROWS: usize = 16;
 /// Capacity of a [`LegSet`] in track steps (bits of a row).
-pub(super) const LEG_COLS: usize = 32;
+pub(crate) const LEG_COLS: usize = 32;
 
 /// A set of leg configurations: bit `t` of row `r` is (clearance row `r`, track column `t`) of
 /// the [`LegLattice`]. One `u32` per clearance row makes the one-step dilation in either leg
@@ -96,6 +97,8 @@ impl LegSet {
 /// The leg configurations the IK can reach, as (clearance, track) step offsets from the
 /// default pose, laid out on the rows and columns of a [`LegSet`].
 pub(super) struct LegLattice {
+    /// The steps the rows and columns count.
+    actions: ActionLattice,
     /// Clearance steps of row 0.
     pub(super) clearance0: i32,
     /// Track steps of column 0.
@@ -104,16 +107,21 @@ pub(super) struct LegLattice {
 }
 
 impl LegLattice {
-    pub(super) fn new(geometry: &RobotGeometry) -> Self {
-        // Far beyond any sensible robot: 64 steps of 0.02 m is 1.28 m.
-        const SCAN: i32 = 64;
+    /// # Panics
+    ///
+    /// If the reachable lattice is larger than [`LEG_ROWS`] by [`LEG_COLS`] steps, which
+    /// [`SimulatedRobot::new`] refuses.
+    pub(super) fn new(robot: &SimulatedRobot) -> Self {
+        let (geometry, actions) = (robot.geometry(), *robot.lattice());
+        // Twice the most steps a range holds (SimulatedRobot::new): every reachable pose.
+        const SCAN: i32 = 2 * LEG_COLS as i32;
         let mut found = Vec::new();
         for clearance_steps in -SCAN..=SCAN {
             for track_steps in -SCAN..=SCAN {
                 let state = RobotState {
                     clearance_steps,
                     track_steps,
-                    ..RobotState::new(Point2::origin(), 0)
+                    ..RobotState::new(Point2::origin(), 0, &actions)
                 };
                 // Exactly the test the simulator applies (RobotParts::new runs this IK).
                 if geometry.leg_ik(state.leg_config(geometry)).is_ok() {
@@ -133,6 +141,7 @@ impl LegLattice {
             reachable.insert(row, col);
         }
         LegLattice {
+            actions,
             clearance0,
             track0,
             reachable,
@@ -153,6 +162,7 @@ impl LegLattice {
             yaw_steps: pose.yaw_steps,
             clearance_steps: self.clearance0 + row as i32,
             track_steps: self.track0 + col as i32,
+            lattice: self.actions,
         }
     }
 }

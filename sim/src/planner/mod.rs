@@ -40,6 +40,7 @@ mod broad_phase;
 mod heuristic;
 mod lazy;
 mod legs;
+pub(crate) use legs::{LEG_COLS, LEG_ROWS};
 mod moves;
 mod search;
 mod valid;
@@ -164,8 +165,9 @@ pub fn plan_with_fallback(env: &Env, config: &PlannerConfig) -> FallbackPlan {
 ///
 /// # Panics
 ///
-/// If the plan found does not replay to success in a copy of `env` (a bug in this module), or
-/// if the robot's reachable leg lattice is larger than 16 clearance by 32 track steps.
+/// If the plan found does not replay to success in a copy of `env` (a bug in this module). The
+/// planner's leg sets hold 16 clearance by 32 track steps, which every
+/// [`crate::robot::SimulatedRobot`] fits.
 pub fn plan(env: &Env, config: &PlannerConfig) -> Plan {
     plan_within(env, config, u32::MAX)
 }

@@ -18,7 +18,7 @@ use super::Plan;
 use super::PlanOutcome;
 use super::PlannerConfig;
 use crate::env::Env;
-use crate::state::{RobotState, YAW_STEPS_PER_TURN};
+use crate::state::RobotState;
 use nalgebra::Point3;
 use parry3d::bounding_volume::{Aabb, BoundingVolume};
 use std::cmp::Ordering;
@@ -149,11 +149,12 @@ pub(super) struct Search<'a> {
 impl<'a> Search<'a> {
     pub(super) fn new(env: &'a Env, config: &'a PlannerConfig, max_steps: u32) -> Self {
         let start = *env.state();
-        let lattice = LegLattice::new(env.geometry());
+        let lattice = LegLattice::new(env.robot());
         let heuristic = Heuristic {
             field: DistanceField::new(env, start.position),
             target: env.target(),
             success_radius_m: env.config().success_radius_m,
+            lattice: *env.lattice(),
         };
         let leg_hint = (config.heuristic_weight > 1.0).then(|| LegHint::new(env, &lattice));
         Search {
@@ -162,7 +163,9 @@ impl<'a> Search<'a> {
             moves: BaseMove::all(&config.allowed),
             heuristic,
             leg_hint,
-            boxes: (0..YAW_STEPS_PER_TURN).map(|_| None).collect(),
+            boxes: (0..env.robot().yaw_steps_per_turn())
+                .map(|_| None)
+                .collect(),
             end_clear: FastMap::default(),
             in_arena: FastMap::default(),
             state_clearance: FastMap::default(),
@@ -300,7 +303,7 @@ impl<'a> Search<'a> {
             let n = &self.nodes[node as usize];
             (n.pose, n.legs, n.steps)
         };
-        let from = RobotState::new(pose.position, pose.yaw_steps);
+        let from = RobotState::new(pose.position, pose.yaw_steps, self.env.lattice());
         for m in 0..self.moves.len() {
             let next = from.after(self.moves[m].action);
             let next_pose = Pose {

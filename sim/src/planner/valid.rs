@@ -27,7 +27,7 @@ impl Search<'_> {
     pub(super) fn inside_arena(&mut self, pose: &Pose, key: PoseKey) -> bool {
         let env = self.env;
         *self.in_arena.entry(key).or_insert_with(|| {
-            let here = RobotState::new(pose.position, pose.yaw_steps);
+            let here = RobotState::new(pose.position, pose.yaw_steps, env.lattice());
             let probe = RobotState {
                 track_steps: i32::MAX / 4,
                 ..here

@@ -1,17 +1,20 @@
-//! Proofs about generated scenes shared by the scenario tests: that a fence is a barrier for a
-//! set of leg configurations (a geometric argument over every pose near its rows), and that
-//! scenes are solvable (a plan replayed to success in a fresh episode).
+//! Proofs shared by the scenario and planner tests: that a fence is a barrier for a set of leg
+//! configurations (a geometric argument over every pose near its rows), that scenes are
+//! solvable (a plan replayed to success in a fresh episode), and the breadth-first reference
+//! search a shortest plan must match.
 
 // Each test crate that includes this module uses only some of its helpers.
 #![allow(dead_code)]
 
 use nalgebra::Point2;
-use wheelleg_runtime::action::Action;
+use std::collections::{HashMap, VecDeque};
+use wheelleg_runtime::action::{Action, COUNT};
 use wheelleg_runtime::leg::LegConfig;
-use wheelleg_runtime::robot::{RobotGeometry, WHEELLEG};
+use wheelleg_runtime::robot::RobotGeometry;
 use wheelleg_sim::collision::{ObstacleSet, RobotParts};
 use wheelleg_sim::env::{Env, EnvConfig, Status};
 use wheelleg_sim::planner::{plan, PlanOutcome, PlannerConfig};
+use wheelleg_sim::robot::SimulatedRobot;
 use wheelleg_sim::scenario::Scenario;
 use wheelleg_sim::state::RobotState;
 
@@ -21,31 +24,32 @@ pub type LegFilter = fn(i32, i32) -> bool;
 /// The robots the scene proofs run for: the shipped one and `robots/strider.toml`, a larger
 /// one whose passing poses differ (lift +2, squeeze -10 track steps with one clearance step
 /// down).
-pub fn robots() -> [(&'static str, RobotGeometry); 2] {
+pub fn robots() -> [(&'static str, SimulatedRobot); 2] {
     let strider = wheelleg_robot::RobotDescription::load(std::path::Path::new(concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/../robots/strider.toml"
     )))
-    .and_then(|d| d.simulated_geometry())
+    .and_then(|d| SimulatedRobot::of(&d))
     .expect("robots/strider.toml");
-    [("wheelleg", WHEELLEG), ("strider", strider)]
+    [("wheelleg", SimulatedRobot::SHIPPED), ("strider", strider)]
 }
 
-/// The episode settings for `geometry`.
-pub fn env_config(geometry: &RobotGeometry) -> EnvConfig {
+/// The episode settings for `robot`.
+pub fn env_config(robot: &SimulatedRobot) -> EnvConfig {
     EnvConfig {
-        geometry: *geometry,
+        robot: *robot,
         ..EnvConfig::default()
     }
 }
 
 /// Leg configurations on the action lattice (steps from the default pose, as
-/// `RobotState::leg_config` places them) that the legs of `geometry` can reach, filtered.
-pub fn lattice_legs(geometry: &RobotGeometry, keep: impl Fn(i32, i32) -> bool) -> Vec<LegConfig> {
+/// `RobotState::leg_config` places them) that the legs of `robot` can reach, filtered.
+pub fn lattice_legs(robot: &SimulatedRobot, keep: impl Fn(i32, i32) -> bool) -> Vec<LegConfig> {
+    let geometry = robot.geometry();
     let state = |clearance_steps, track_steps| RobotState {
         clearance_steps,
         track_steps,
-        ..RobotState::new(Point2::origin(), 0)
+        ..RobotState::new(Point2::origin(), 0, robot.lattice())
     };
     let mut out = Vec::new();
     for clearance_steps in -15..=15 {
@@ -120,7 +124,7 @@ pub fn free_pose_near_line(
 /// included.
 pub fn prove_solvable(
     scenes: &[Scenario],
-    geometry: &RobotGeometry,
+    robot: &SimulatedRobot,
     prefix: impl Fn(&Scenario) -> Vec<Action>,
     configs: &[PlannerConfig],
 ) -> Vec<Vec<RobotState>> {
@@ -128,7 +132,7 @@ pub fn prove_solvable(
     let mut most = (0, String::new());
     let clock = std::time::Instant::now();
     for scene in scenes {
-        let fresh = Env::new(scene, env_config(geometry)).unwrap();
+        let fresh = Env::new(scene, env_config(robot)).unwrap();
         let mut env = fresh.clone();
         let mut actions = prefix(scene);
         for (i, &action) in actions.iter().enumerate() {
@@ -182,5 +186,79 @@ pub fn weighted(weight: f32) -> PlannerConfig {
         max_expansions: 20_000,
         heuristic_weight: weight,
         ..PlannerConfig::default()
+    }
+}
+
+/// Breadth-first search over full states (exact position, yaw, clearance, track) with the
+/// simulator's transition check, on the episode's action lattice, the step limit and the give-up
+/// rule (the episode's, which counts from where it started): the reference the planner must
+/// match. Exponential; only for tiny, restricted instances. States from which
+/// even straight-line travel at the longest step cannot reach the target within `depth` steps
+/// are cut, which never cuts a plan of at most `depth` steps.
+pub fn brute_force(env: &Env, config: &PlannerConfig, depth: usize) -> Option<usize> {
+    brute_force_within(env, config, depth, env.give_up_distance_m())
+}
+
+/// [`brute_force`] with the give-up distance `give_up_m` in place of the episode's.
+pub fn brute_force_within(
+    env: &Env,
+    config: &PlannerConfig,
+    depth: usize,
+    give_up_m: f32,
+) -> Option<usize> {
+    let actions: Vec<Action> = (0..COUNT)
+        .filter(|&i| config.allowed[i])
+        .filter_map(Action::from_index)
+        .filter(|a| *a != Action::IDLE)
+        .collect();
+    // The exact position, not rounded: the same lattice point reached in another order may
+    // differ in the last bits, and where a step or the success radius is decided within them,
+    // a rounded key would keep only the first variant met.
+    let key = |s: &RobotState| {
+        (
+            s.position.x.to_bits(),
+            s.position.y.to_bits(),
+            s.yaw_steps,
+            s.clearance_steps,
+            s.track_steps,
+        )
+    };
+    let start = *env.state();
+    let radius_m = env.config().success_radius_m;
+    let longest_m = env.lattice().move_step_m * std::f32::consts::SQRT_2;
+    let mut seen = HashMap::from([(key(&start), 0usize)]);
+    let mut queue = VecDeque::from([(start, 0usize)]);
+    while let Some((state, steps)) = queue.pop_front() {
+        for &action in &actions {
+            let next = state.after(action);
+            let distance_m = (env.target() - next.position).norm();
+            if distance_m > give_up_m || env.check_transition(&state, &next).is_err() {
+                continue;
+            }
+            if distance_m <= radius_m {
+                return Some(steps + 1);
+            }
+            let left = depth.saturating_sub(steps + 1) as f32;
+            if steps + 1 >= env.config().max_steps as usize
+                || distance_m - radius_m > left * longest_m + 1e-4
+            {
+                continue;
+            }
+            if seen.insert(key(&next), steps + 1).is_none() {
+                queue.push_back((next, steps + 1));
+            }
+        }
+    }
+    None
+}
+
+/// Length of a shortest plan (the planner's own replay check has run on it).
+pub fn shortest(env: &Env, config: &PlannerConfig) -> usize {
+    match plan(env, config).outcome {
+        PlanOutcome::Solved {
+            actions,
+            shortest: true,
+        } => actions.len(),
+        other => panic!("expected a shortest plan, got {other:?}"),
     }
 }

@@ -3,11 +3,10 @@
 
 use crate::policy::{BatchPolicy, LOG_PROBS};
 use crate::rule::{mark_taken, RobotRule};
-use wheelleg_runtime::action::{Action, MOVE_STEP_M};
+use wheelleg_runtime::action::{Action, ActionLattice};
 use wheelleg_runtime::arrival::Arrival;
 use wheelleg_runtime::decision::{Decider, ObservationKey};
 use wheelleg_runtime::observation::STATE_LEN;
-use wheelleg_runtime::robot::Robot;
 use wheelleg_sim::env::{Env, Observation, Status};
 
 /// The policy's inputs for a batch of episodes, with each observation's key.
@@ -57,11 +56,11 @@ fn rule_action(
     state: &[f32],
     arrival: bool,
     success_radius_m: f32,
+    lattice: &ActionLattice,
 ) -> Action {
     RobotRule {
         guard: None,
-        arrival: arrival
-            .then(|| Arrival::from_state_m(state, success_radius_m, &Robot::WHEELLEG.actions)),
+        arrival: arrival.then(|| Arrival::from_state_m(state, success_radius_m, lattice)),
     }
     .choose(decider, key, logits)
 }
@@ -117,13 +116,19 @@ impl Rollout {
 /// the horizon, plus the straight steps from the nearest point it reached (`nearest_m` from
 /// the target), so that of two rollouts that do not arrive the one that came nearer is
 /// preferred. The nearest point, not the last: a rollout that drives past the target ends as
-/// far away as one that never came near.
-pub fn rollout_cost(status: Status, steps: u32, horizon_steps: u32, nearest_m: f32) -> f32 {
+/// far away as one that never came near. Straight steps are `move_step_m` long.
+pub fn rollout_cost(
+    status: Status,
+    steps: u32,
+    horizon_steps: u32,
+    nearest_m: f32,
+    move_step_m: f32,
+) -> f32 {
     if status == Status::Success {
         steps as f32
     } else {
         let to_go = if nearest_m.is_finite() {
-            nearest_m / MOVE_STEP_M
+            nearest_m / move_step_m
         } else {
             f32::MAX / 4.0
         };
@@ -225,6 +230,7 @@ pub fn rollout_costs(
                 inputs.state(k),
                 arrival,
                 success_radius_m,
+                rollout.env.lattice(),
             );
             let outcome = rollout
                 .env
@@ -244,7 +250,13 @@ pub fn rollout_costs(
         .zip(&stopped)
         .map(|((r, &nearest_m), &stopped)| match stopped {
             Some(at_least) => at_least as f32,
-            None => rollout_cost(r.env.status(), counted(r), horizon_steps, nearest_m),
+            None => rollout_cost(
+                r.env.status(),
+                counted(r),
+                horizon_steps,
+                nearest_m,
+                r.env.lattice().move_step_m,
+            ),
         })
         .collect();
     Ok(costs)
@@ -255,7 +267,7 @@ pub fn rollout_costs(
 /// no step moves the body centre further, and a refused one does not move it).
 pub fn steps_still_needed(env: &Env) -> u32 {
     // The slack keeps this a bound where the distance and the division round.
-    let longest_step_m = MOVE_STEP_M * core::f32::consts::SQRT_2 * (1.0 + 1.0e-3);
+    let longest_step_m = env.lattice().move_step_m * core::f32::consts::SQRT_2 * (1.0 + 1.0e-3);
     let beyond_m = env.distance_to_target_m() - env.config().success_radius_m;
     let steps = (beyond_m / longest_step_m).floor();
     if steps.is_finite() && steps > 1.0 {
@@ -283,12 +295,12 @@ mod tests {
 
     #[test]
     fn an_arriving_rollout_costs_its_steps_and_beats_any_that_does_not() {
-        let arrived = rollout_cost(Status::Success, 39, 40, 0.0);
-        let near = rollout_cost(Status::Running, 40, 40, 0.06);
-        let far = rollout_cost(Status::StepLimit, 12, 40, 0.8);
+        let arrived = rollout_cost(Status::Success, 39, 40, 0.0, 0.05);
+        let near = rollout_cost(Status::Running, 40, 40, 0.06, 0.05);
+        let far = rollout_cost(Status::StepLimit, 12, 40, 0.8, 0.05);
         assert_eq!(arrived, 39.0);
         assert!(arrived < near && near < far, "{arrived} {near} {far}");
-        assert!(rollout_cost(Status::TooFar, 3, 40, f32::NAN).is_finite());
+        assert!(rollout_cost(Status::TooFar, 3, 40, f32::NAN, 0.05).is_finite());
         assert!(arrives(arrived, 40) && !arrives(near, 40) && !arrives(far, 40));
     }
 
@@ -303,7 +315,7 @@ mod tests {
         use wheelleg_sim::state::RobotState;
         let scenario = Scenario {
             name: "far-ahead".into(),
-            start: RobotState::new(Point2::new(0.0, 0.125), 0),
+            start: RobotState::new(Point2::new(0.0, 0.125), 0, &ActionLattice::PAPER),
             target: Point2::new(0.9, 0.125),
             obstacles: vec![],
         };
@@ -315,7 +327,15 @@ mod tests {
         let logits = inputs.logits(&log_probs, 0).unwrap();
         let decider = Decider::new();
         let found = candidates(&decider, 6, |d| {
-            rule_action(d, inputs.keys[0], logits, inputs.state(0), false, 0.0)
+            rule_action(
+                d,
+                inputs.keys[0],
+                logits,
+                inputs.state(0),
+                false,
+                0.0,
+                &ActionLattice::PAPER,
+            )
         });
         let mut rollouts: Vec<Rollout> = found
             .iter()

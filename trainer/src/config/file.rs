@@ -241,8 +241,7 @@ impl TrainConfig {
                 .map_err(|e| ConfigError::Robot(format!("run.robot: {e}")).in_file(path))?;
         }
         config
-            .robot
-            .simulated_geometry()
+            .simulated_robot()
             .map_err(|e| ConfigError::Robot(format!("run.robot: {e}")).in_file(path))?;
         Ok(config)
     }
@@ -251,9 +250,7 @@ impl TrainConfig {
     /// the config's `run.robot`.
     pub fn set_robot(&mut self, path: &Path) -> Result<(), ConfigError> {
         let robot = RobotDescription::load(path).map_err(|e| ConfigError::Robot(e.to_string()))?;
-        robot
-            .simulated_geometry()
-            .map_err(|e| ConfigError::Robot(e.to_string()))?;
+        wheelleg_sim::robot::SimulatedRobot::of(&robot).map_err(ConfigError::Robot)?;
         self.run.robot = path.display().to_string();
         self.robot = robot;
         Ok(())

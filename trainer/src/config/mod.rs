@@ -8,6 +8,7 @@ use crate::replay::ReplayBalance;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::Path;
+use wheelleg_sim::robot::SimulatedRobot;
 
 mod file;
 pub use file::ConfigError;
@@ -327,15 +328,21 @@ impl PpoConfig {
 }
 
 impl TrainConfig {
+    /// The run's robot as the simulator steps it; an error names the lattice key the simulator
+    /// cannot step on ([`SimulatedRobot::of`]; a loaded config has been checked).
+    pub fn simulated_robot(&self) -> Result<SimulatedRobot, ConfigError> {
+        SimulatedRobot::of(&self.robot).map_err(ConfigError::Robot)
+    }
+
     /// The episode rules of the run's environments: its step limit and invalid reward, on its
     /// robot.
-    pub fn episode_rules(&self) -> wheelleg_sim::env::EnvConfig {
-        wheelleg_sim::env::EnvConfig {
+    pub fn episode_rules(&self) -> Result<wheelleg_sim::env::EnvConfig, ConfigError> {
+        Ok(wheelleg_sim::env::EnvConfig {
             max_steps: self.run.max_episode_steps,
             invalid_reward: self.run.invalid_reward,
-            geometry: self.robot.robot.geometry,
+            robot: self.simulated_robot()?,
             ..wheelleg_sim::env::EnvConfig::default()
-        }
+        })
     }
 
     /// How the training scenes' start yaw is drawn.

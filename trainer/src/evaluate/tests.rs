@@ -26,7 +26,11 @@ fn the_report_names_the_layers_and_splits_by_what_stands_beside_the_target() {
     // wants forward, then left.
     let scenario = Scenario {
         name: "target-beside".into(),
-        start: RobotState::new(Point2::new(0.0, 0.125), 0),
+        start: RobotState::new(
+            Point2::new(0.0, 0.125),
+            0,
+            &wheelleg_runtime::action::ActionLattice::PAPER,
+        ),
         target: Point2::new(0.0, 0.065),
         obstacles: vec![],
     };

@@ -36,6 +36,7 @@ use std::fmt;
 use std::path::Path;
 use wheelleg_sim::env::{EnvConfig, Status};
 use wheelleg_sim::obstacle::{cell_centre_m, Obstacle, ObstacleKind, ObstacleYaw, GRID_CELL_M};
+use wheelleg_sim::robot::SimulatedRobot;
 use wheelleg_sim::scenario::Scenario;
 
 /// What to generate.
@@ -104,9 +105,14 @@ impl RandomizeConfig {
                 ),
             });
         }
-        if self.env.geometry != self.robot.robot.geometry {
+        let simulated = SimulatedRobot::of(&self.robot)
+            .map_err(|reason| BatchFileError::Unstorable { reason })?;
+        if self.env.robot != simulated {
             return Err(BatchFileError::Unstorable {
-                reason: format!("the replays' geometry is not robot '{}''s", self.robot.name),
+                reason: format!(
+                    "the replays' geometry or lattice is not robot '{}''s",
+                    self.robot.name
+                ),
             });
         }
         Ok(BatchHeader {

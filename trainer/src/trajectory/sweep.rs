@@ -20,13 +20,12 @@
 
 use super::{ReplayError, Trajectory};
 use nalgebra::Point2;
-use wheelleg_runtime::action::YAW_STEP_DEG;
 use wheelleg_runtime::leg::{IkError, LegConfig};
 use wheelleg_runtime::robot::RobotGeometry;
 use wheelleg_sim::collision::RobotParts;
 use wheelleg_sim::env::EnvConfig;
 use wheelleg_sim::obstacle::{GroundBox, Obstacle};
-use wheelleg_sim::state::{RobotState, YAW_STEPS_PER_TURN};
+use wheelleg_sim::state::RobotState;
 
 /// Margin around every swept part box: one translation step (0.05 m), see the module comment.
 pub const DEFAULT_MARGIN_M: f32 = 0.05;
@@ -103,8 +102,7 @@ pub fn half_way(
         track_m: 0.5 * (a.track_m + b.track_m),
     };
     // The same expression as the simulator's, so the pose is bit-for-bit the one it checks.
-    let yaw_delta = (to.yaw_steps - from.yaw_steps + 1).rem_euclid(YAW_STEPS_PER_TURN) - 1;
-    let yaw_rad = from.yaw_rad() + 0.5 * (yaw_delta as f32 * YAW_STEP_DEG).to_radians();
+    let yaw_rad = from.yaw_rad() + 0.5 * from.yaw_turn_rad_to(to);
     let position = from.position + 0.5 * (to.position - from.position);
     (position, yaw_rad, legs)
 }
@@ -153,7 +151,7 @@ impl EssentialArea {
     ) -> Result<Self, ReplayError> {
         let replay = trajectory.replay(config)?;
         // Every state on a replayed path passed the simulator's leg check.
-        Self::from_path(&config.geometry, &replay.path, margin_m).map_err(|e| {
+        Self::from_path(config.robot.geometry(), &replay.path, margin_m).map_err(|e| {
             ReplayError::Scenario(wheelleg_sim::scenario::ScenarioError {
                 scenario: trajectory.scenario.name.clone(),
                 field: "robot".into(),

@@ -2,10 +2,10 @@
 
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
-use wheelleg_runtime::robot::RobotGeometry;
 use wheelleg_sim::generate::{
     exit_scene, generate_staged, Behaviour, SceneKind, SceneRobot, StartYaw,
 };
+use wheelleg_sim::robot::SimulatedRobot;
 use wheelleg_sim::scenario::Scenario;
 
 /// How new scenes are drawn.
@@ -26,13 +26,13 @@ pub struct Scenes {
 }
 
 pub(super) fn new_scene(
-    geometry: &RobotGeometry,
+    robot: &SimulatedRobot,
     scenes: Scenes,
     rng: &mut ChaCha8Rng,
     env: usize,
     episode: u64,
 ) -> Scenario {
-    let robot = SceneRobot::of(geometry);
+    let robot = SceneRobot::of(robot);
     // Without exit or composed scenes nothing extra is drawn, so such a run sees exactly the
     // scenes it saw before the mixes existed.
     if scenes.exit_share > 0.0 && rng.random_bool(scenes.exit_share.min(1.0)) {

@@ -163,7 +163,7 @@ impl EnvSlot {
                 Some(failed) => (failed, 1.0),
                 None => (
                     new_scene(
-                        &config.geometry,
+                        &config.robot,
                         scenes,
                         &mut self.scene_rng,
                         index,

@@ -126,7 +126,7 @@ fn the_composed_and_exit_shares_mix_their_scenes_in_deterministically() {
             .map(|s| {
                 wheelleg_sim::scenario_file::parse(
                     &s.scenario_json,
-                    &wheelleg_runtime::robot::WHEELLEG,
+                    &wheelleg_sim::robot::SimulatedRobot::SHIPPED,
                 )
                 .unwrap()[0]
                     .name

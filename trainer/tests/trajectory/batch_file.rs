@@ -209,7 +209,10 @@ fn a_batch_names_its_robot_and_is_refused_for_another() {
     assert!(bytes.len() > shipped_bytes.len());
     let (back, _) = parse_header(&bytes).unwrap();
     assert_eq!(back, header);
-    assert_eq!(back.env_config().geometry, strider.robot.geometry);
+    assert_eq!(
+        *back.env_config().unwrap().robot.geometry(),
+        strider.robot.geometry
+    );
     assert!(back.check_robot(&strider, "batch.wltb").is_ok());
     let err = back
         .check_robot(&RobotDescription::shipped(), "batch.wltb")

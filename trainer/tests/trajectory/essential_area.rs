@@ -30,10 +30,14 @@ fn the_essential_area_is_the_simulated_robots() {
     // than the shipped one's sweeps more along the very same path.
     let shipped = EnvConfig::default();
     let long = EnvConfig {
-        geometry: wheelleg_runtime::robot::RobotGeometry {
-            body_length_m: shipped.geometry.body_length_m + 0.3,
-            ..shipped.geometry
-        },
+        robot: wheelleg_sim::robot::SimulatedRobot::new(
+            wheelleg_runtime::robot::RobotGeometry {
+                body_length_m: shipped.robot.geometry().body_length_m + 0.3,
+                ..*shipped.robot.geometry()
+            },
+            *shipped.robot.lattice(),
+        )
+        .unwrap(),
         ..shipped
     };
     let mut compared = 0;
@@ -44,7 +48,7 @@ fn the_essential_area_is_the_simulated_robots() {
         };
         let path = t.replay(long).unwrap().path;
         let swept = |config: EnvConfig| {
-            EssentialArea::from_path(&config.geometry, &path, DEFAULT_MARGIN_M)
+            EssentialArea::from_path(config.robot.geometry(), &path, DEFAULT_MARGIN_M)
                 .unwrap()
                 .rects()
                 .to_vec()
@@ -157,7 +161,7 @@ fn every_stored_trajectory_replays_to_success_without_collision() {
         let source = batch.source_of(i).unwrap();
         assert_eq!(t.scenario.start, source.start);
         assert_eq!(t.scenario.target, source.target);
-        let r = t.replay(batch.env_config()).unwrap();
+        let r = t.replay(batch.env_config().unwrap()).unwrap();
         assert!(
             r.success() && r.collisions == 0 && r.invalid_actions == 0,
             "{i}: {r:?}"

@@ -61,7 +61,7 @@ fn every_label_replays_clean_to_the_target_from_its_visited_state() {
 /// Every label of `batch` replays collision-free to the target from its start, and its scene is
 /// its episode's, started elsewhere.
 fn assert_labels_replay_clean(batch: &TrajectoryBatch) {
-    let env = batch.env_config();
+    let env = batch.env_config().unwrap();
     let scenes = scenes();
     for i in 0..batch.len() {
         let label = batch.trajectory(i).unwrap();

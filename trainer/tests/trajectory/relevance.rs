@@ -25,7 +25,11 @@ fn toward_target(observation: &Observation) -> Action {
 fn relevance_finds_the_obstacle_in_the_way() {
     let scenario = Scenario {
         name: "relevance".into(),
-        start: RobotState::new(Point2::new(0.025, 0.125), 0),
+        start: RobotState::new(
+            Point2::new(0.025, 0.125),
+            0,
+            &wheelleg_runtime::action::ActionLattice::PAPER,
+        ),
         target: Point2::new(1.025, 0.125),
         obstacles: vec![
             // Far to the side: irrelevant.

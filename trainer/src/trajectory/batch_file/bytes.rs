@@ -104,6 +104,7 @@ pub fn parse_header(bytes: &[u8]) -> Result<(BatchHeader, usize), BatchFileError
     if header.robot == Some(RobotDescription::shipped()) {
         header.robot = None;
     }
+    header.simulated_robot()?;
     if header.new_obstacles_min > header.new_obstacles_max {
         return Err(BatchFileError::HeaderCorrupt {
             reason: "new_obstacles_min > new_obstacles_max".into(),
@@ -133,6 +134,7 @@ fn check_chunk(
     next_source: u64,
     corrupt: impl Fn(String) -> BatchFileError,
 ) -> Result<(), BatchFileError> {
+    let yaw_steps_per_turn = header.simulated_robot()?.yaw_steps_per_turn();
     if chunk.first_source != next_source {
         return Err(corrupt(format!(
             "starts at source {}, expected {next_source}",
@@ -154,7 +156,7 @@ fn check_chunk(
         if behaviour_of_code(s.behaviour).is_none() {
             return Err(at(format!("unknown behaviour code {}", s.behaviour)));
         }
-        if s.start_yaw_steps as i32 >= YAW_STEPS_PER_TURN {
+        if s.start_yaw_steps as i32 >= yaw_steps_per_turn {
             return Err(at(format!(
                 "start yaw step {} out of range",
                 s.start_yaw_steps

@@ -105,7 +105,7 @@ impl TrajectoryBatch {
         self.sources.push(StoredSource {
             name: record.name.clone(),
             behaviour: behaviour_of_code(record.behaviour).unwrap_or(Behaviour::Straight),
-            start: record.start_state(),
+            start: record.start_state(self.header.simulated_robot()?.lattice()),
             target: Point2::new(record.target_x_m, record.target_y_m),
             actions: record
                 .actions
@@ -131,11 +131,10 @@ impl TrajectoryBatch {
     /// refused, naming what differs, when the two batches replay under other episode rules or
     /// were driven by another robot, since a trajectory holds only under its own.
     pub fn append(&mut self, other: TrajectoryBatch) -> Result<(), TrainError> {
-        if other.env_config() != self.env_config() {
+        let (ours, theirs) = (self.env_config()?, other.env_config()?);
+        if theirs != ours {
             return Err(TrainError::Incompatible(format!(
-                "the batches replay under different episode rules ({:?} and {:?})",
-                self.env_config(),
-                other.env_config()
+                "the batches replay under different episode rules ({ours:?} and {theirs:?})"
             )));
         }
         if other.header.robot != self.header.robot {
@@ -179,7 +178,7 @@ impl TrajectoryBatch {
     }
 
     /// The episode rules every stored trajectory replays under.
-    pub fn env_config(&self) -> EnvConfig {
+    pub fn env_config(&self) -> Result<EnvConfig, BatchFileError> {
         self.header.env_config()
     }
 

@@ -33,12 +33,13 @@ use std::fs;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use wheelleg_robot::RobotDescription;
-use wheelleg_runtime::action::{Action, COUNT};
+use wheelleg_runtime::action::{Action, ActionLattice, COUNT};
 use wheelleg_sim::env::EnvConfig;
 use wheelleg_sim::generate::Behaviour;
 use wheelleg_sim::obstacle::{cell_centre_m, Obstacle, ObstacleKind, ObstacleYaw, GRID_CELL_M};
+use wheelleg_sim::robot::SimulatedRobot;
 use wheelleg_sim::scenario::Scenario;
-use wheelleg_sim::state::{RobotState, YAW_STEPS_PER_TURN};
+use wheelleg_sim::state::RobotState;
 
 mod bytes;
 mod in_memory;
@@ -126,17 +127,25 @@ impl BatchHeader {
         }
     }
 
+    /// The batch's robot as the simulator steps it; refused, as a damaged header, when the
+    /// simulator cannot step on its lattice.
+    pub fn simulated_robot(&self) -> Result<SimulatedRobot, BatchFileError> {
+        SimulatedRobot::of(&self.robot()).map_err(|e| BatchFileError::HeaderCorrupt {
+            reason: format!("robot: {e}"),
+        })
+    }
+
     /// The episode rules of the batch, on its robot.
-    pub fn env_config(&self) -> EnvConfig {
-        EnvConfig {
-            geometry: self.robot().robot.geometry,
+    pub fn env_config(&self) -> Result<EnvConfig, BatchFileError> {
+        Ok(EnvConfig {
+            robot: self.simulated_robot()?,
             max_steps: self.max_steps,
             success_radius_m: self.success_radius_m,
             give_up_margin_m: self.give_up_margin_m,
             arena_margin_m: self.arena_margin_m,
             // Not stored: a stored trajectory has no undone action, so it is never paid.
             ..EnvConfig::default()
-        }
+        })
     }
 
     /// The first field that differs from `other`, with both values.
@@ -267,13 +276,16 @@ pub struct SourceRecord {
 pub struct RecordError(pub String);
 
 impl SourceRecord {
-    /// The start state.
-    pub fn start_state(&self) -> RobotState {
+    /// The start state, its steps counted on `lattice` (the batch's robot's).
+    pub fn start_state(&self, lattice: &ActionLattice) -> RobotState {
         RobotState {
-            position: Point2::new(self.start_x_m, self.start_y_m),
-            yaw_steps: self.start_yaw_steps as i32,
             clearance_steps: self.start_clearance_steps as i32,
             track_steps: self.start_track_steps as i32,
+            ..RobotState::new(
+                Point2::new(self.start_x_m, self.start_y_m),
+                self.start_yaw_steps as i32,
+                lattice,
+            )
         }
     }
 
@@ -289,7 +301,10 @@ impl SourceRecord {
             behaviour: behaviour_code(trajectory.behaviour),
             start_x_m: s.start.position.x,
             start_y_m: s.start.position.y,
-            start_yaw_steps: s.start.yaw_steps.rem_euclid(YAW_STEPS_PER_TURN) as u8,
+            start_yaw_steps: u8::try_from(
+                s.start.yaw_steps.rem_euclid(s.start.yaw_steps_per_turn()),
+            )
+            .map_err(|_| RecordError(format!("yaw steps {} out of range", s.start.yaw_steps)))?,
             start_clearance_steps: narrow(s.start.clearance_steps, "clearance")?,
             start_track_steps: narrow(s.start.track_steps, "track")?,
             target_x_m: s.target.x,
