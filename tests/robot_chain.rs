@@ -39,6 +39,14 @@ fn scratch(name: &str) -> PathBuf {
     dir
 }
 
+/// A refusal of a strider file for the shipped robot names both.
+fn names_both_robots(err: &str) {
+    assert!(
+        err.contains("'strider'") && err.contains("'wheelleg'"),
+        "{err}"
+    );
+}
+
 fn s(path: &Path) -> &str {
     path.to_str().unwrap()
 }
@@ -210,10 +218,7 @@ fn the_second_robot_goes_through_generate_plan_train_export_eval_and_demo() {
         "--quiet",
         "--resume",
     ]);
-    assert!(
-        err.contains("'strider'") && err.contains("'wheelleg'"),
-        "{err}"
-    );
+    names_both_robots(&err);
     // Evaluated on the shipped robot: refused, checkpoint and weights alike.
     for policy in [&weights, &checkpoint] {
         let err = refused(&[
@@ -227,10 +232,7 @@ fn the_second_robot_goes_through_generate_plan_train_export_eval_and_demo() {
             "--max-expansions",
             "0",
         ]);
-        assert!(
-            err.contains("'strider'") && err.contains("'wheelleg'"),
-            "{err}"
-        );
+        names_both_robots(&err);
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }

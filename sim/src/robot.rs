@@ -1,7 +1,7 @@
 //! The robot as the simulator steps it: its geometry and its action lattice, checked for what
 //! the scene generators and the planner build on.
 //!
-//! The runtime drives any lattice a description gives. The simulator asks two things more:
+//! The runtime drives any lattice a description gives. The simulator asks three things more:
 //!
 //! - **The yaw step divides the quarter turn** into whole steps (5 degrees: 18), so that the
 //!   robot can line up with the axis-aligned fences and passages from any start, and states

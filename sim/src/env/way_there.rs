@@ -177,7 +177,7 @@ impl Env {
         };
         (
             from.position + t * (to.position - from.position),
-            from.yaw_rad() + t * yaw_change_rad(from, to),
+            from.yaw_rad() + t * from.yaw_turn_rad_to(to),
             legs,
         )
     }
@@ -197,7 +197,7 @@ impl Env {
     /// knee and wheel; the wheel and body turning with the body), so it moves no farther.
     pub fn motion_bound_m(&self, from: &RobotState, to: &RobotState) -> Result<f32, IkError> {
         let travel_m = (to.position - from.position).norm();
-        let turn_m = self.reach_m * yaw_change_rad(from, to).abs();
+        let turn_m = self.reach_m * from.yaw_turn_rad_to(to).abs();
         let leg_m = match LegMotionTable::for_robot(&self.config.robot).get(from, to) {
             Some(leg_m) => leg_m,
             None => leg_motion_m(
@@ -447,11 +447,6 @@ impl LegMotionTable {
         let index = ((c * self.track_count + t) * 9 + (dc + 1) * 3 + (dt + 1)) as usize;
         self.leg_m[index]
     }
-}
-
-/// The turn of a step, the short way (a step turns by at most one yaw step).
-fn yaw_change_rad(from: &RobotState, to: &RobotState) -> f32 {
-    from.yaw_turn_rad_to(to)
 }
 
 /// A bound on how far any robot part reaches horizontally from the body centre, in any pose:

@@ -131,10 +131,10 @@ pub struct ChunkScan {
 fn check_chunk(
     chunk: &Chunk,
     header: &BatchHeader,
+    yaw_steps_per_turn: i32,
     next_source: u64,
     corrupt: impl Fn(String) -> BatchFileError,
 ) -> Result<(), BatchFileError> {
-    let yaw_steps_per_turn = header.simulated_robot()?.yaw_steps_per_turn();
     if chunk.first_source != next_source {
         return Err(corrupt(format!(
             "starts at source {}, expected {next_source}",
@@ -196,6 +196,14 @@ pub fn scan_chunks(bytes: &[u8], header: &BatchHeader, start: usize) -> ChunkSca
         sources_done: 0,
         problem: None,
     };
+    // The header's robot was checked when it was read (`parse_header`).
+    let yaw_steps_per_turn = match header.simulated_robot() {
+        Ok(robot) => robot.yaw_steps_per_turn(),
+        Err(problem) => {
+            scan.problem = Some(problem);
+            return scan;
+        }
+    };
     let mut at = start;
     while at < bytes.len() {
         let chunk_index = scan.chunks.len();
@@ -246,7 +254,13 @@ pub fn scan_chunks(bytes: &[u8], header: &BatchHeader, start: usize) -> ChunkSca
                 break;
             }
         };
-        if let Err(problem) = check_chunk(&chunk, header, scan.sources_done, corrupt) {
+        if let Err(problem) = check_chunk(
+            &chunk,
+            header,
+            yaw_steps_per_turn,
+            scan.sources_done,
+            corrupt,
+        ) {
             scan.problem = Some(problem);
             break;
         }

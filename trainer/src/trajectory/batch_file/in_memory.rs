@@ -76,9 +76,10 @@ impl TrajectoryBatch {
             obstacles: Vec::new(),
             file_bytes: bytes.len() as u64,
         };
+        let lattice = *batch.header.simulated_robot()?.lattice();
         for chunk in scan.chunks {
             for record in chunk.sources {
-                batch.push_source(record)?;
+                batch.push_source(record, &lattice)?;
             }
         }
         // Millions of scenes: the growth slack of the vectors would be a third of the memory.
@@ -87,7 +88,12 @@ impl TrajectoryBatch {
         Ok(batch)
     }
 
-    fn push_source(&mut self, record: SourceRecord) -> Result<(), BatchFileError> {
+    /// Adds a checked source, its start counted on `lattice` (the batch's robot's).
+    fn push_source(
+        &mut self,
+        record: SourceRecord,
+        lattice: &ActionLattice,
+    ) -> Result<(), BatchFileError> {
         let too_big = || BatchFileError::Unstorable {
             reason: "more than 2^32 scenes or obstacles in memory".into(),
         };
@@ -105,7 +111,7 @@ impl TrajectoryBatch {
         self.sources.push(StoredSource {
             name: record.name.clone(),
             behaviour: behaviour_of_code(record.behaviour).unwrap_or(Behaviour::Straight),
-            start: record.start_state(self.header.simulated_robot()?.lattice()),
+            start: record.start_state(lattice),
             target: Point2::new(record.target_x_m, record.target_y_m),
             actions: record
                 .actions
