@@ -1,5 +1,6 @@
 //! Training speed: the PPO update step (forward + backward + Adam on one minibatch of 256,
-//! reported as samples/s) and whole training iterations (rollout + update, env steps/s).
+//! reported as samples/s), the native conv kernel's part of it, and whole training iterations
+//! (rollout + update, env steps/s).
 //!
 //! `cargo bench -p wheelleg-trainer --bench update`; backend from `WHEELLEG_BACKEND` (flex by
 //! default; others need their cargo feature), conv layers from `WHEELLEG_CONV_KERNEL`
@@ -15,6 +16,7 @@ use std::time::Duration;
 use wheelleg_runtime::action::DIMS;
 use wheelleg_runtime::observation::{HEIGHT_MAP_CELLS, STATE_LEN};
 use wheelleg_trainer::config::{PpoConfig, TrainConfig};
+use wheelleg_trainer::conv_kernel::{self, ConvTape};
 use wheelleg_trainer::network::{init_policy, BackendKind};
 use wheelleg_trainer::network_f32::Architecture;
 use wheelleg_trainer::ppo::Ppo;
@@ -76,6 +78,47 @@ fn update_step(c: &mut Criterion) {
     group.finish();
 }
 
+/// The native conv kernel alone on one minibatch: where the update's products and data movement
+/// are, apart from burn's dense layers and Adam.
+fn conv_stack(c: &mut Criterion) {
+    let mut rng = ChaCha8Rng::seed_from_u64(0);
+    let net = init_policy(&Architecture::default_policy(), &mut rng);
+    let batch = random_batch(MINIBATCH, &mut rng);
+    let (rows, cols) = (net.arch.height_rows, net.arch.height_cols);
+    let mut tape = ConvTape::default();
+    let features = conv_kernel::forward_into(
+        &net.convs,
+        rows,
+        cols,
+        &batch.heights_m,
+        MINIBATCH,
+        &mut tape,
+    )
+    .expect("forward");
+    let d_features: Vec<f32> = (0..features.len())
+        .map(|_| rng.random_range(-1.0..1.0))
+        .collect();
+    let mut group = c.benchmark_group("conv");
+    group.throughput(Throughput::Elements(MINIBATCH as u64));
+    group.bench_function("forward_256", |b| {
+        b.iter(|| {
+            conv_kernel::forward_into(
+                &net.convs,
+                rows,
+                cols,
+                &batch.heights_m,
+                MINIBATCH,
+                &mut tape,
+            )
+            .expect("forward")
+        })
+    });
+    group.bench_function("backward_256", |b| {
+        b.iter(|| conv_kernel::backward(&net.convs, &mut tape, &d_features).expect("backward"))
+    });
+    group.finish();
+}
+
 fn training_iteration(c: &mut Criterion) {
     let mut config = TrainConfig::default();
     config.run.backend = std::env::var("WHEELLEG_BACKEND").unwrap_or_else(|_| "flex".into());
@@ -108,5 +151,5 @@ fn training_iteration(c: &mut Criterion) {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-criterion_group!(benches, update_step, training_iteration);
+criterion_group!(benches, update_step, conv_stack, training_iteration);
 criterion_main!(benches);

@@ -148,40 +148,15 @@ fn policy_convs_match_burn_forward_and_gradients_at_several_batch_sizes() {
             .iter_mut()
             .for_each(|b| *b = rng.random_range(-0.1..0.1));
     }
-    // 1, odd sizes, one exact chunk, chunk + 1 and the training minibatch.
-    for batch in [1, 3, 31, 32, 33, 75, 256] {
+    // 1, odd sizes, one and two exact chunks, chunk + 1 and the training minibatch.
+    for batch in [1, 3, 15, 16, 17, 32, 33, 75, 256] {
         check_against_burn(&convs, rows, cols, batch);
     }
 }
 
-#[test]
-fn other_shapes_match_burn() {
-    // Channel counts, strides, paddings and a non-square map unlike the policy's.
-    let mut rng = ChaCha8Rng::seed_from_u64(13);
-    let specs = [
-        ConvSpec {
-            in_channels: 1,
-            out_channels: 5,
-            kernel: 3,
-            stride: 1,
-            padding: 1,
-        },
-        ConvSpec {
-            in_channels: 5,
-            out_channels: 7,
-            kernel: 3,
-            stride: 2,
-            padding: 0,
-        },
-        ConvSpec {
-            in_channels: 7,
-            out_channels: 3,
-            kernel: 2,
-            stride: 2,
-            padding: 1,
-        },
-    ];
-    let convs: Vec<Conv2dF32> = specs
+/// Random weights and biases for layers of `specs`.
+fn random_convs(specs: &[ConvSpec], rng: &mut ChaCha8Rng) -> Vec<Conv2dF32> {
+    specs
         .iter()
         .map(|&spec| Conv2dF32 {
             spec,
@@ -192,9 +167,59 @@ fn other_shapes_match_burn() {
                 .map(|_| rng.random_range(-0.1..0.1))
                 .collect(),
         })
-        .collect();
+        .collect()
+}
+
+fn spec(
+    in_channels: usize,
+    out_channels: usize,
+    kernel: usize,
+    stride: usize,
+    padding: usize,
+) -> ConvSpec {
+    ConvSpec {
+        in_channels,
+        out_channels,
+        kernel,
+        stride,
+        padding,
+    }
+}
+
+#[test]
+fn other_shapes_match_burn() {
+    // Channel counts, strides, paddings and a non-square map unlike the policy's; a first layer
+    // of 5 channels takes the im2col path.
+    let mut rng = ChaCha8Rng::seed_from_u64(13);
+    let convs = random_convs(
+        &[
+            spec(1, 5, 3, 1, 1),
+            spec(5, 7, 3, 2, 0),
+            spec(7, 3, 2, 2, 1),
+        ],
+        &mut rng,
+    );
     for batch in [1, 5, 40] {
         check_against_burn(&convs, 13, 10, batch);
+    }
+}
+
+#[test]
+fn the_direct_first_layer_and_wide_channel_runs_match_burn_at_other_strides() {
+    // A first layer of 32 channels (the direct path) at stride 1 and padding 2, and layers of
+    // 32 and 16 input channels (im2col and col2im in runs of 16-value blocks) with border
+    // pixels on every side of a non-square map.
+    let mut rng = ChaCha8Rng::seed_from_u64(21);
+    let convs = random_convs(
+        &[
+            spec(1, 32, 3, 1, 2),
+            spec(32, 16, 3, 2, 1),
+            spec(16, 16, 3, 3, 0),
+        ],
+        &mut rng,
+    );
+    for batch in [1, 33] {
+        check_against_burn(&convs, 11, 14, batch);
     }
 }
 
