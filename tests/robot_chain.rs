@@ -32,6 +32,21 @@ fn refused(args: &[&str]) -> String {
     String::from_utf8_lossy(&out.stderr).into_owned()
 }
 
+/// `eval` with `args` on one generated straight scene, refused; its error.
+fn eval_refused(args: &[&str]) -> String {
+    let mut all = vec!["eval"];
+    all.extend_from_slice(args);
+    all.extend_from_slice(&[
+        "--generated",
+        "1",
+        "--kind",
+        "straight",
+        "--max-expansions",
+        "0",
+    ]);
+    refused(&all)
+}
+
 fn scratch(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("wheelleg-chain-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
@@ -221,17 +236,7 @@ fn the_second_robot_goes_through_generate_plan_train_export_eval_and_demo() {
     names_both_robots(&err);
     // Evaluated on the shipped robot: refused, checkpoint and weights alike.
     for policy in [&weights, &checkpoint] {
-        let err = refused(&[
-            "eval",
-            "--policy",
-            s(policy),
-            "--generated",
-            "1",
-            "--kind",
-            "straight",
-            "--max-expansions",
-            "0",
-        ]);
+        let err = eval_refused(&["--policy", s(policy)]);
         names_both_robots(&err);
     }
     std::fs::remove_dir_all(&dir).unwrap();
@@ -269,19 +274,7 @@ fn a_robot_on_another_action_lattice_goes_through_the_chain() {
     );
     // The same robot on the paper's lattice is another robot to a policy: refused, naming the
     // lattice.
-    let err = refused(&[
-        "eval",
-        "--robot",
-        STRIDER,
-        "--policy",
-        s(&weights),
-        "--generated",
-        "1",
-        "--kind",
-        "straight",
-        "--max-expansions",
-        "0",
-    ]);
+    let err = eval_refused(&["--robot", STRIDER, "--policy", s(&weights)]);
     assert!(err.contains("action lattice differs"), "{err}");
     // A lattice the scenes cannot line up with is refused, naming the key.
     let crooked = dir.join("crooked.toml");

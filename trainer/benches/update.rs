@@ -85,34 +85,17 @@ fn conv_stack(c: &mut Criterion) {
     let net = init_policy(&Architecture::default_policy(), &mut rng);
     let batch = random_batch(MINIBATCH, &mut rng);
     let (rows, cols) = (net.arch.height_rows, net.arch.height_cols);
+    let forward = |tape: &mut ConvTape| {
+        conv_kernel::forward_into(&net.convs, rows, cols, &batch.heights_m, MINIBATCH, tape)
+            .expect("forward")
+    };
     let mut tape = ConvTape::default();
-    let features = conv_kernel::forward_into(
-        &net.convs,
-        rows,
-        cols,
-        &batch.heights_m,
-        MINIBATCH,
-        &mut tape,
-    )
-    .expect("forward");
-    let d_features: Vec<f32> = (0..features.len())
+    let d_features: Vec<f32> = (0..forward(&mut tape).len())
         .map(|_| rng.random_range(-1.0..1.0))
         .collect();
     let mut group = c.benchmark_group("conv");
     group.throughput(Throughput::Elements(MINIBATCH as u64));
-    group.bench_function("forward_256", |b| {
-        b.iter(|| {
-            conv_kernel::forward_into(
-                &net.convs,
-                rows,
-                cols,
-                &batch.heights_m,
-                MINIBATCH,
-                &mut tape,
-            )
-            .expect("forward")
-        })
-    });
+    group.bench_function("forward_256", |b| b.iter(|| forward(&mut tape)));
     group.bench_function("backward_256", |b| {
         b.iter(|| conv_kernel::backward(&net.convs, &mut tape, &d_features).expect("backward"))
     });

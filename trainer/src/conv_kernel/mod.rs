@@ -23,10 +23,9 @@
 //! handed to burn as `[batch, C * rows * cols]` (CHW flatten, the `network_f32` order).
 //!
 //! The first layer (one input channel, a multiple of 16 output channels, 3 x 3: the policy's)
-//! skips im2col: [`direct`] computes it and its weight gradient straight from the maps. The
+//! skips im2col: `direct` computes it and its weight gradient straight from the maps. The
 //! data movement and the direct layer are compiled for each SIMD level and picked at run time
-//! (`ForwardPass`): with AVX-512 this made the batch-64 forward 1.35-1.6x and the update
-//! 1.07-1.19x as fast as the baseline-x86-64 build of the same loops.
+//! (`ForwardPass`). Figures: docs/decisions.md.
 //!
 //! Determinism: the batch is cut into fixed chunks of [`CHUNK_SAMPLES`] samples whatever the
 //! thread count; chunks run on rayon's pool (each with single-threaded GEMMs) and their
@@ -45,7 +44,7 @@ use rayon::prelude::*;
 
 /// Samples per chunk: the unit of parallel work and of the fixed gradient summation order.
 /// 16 keeps the largest im2col matrix (conv 2: 1024 x 144 floats, 0.6 MB) well inside a core's
-/// L2 while the GEMMs stay large enough to run at full speed; 32 measured 20% slower in the
+/// L2 while the GEMMs stay large enough to run at full speed; 32 measured 17-19% slower in the
 /// batch-64 forward (two chunks for two threads, each past L2) and the same in the update.
 pub const CHUNK_SAMPLES: usize = 16;
 

@@ -154,51 +154,36 @@ fn policy_convs_match_burn_forward_and_gradients_at_several_batch_sizes() {
     }
 }
 
-/// Random weights and biases for layers of `specs`.
-fn random_convs(specs: &[ConvSpec], rng: &mut ChaCha8Rng) -> Vec<Conv2dF32> {
-    specs
+/// Layers of random weights and biases, each given as `(C_in, C_out, kernel, stride, padding)`.
+fn random_convs(seed: u64, layers: &[(usize, usize, usize, usize, usize)]) -> Vec<Conv2dF32> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    layers
         .iter()
-        .map(|&spec| Conv2dF32 {
-            spec,
-            weights: (0..spec.out_channels * spec.in_channels * spec.kernel * spec.kernel)
-                .map(|_| rng.random_range(-0.5..0.5))
-                .collect(),
-            bias: (0..spec.out_channels)
-                .map(|_| rng.random_range(-0.1..0.1))
-                .collect(),
-        })
+        .map(
+            |&(in_channels, out_channels, kernel, stride, padding)| Conv2dF32 {
+                spec: ConvSpec {
+                    in_channels,
+                    out_channels,
+                    kernel,
+                    stride,
+                    padding,
+                },
+                weights: (0..out_channels * in_channels * kernel * kernel)
+                    .map(|_| rng.random_range(-0.5..0.5))
+                    .collect(),
+                bias: (0..out_channels)
+                    .map(|_| rng.random_range(-0.1..0.1))
+                    .collect(),
+            },
+        )
         .collect()
-}
-
-fn spec(
-    in_channels: usize,
-    out_channels: usize,
-    kernel: usize,
-    stride: usize,
-    padding: usize,
-) -> ConvSpec {
-    ConvSpec {
-        in_channels,
-        out_channels,
-        kernel,
-        stride,
-        padding,
-    }
 }
 
 #[test]
 fn other_shapes_match_burn() {
     // Channel counts, strides, paddings and a non-square map unlike the policy's; a first layer
     // of 5 channels takes the im2col path.
-    let mut rng = ChaCha8Rng::seed_from_u64(13);
-    let convs = random_convs(
-        &[
-            spec(1, 5, 3, 1, 1),
-            spec(5, 7, 3, 2, 0),
-            spec(7, 3, 2, 2, 1),
-        ],
-        &mut rng,
-    );
+    let convs = random_convs(13, &[(1, 5, 3, 1, 1), (5, 7, 3, 2, 0), (7, 3, 2, 2, 1)]);
     for batch in [1, 5, 40] {
         check_against_burn(&convs, 13, 10, batch);
     }
@@ -209,14 +194,9 @@ fn the_direct_first_layer_and_wide_channel_runs_match_burn_at_other_strides() {
     // A first layer of 32 channels (the direct path) at stride 1 and padding 2, and layers of
     // 32 and 16 input channels (im2col and col2im in runs of 16-value blocks) with border
     // pixels on every side of a non-square map.
-    let mut rng = ChaCha8Rng::seed_from_u64(21);
     let convs = random_convs(
-        &[
-            spec(1, 32, 3, 1, 2),
-            spec(32, 16, 3, 2, 1),
-            spec(16, 16, 3, 3, 0),
-        ],
-        &mut rng,
+        21,
+        &[(1, 32, 3, 1, 2), (32, 16, 3, 2, 1), (16, 16, 3, 3, 0)],
     );
     for batch in [1, 33] {
         check_against_burn(&convs, 11, 14, batch);
