@@ -154,8 +154,8 @@ fn load_init_network(config: &TrainConfig, path: &Path) -> Result<NetworkF32, Tr
 }
 
 /// The config of `behaviour`'s secondary stage (`first`: the straight-line policy, which starts
-/// from scratch): the run's settings with the curriculum's secondary budget, batch, entropy,
-/// start yaw and start stages.
+/// from scratch): the run's settings with the curriculum's secondary budget, early stop, batch,
+/// epochs, entropy, start yaw and start stages.
 fn secondary_stage(config: &TrainConfig, behaviour: Behaviour, first: bool) -> TrainConfig {
     let mut stage = config.clone();
     // The mix of composed scenes and the learning rate's anneal are the primary's: a
@@ -167,6 +167,16 @@ fn secondary_stage(config: &TrainConfig, behaviour: Behaviour, first: bool) -> T
     stage.ppo.anneal_start_env_steps = crate::config::PpoConfig::default().anneal_start_env_steps;
     stage.run.scene_kind = behaviour.name().to_string();
     stage.run.steps_per_iteration = config.curriculum.secondary_steps_per_iteration;
+    if let Some(epochs) = config.curriculum.secondary_epochs {
+        stage.ppo.epochs = epochs;
+    }
+    // The straight-line policy the others start from runs to its budget: stopped at its first
+    // plateau (54,000 env steps, seed 0) it left lift's secondary at 0% success after 1 M env
+    // steps, where from the one at its budget lift succeeds in 17% by 192,000.
+    if !first {
+        stage.run.stop_success_rate = config.curriculum.secondary_stop_success_rate;
+        stage.run.stop_window = config.curriculum.secondary_stop_window;
+    }
     stage.run.total_env_steps = config
         .curriculum
         .secondary_env_steps_by_behaviour
@@ -503,8 +513,9 @@ mod tests {
     #[test]
     fn secondaries_train_on_their_behaviour_alone_at_the_constant_rate() {
         let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../configs/shipped.toml");
-        let config = TrainConfig::load(std::path::Path::new(path)).unwrap();
+        let mut config = TrainConfig::load(std::path::Path::new(path)).unwrap();
         assert!(config.run.composed_share > 0.0 && config.ppo.learning_rate_final.is_some());
+        config.curriculum.secondary_stop_success_rate = 0.95;
         for (first, behaviour) in [
             (true, Behaviour::Straight),
             (false, Behaviour::LiftOver),
@@ -522,6 +533,9 @@ mod tests {
                 _ => config.curriculum.secondary_env_steps,
             };
             assert_eq!(stage.run.total_env_steps, budget);
+            // Each stops once learnt but the straight-line policy the others start from.
+            let stop = if first { 0.0 } else { 0.95 };
+            assert_eq!(stage.run.stop_success_rate, stop, "{}", behaviour.name());
             stage.validate().unwrap();
         }
     }

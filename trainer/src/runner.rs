@@ -34,9 +34,11 @@ pub const TRAJECTORIES_FILE: &str = "trajectories.wltb";
 /// Name of the metrics log in a run folder.
 pub const METRICS_FILE: &str = "metrics.jsonl";
 
+pub mod learnt;
 mod metrics;
 pub mod start_stage;
 
+pub use learnt::LearntRule;
 pub use start_stage::StartStageSchedule;
 
 use metrics::{append_metrics, truncate_metrics};
@@ -151,6 +153,7 @@ pub fn train_stage(
         .wrapping_mul(0x9E37_79B9_7F4A_7C15)
         .wrapping_add(3);
     let mut schedule = StartStageSchedule::of_run(run);
+    let mut learnt = LearntRule::of_run(run);
     let scenes = Scenes {
         kind,
         start_yaw: config.start_yaw(),
@@ -217,6 +220,9 @@ pub fn train_stage(
             solved.extend((0..stored.len()).filter_map(|i| stored.trajectory(i)));
         }
         truncate_metrics(&metrics_path, iteration)?;
+        if let Some(learnt) = learnt.as_mut() {
+            learnt.restore(&read_metrics(&opts.out)?);
+        }
         // A resume may change the budget and the other resumable keys: the folder's config
         // then says what the run now is, as the checkpoint does.
         write_config(config, &opts.out)?;
@@ -253,7 +259,15 @@ pub fn train_stage(
     let stop_at = opts
         .stop_at_env_steps
         .map_or(run.total_env_steps, |s| s.min(run.total_env_steps));
-    while env_steps < stop_at && opts.max_iterations.is_none_or(|m| iterations_here < m) {
+    // A run that records trajectories has learnt only once it holds all it keeps.
+    let has_learnt = |learnt: &Option<LearntRule>, solved: &VecDeque<Trajectory>| {
+        learnt.as_ref().is_some_and(LearntRule::reached)
+            && (inputs.record.is_none() || solved.len() >= inputs.keep_trajectories)
+    };
+    while env_steps < stop_at
+        && !has_learnt(&learnt, &solved)
+        && opts.max_iterations.is_none_or(|m| iterations_here < m)
+    {
         let iter_start = Instant::now();
         let mut time = IterationTime::default();
         let (composed_share, exit_share) = mix_at(run, env_steps);
@@ -345,6 +359,9 @@ pub fn train_stage(
             }
             successes as f32 / at_stage.len().max(1) as f32
         });
+        if let Some(learnt) = learnt.as_mut() {
+            learnt.record(success_rate, schedule.as_ref().map(|_| stage_now));
+        }
         let m = IterationMetrics {
             iteration,
             env_steps,
@@ -373,8 +390,9 @@ pub fn train_stage(
                 .map_or(String::new(), |s| format!(" stage {:.2}", s.stage()))
         ));
         last = Some(m);
-        let finished =
-            env_steps >= stop_at || opts.max_iterations.is_some_and(|mx| iterations_here >= mx);
+        let finished = env_steps >= stop_at
+            || has_learnt(&learnt, &solved)
+            || opts.max_iterations.is_some_and(|mx| iterations_here >= mx);
         if iteration % run.checkpoint_interval as u64 == 0 || finished {
             if inputs.record.is_some() {
                 save_trajectories(

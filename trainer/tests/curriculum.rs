@@ -13,7 +13,9 @@ use wheelleg_trainer::curriculum::{
     run_all, run_primary_with, secondary_dir, stored_trajectories, CurriculumOptions,
     PrimaryInputs, BATCH_FILE, PRIMARY_DIR,
 };
-use wheelleg_trainer::runner::{read_metrics, CHECKPOINT_FILE};
+use wheelleg_trainer::runner::{
+    read_metrics, train_stage, RunOptions, StageInputs, CHECKPOINT_FILE,
+};
 use wheelleg_trainer::trajectory::batch_file::TrajectoryBatch;
 use wheelleg_trainer::trajectory::expert_labels::{label_batch, LabelConfig};
 use wheelleg_trainer::TrainError;
@@ -342,4 +344,61 @@ fn a_primary_fine_tunes_from_a_checkpoint_on_several_batches() {
         "{e}"
     );
     let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+fn a_stage_that_has_learnt_stops_before_its_budget_and_stays_stopped() {
+    // A secondary's stage as the curriculum runs it: straight scenes, its trajectories kept.
+    let mut config = tiny_config();
+    config.run.scene_kind = "straight".into();
+    config.run.total_env_steps = 20_000;
+    let run = |config: &TrainConfig, name: &str, resume: bool| {
+        let out = std::env::temp_dir().join(format!("wheelleg-{name}-{}", std::process::id()));
+        if !resume {
+            let _ = std::fs::remove_dir_all(&out);
+        }
+        let opts = RunOptions {
+            out: out.clone(),
+            seed: 5,
+            resume,
+            progress: false,
+            max_iterations: None,
+            stop_at_env_steps: None,
+            kind: "test".into(),
+        };
+        let inputs = StageInputs {
+            record: Some(Behaviour::Straight),
+            keep_trajectories: 1,
+            ..StageInputs::default()
+        };
+        train_stage(config, &opts, inputs).unwrap();
+        let success: Vec<(u64, f32)> = read_metrics(&out)
+            .unwrap()
+            .iter()
+            .map(|m| (m.env_steps, m.success_rate))
+            .collect();
+        (out, success)
+    };
+    // The same run without the rule, to its budget: the rate its best two iterations in a row
+    // among the first ten reach, and the first iteration that completes such a pair.
+    let (whole, reference) = run(&config, "learnt-whole", false);
+    assert_eq!(reference.len(), 20);
+    let pair = |i: usize| reference[i - 1].1.min(reference[i].1);
+    let rate = (1..10).map(pair).fold(0.0f32, f32::max);
+    assert!(rate > 0.0, "straight scenes succeed within ten iterations");
+    let stop = (1..10).find(|&i| pair(i) >= rate).unwrap();
+
+    config.run.stop_success_rate = rate;
+    config.run.stop_window = 2;
+    config.validate().unwrap();
+    let (early, success) = run(&config, "learnt-early", false);
+    assert_eq!(success, reference[..=stop], "the same run, ended early");
+    let checkpoint = Checkpoint::load(&early.join(CHECKPOINT_FILE)).unwrap();
+    assert_eq!(checkpoint.env_steps, reference[stop].0);
+    // Resumed (as `train all` run again does): the stage has learnt, nothing more trains.
+    let (_, again) = run(&config, "learnt-early", true);
+    assert_eq!(again, reference[..=stop]);
+    for out in [whole, early] {
+        let _ = std::fs::remove_dir_all(&out);
+    }
 }

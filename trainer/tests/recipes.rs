@@ -32,6 +32,8 @@ composed_share = 0.5
 exit_share = 0.0
 exit_behaviour = "squeeze"
 composed_from_env_steps = 10000000
+stop_success_rate = 0.0
+stop_window = 10
 robot = ""
 
 [ppo]
@@ -76,6 +78,8 @@ start_stage_initial = 0.0
 start_stage_step = 0.1
 start_stage_success_rate = 0.5
 start_stage_window = 3
+secondary_stop_success_rate = 0.0
+secondary_stop_window = 10
 
 [curriculum.secondary_env_steps_by_behaviour]
 lift = 1500000
@@ -104,6 +108,8 @@ composed_share = 0.0
 exit_share = 0.0
 exit_behaviour = "squeeze"
 composed_from_env_steps = 0
+stop_success_rate = 0.0
+stop_window = 10
 robot = ""
 
 [ppo]
@@ -147,6 +153,8 @@ start_stage_initial = 0.0
 start_stage_step = 0.1
 start_stage_success_rate = 0.5
 start_stage_window = 3
+secondary_stop_success_rate = 0.0
+secondary_stop_window = 10
 
 [curriculum.secondary_env_steps_by_behaviour]
 "#;
@@ -173,6 +181,8 @@ composed_share = 0.0
 exit_share = 0.0
 exit_behaviour = "squeeze"
 composed_from_env_steps = 0
+stop_success_rate = 0.0
+stop_window = 10
 robot = ""
 
 [ppo]
@@ -216,6 +226,8 @@ start_stage_initial = 0.0
 start_stage_step = 0.1
 start_stage_success_rate = 0.5
 start_stage_window = 3
+secondary_stop_success_rate = 0.0
+secondary_stop_window = 10
 
 [curriculum.secondary_env_steps_by_behaviour]
 "#;

@@ -86,10 +86,12 @@ impl ConfigError {
     }
 }
 
-/// `run` keys a resumed run may change: its budget, the re-sampling of failed scenes and the
+/// `run` keys a resumed run may change: its budget and when it stops early, the re-sampling of failed scenes and the
 /// shares of composed and exit scenes (which only change which scenes come next).
-const RESUMABLE_CHANGES: [&str; 7] = [
+const RESUMABLE_CHANGES: [&str; 9] = [
     "total_env_steps",
+    "stop_success_rate",
+    "stop_window",
     "composed_share",
     "exit_share",
     "exit_behaviour",

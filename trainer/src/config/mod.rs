@@ -167,6 +167,13 @@ pub struct RunConfig {
     /// One run then does what a run on `scene_kind` continued with the mix does: the shipped
     /// primary's first 10 M env steps on complex scenes alone (configs/shipped.toml).
     pub composed_from_env_steps: u64,
+    /// Ends the run before `total_env_steps` once its training success rate reached this in
+    /// each of the last `stop_window` iterations, all on the task as specified (start stage 1):
+    /// a run that has learnt its scenes stops spending time on them. 0, the default, runs to
+    /// the budget. A finished run may be continued with it changed (`--resume`).
+    pub stop_success_rate: f32,
+    /// Iterations `stop_success_rate` is measured over.
+    pub stop_window: usize,
     /// The robot trained for: a description (robots/NAME.toml), relative to this config file's
     /// folder; empty, the default, is the shipped robot. `wheelleg train --robot FILE` replaces
     /// it. Checkpoints, trajectory batches and weights files carry the robot, and a run or a
@@ -197,6 +204,8 @@ impl Default for RunConfig {
             exit_share: 0.0,
             exit_behaviour: "squeeze".into(),
             composed_from_env_steps: 0,
+            stop_success_rate: 0.0,
+            stop_window: 10,
             robot: String::new(),
         }
     }
@@ -212,6 +221,9 @@ pub struct CurriculumConfig {
     pub behaviours: Vec<String>,
     /// Environment steps per PPO iteration of a secondary policy (the paper: 3,000).
     pub secondary_steps_per_iteration: usize,
+    /// `ppo.epochs` of the secondary policies (none, the default: the primary's): the
+    /// secondaries' small batches and the primary's large ones need not take as many passes.
+    pub secondary_epochs: Option<usize>,
     /// Environment steps of each secondary policy.
     pub secondary_env_steps: u64,
     /// Environment steps of the named secondaries, instead of `secondary_env_steps` (a
@@ -263,6 +275,13 @@ pub struct CurriculumConfig {
     pub start_stage_success_rate: f32,
     /// `run.start_stage_window` of those secondaries.
     pub start_stage_window: usize,
+    /// `run.stop_success_rate` of the secondaries that start from the straight-line one
+    /// (which always runs to its budget: the others learn from a converged start): each stops
+    /// once it has learnt its scenes and holds its `keep_trajectories`, its budget then only a
+    /// cap. 0, the default: each runs to its budget.
+    pub secondary_stop_success_rate: f32,
+    /// `run.stop_window` of those secondaries.
+    pub secondary_stop_window: usize,
 }
 
 impl Default for CurriculumConfig {
@@ -272,6 +291,7 @@ impl Default for CurriculumConfig {
                 .map(String::from)
                 .to_vec(),
             secondary_steps_per_iteration: 3_000,
+            secondary_epochs: None,
             secondary_env_steps: 300_000,
             secondary_env_steps_by_behaviour: BTreeMap::new(),
             keep_trajectories: 1_000,
@@ -290,6 +310,8 @@ impl Default for CurriculumConfig {
             start_stage_step: 0.1,
             start_stage_success_rate: 0.5,
             start_stage_window: 3,
+            secondary_stop_success_rate: 0.0,
+            secondary_stop_window: 10,
         }
     }
 }

@@ -70,6 +70,11 @@ impl TrainConfig {
             "run.start_stage_window must be at least 1",
         )?;
         check(
+            (0.0..=1.0).contains(&r.stop_success_rate),
+            "run.stop_success_rate must be in [0, 1] (0: off)",
+        )?;
+        check(r.stop_window >= 1, "run.stop_window must be at least 1")?;
+        check(
             (0.0..=1.0).contains(&r.failure_resample_probability),
             "run.failure_resample_probability must be in [0, 1] (0: off)",
         )?;
@@ -178,6 +183,18 @@ impl TrainConfig {
         check(
             c.start_stage_window >= 1,
             "curriculum.start_stage_window must be at least 1",
+        )?;
+        check(
+            (0.0..=1.0).contains(&c.secondary_stop_success_rate),
+            "curriculum.secondary_stop_success_rate must be in [0, 1] (0: off)",
+        )?;
+        check(
+            c.secondary_epochs.is_none_or(|e| e >= 1),
+            "curriculum.secondary_epochs must be at least 1",
+        )?;
+        check(
+            c.secondary_stop_window >= 1,
+            "curriculum.secondary_stop_window must be at least 1",
         )?;
         Ok(())
     }
