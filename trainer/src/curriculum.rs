@@ -223,6 +223,13 @@ pub fn run_secondary(config: &TrainConfig, opts: &CurriculumOptions) -> Result<(
             },
         )?;
         report_stage(&format!("secondary {}", behaviour.name()), &summary);
+        if summary.env_steps < stage.run.total_env_steps {
+            println!(
+                "secondary {}: learnt, stopped short of its budget of {} env steps",
+                behaviour.name(),
+                stage.run.total_env_steps
+            );
+        }
         if index == 0 {
             let mut network = load_network(config, &dir)?;
             soften_action_head(&mut network, config.curriculum.secondary_init_temperature);
