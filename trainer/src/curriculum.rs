@@ -170,9 +170,8 @@ fn secondary_stage(config: &TrainConfig, behaviour: Behaviour, first: bool) -> T
     if let Some(epochs) = config.curriculum.secondary_epochs {
         stage.ppo.epochs = epochs;
     }
-    // The straight-line policy the others start from runs to its budget: stopped at its first
-    // plateau (54,000 env steps, seed 0) it left lift's secondary at 0% success after 1 M env
-    // steps, where from the one at its budget lift succeeds in 17% by 192,000.
+    // The straight-line policy runs to its budget: the others start from it, and stopped at its
+    // first plateau it left lift's secondary unable to learn (docs/curriculum.md).
     if !first {
         stage.run.stop_success_rate = config.curriculum.secondary_stop_success_rate;
         stage.run.stop_window = config.curriculum.secondary_stop_window;

@@ -86,8 +86,8 @@ impl ConfigError {
     }
 }
 
-/// `run` keys a resumed run may change: its budget and when it stops early, the re-sampling of failed scenes and the
-/// shares of composed and exit scenes (which only change which scenes come next).
+/// `run` keys a resumed run may change: its budget and its early stop, the re-sampling of failed
+/// scenes and the shares of composed and exit scenes (which only change which scenes come next).
 const RESUMABLE_CHANGES: [&str; 9] = [
     "total_env_steps",
     "stop_success_rate",

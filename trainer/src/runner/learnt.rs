@@ -3,7 +3,6 @@
 //! the plateau is time the recipe spends for nothing.
 
 use super::IterationMetrics;
-use std::collections::VecDeque;
 
 /// The rule that ends a run before its budget: the training success rate reached
 /// `run.stop_success_rate` in each of the last `run.stop_window` iterations, every one of them
@@ -11,9 +10,9 @@ use std::collections::VecDeque;
 #[derive(Clone, Debug, PartialEq)]
 pub struct LearntRule {
     success_rate: f32,
-    window_len: usize,
-    /// Whether each of the latest iterations passed, oldest first.
-    window: VecDeque<bool>,
+    window: usize,
+    /// Iterations in a row, up to the latest, that passed.
+    passed_in_a_row: usize,
 }
 
 impl LearntRule {
@@ -21,8 +20,8 @@ impl LearntRule {
     pub fn of_run(run: &crate::config::RunConfig) -> Option<LearntRule> {
         (run.stop_success_rate > 0.0).then(|| LearntRule {
             success_rate: run.stop_success_rate,
-            window_len: run.stop_window.max(1),
-            window: VecDeque::new(),
+            window: run.stop_window.max(1),
+            passed_in_a_row: 0,
         })
     }
 
@@ -30,26 +29,25 @@ impl LearntRule {
     /// drawn at (`None`: no start-stage curriculum, the task as specified).
     pub fn record(&mut self, success_rate: f32, start_stage: Option<f32>) {
         let full_task = start_stage.is_none_or(|stage| stage >= 1.0);
-        self.window
-            .push_back(full_task && success_rate >= self.success_rate);
-        while self.window.len() > self.window_len {
-            self.window.pop_front();
-        }
+        self.passed_in_a_row = if full_task && success_rate >= self.success_rate {
+            self.passed_in_a_row + 1
+        } else {
+            0
+        };
     }
 
     /// Continues from a run's logged iterations (a resumed run decides as the uninterrupted
     /// one would have).
     pub fn restore(&mut self, logged: &[IterationMetrics]) {
-        self.window.clear();
-        let from = logged.len().saturating_sub(self.window_len);
-        for m in &logged[from..] {
+        self.passed_in_a_row = 0;
+        for m in logged {
             self.record(m.success_rate, m.start_stage);
         }
     }
 
     /// Whether the run has learnt its scenes.
     pub fn reached(&self) -> bool {
-        self.window.len() == self.window_len && self.window.iter().all(|&passed| passed)
+        self.passed_in_a_row >= self.window
     }
 }
 
